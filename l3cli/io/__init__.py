@@ -1,0 +1,1 @@
+"""File input and output: raw mosaics, images, atomic writes."""
