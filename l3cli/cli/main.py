@@ -1,0 +1,90 @@
+"""The ``l3`` command group.
+
+Global options: ``-v/--verbose`` (repeatable), ``-q/--quiet``, ``--debug`` (full
+tracebacks) and ``--version``. Subcommands live one per module in this package
+and are registered lazily in :data:`_COMMANDS`, so ``l3 --help`` stays fast.
+
+Errors: an :class:`l3cli.errors.L3Error` raised by the library becomes a one-line
+``Error: ...`` on stderr and exit status 1; usage errors exit 2 (click).
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+from l3cli import __version__
+from l3cli.errors import L3Error
+
+#: name -> "module:attribute" of each registered subcommand. Register a command
+#: only when it works.
+_COMMANDS: dict[str, str] = {
+    "info": "l3cli.cli.info:info",
+}
+
+
+class _LazyGroup(click.Group):
+    """A click group that imports each subcommand's module on first use."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(set(super().list_commands(ctx)) | set(_COMMANDS))
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in _COMMANDS:
+            mod_name, attr = _COMMANDS[cmd_name].split(":")
+            return getattr(importlib.import_module(mod_name), attr)
+        return super().get_command(ctx, cmd_name)
+
+    def invoke(self, ctx: click.Context):  # noqa: D401 - click API
+        try:
+            return super().invoke(ctx)
+        except L3Error as exc:
+            obj = ctx.obj or {}
+            if obj.get("debug"):
+                raise
+            raise click.ClickException(str(exc)) from exc
+        except MemoryError as exc:
+            if (ctx.obj or {}).get("debug"):
+                raise
+            raise click.ClickException("out of memory") from exc
+        except KeyboardInterrupt:
+            click.echo("Aborted.", err=True)
+            sys.exit(130)
+
+
+@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, "--version", prog_name="l3")
+@click.option("-v", "--verbose", count=True, help="More log output (repeat for debug logs).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors; no progress bars.")
+@click.option("--debug", is_flag=True, help="Show full tracebacks on errors.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
+    """l3: learn a camera's image-processing pipeline (Local, Linear, Learned).
+
+    Simulate or collect (raw, target) pairs, train a table of per-class affine
+    transforms, smooth it with priors, render raw files with it and evaluate the
+    result. Run `l3 COMMAND --help` for each step.
+    """
+    level = logging.WARNING - 10 * verbose
+    if quiet:
+        level = logging.ERROR
+    if debug:
+        level = min(level, logging.DEBUG)
+    logging.basicConfig(
+        level=max(level, logging.DEBUG),
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+        force=True,
+    )
+    ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
+
+
+def main() -> None:  # pragma: no cover - console entry point
+    cli()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

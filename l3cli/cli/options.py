@@ -1,0 +1,36 @@
+"""Options shared by several subcommands (rasterio ``rio`` style)."""
+
+from __future__ import annotations
+
+import click
+
+#: ``-o/--output`` for a single output path.
+output_opt = click.option(
+    "-o", "--output", "output", required=True, type=click.Path(dir_okay=True),
+    help="Output file (or folder where the command says so).",
+)
+
+#: ``--seed`` for bit-identical runs.
+seed_opt = click.option(
+    "--seed", type=int, default=0, show_default=True,
+    help="Random seed; the same seed gives bit-identical results.",
+)
+
+#: ``--workers`` / ``--scheduler`` for dask.distributed.
+workers_opt = click.option(
+    "--workers", type=click.IntRange(min=1), default=None,
+    help="Start a local dask.distributed cluster with N worker processes.",
+)
+scheduler_opt = click.option(
+    "--scheduler", metavar="ADDRESS", default=None,
+    help="Use a running dask.distributed scheduler (e.g. tcp://host:8786).",
+)
+
+
+def quiet(ctx: click.Context | None = None) -> bool:
+    """True when progress output should be hidden (-q, or stderr not a TTY)."""
+    import sys
+
+    ctx = ctx or click.get_current_context(silent=True)
+    q = bool(ctx and ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+    return q or not sys.stderr.isatty()

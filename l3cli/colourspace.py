@@ -1,0 +1,132 @@
+"""Colour spaces l3 renders into, and the conversions between them.
+
+One place for every colour conversion in l3 (colour-science does the work).
+
+Spaces
+------
+``xyz``
+    CIE 1931 XYZ, linear; a display white (D65) has Y = 1.
+``linear-srgb``
+    Linear-light sRGB (IEC 61966-2-1 primaries, D65), white = (1, 1, 1).
+``srgb``
+    Display sRGB: linear sRGB encoded with the sRGB transfer function, [0, 1].
+``lab``
+    CIE 1976 L*a*b* relative to D65 with white Y = 1 (L* in 0..100).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from l3cli.errors import ConfigError
+
+__all__ = [
+    "SPACES",
+    "D65_XYZ",
+    "srgb_encode",
+    "srgb_decode",
+    "convert",
+    "check_space",
+]
+
+#: Colour spaces a table can render into.
+SPACES: tuple[str, ...] = ("xyz", "linear-srgb", "srgb", "lab")
+_ALIASES = {"linear_srgb": "linear-srgb", "linsrgb": "linear-srgb", "rgb": "linear-srgb",
+            "cielab": "lab", "XYZ": "xyz"}
+
+#: D65 white, Y = 1 (CIE 1931 2°, as colour-science's sRGB whitepoint).
+D65_XYZ = np.array([0.95047, 1.0, 1.08883])
+
+
+def check_space(name: str) -> str:
+    """Return the canonical space name, or raise naming the allowed ones."""
+    key = _ALIASES.get(name, name).lower() if isinstance(name, str) else name
+    if key not in SPACES:
+        raise ConfigError(f"colour space {name!r} is not known; use one of {', '.join(SPACES)}")
+    return key
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """Encode linear sRGB with the sRGB transfer function (IEC 61966-2-1).
+
+    Values are clipped to [0, 1] first. float32 in, float32 out.
+    """
+    import colour
+
+    lin = np.clip(np.asarray(linear, dtype=np.float32), 0.0, 1.0)
+    return np.asarray(colour.cctf_encoding(lin, function="sRGB"), dtype=np.float32)
+
+
+def srgb_decode(encoded: np.ndarray) -> np.ndarray:
+    """Decode sRGB-encoded values to linear light (IEC 61966-2-1)."""
+    import colour
+
+    enc = np.asarray(encoded, dtype=np.float32)
+    return np.asarray(colour.cctf_decoding(enc, function="sRGB"), dtype=np.float32)
+
+
+def _xyz_to_linear_srgb(xyz: np.ndarray) -> np.ndarray:
+    import colour
+
+    cs = colour.RGB_COLOURSPACES["sRGB"]
+    return np.asarray(xyz @ np.asarray(cs.matrix_XYZ_to_RGB, dtype=np.float64).T, dtype=np.float32)
+
+
+def _linear_srgb_to_xyz(rgb: np.ndarray) -> np.ndarray:
+    import colour
+
+    cs = colour.RGB_COLOURSPACES["sRGB"]
+    return np.asarray(rgb @ np.asarray(cs.matrix_RGB_to_XYZ, dtype=np.float64).T, dtype=np.float32)
+
+
+def _to_xyz(img: np.ndarray, src: str) -> np.ndarray:
+    import colour
+
+    if src == "xyz":
+        return np.asarray(img, dtype=np.float32)
+    if src == "linear-srgb":
+        return _linear_srgb_to_xyz(img)
+    if src == "srgb":
+        return _linear_srgb_to_xyz(srgb_decode(img))
+    # lab
+    xy = colour.XYZ_to_xy(D65_XYZ)
+    return np.asarray(colour.Lab_to_XYZ(img, illuminant=xy), dtype=np.float32)
+
+
+def _from_xyz(xyz: np.ndarray, dst: str) -> np.ndarray:
+    import colour
+
+    if dst == "xyz":
+        return np.asarray(xyz, dtype=np.float32)
+    if dst == "linear-srgb":
+        return _xyz_to_linear_srgb(xyz)
+    if dst == "srgb":
+        return srgb_encode(_xyz_to_linear_srgb(xyz))
+    xy = colour.XYZ_to_xy(D65_XYZ)
+    return np.asarray(colour.XYZ_to_Lab(xyz, illuminant=xy), dtype=np.float32)
+
+
+def convert(img: np.ndarray, src: str, dst: str) -> np.ndarray:
+    """Convert a float (..., 3) image between l3's colour spaces.
+
+    Parameters
+    ----------
+    img
+        (..., 3) array in space ``src``.
+    src, dst
+        Names from :data:`SPACES`.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 (..., 3) in ``dst``. Conversion to ``srgb`` clips to [0, 1].
+    """
+    src, dst = check_space(src), check_space(dst)
+    img = np.asarray(img)
+    if img.shape[-1] != 3:
+        raise ConfigError(f"colour conversion needs 3 channels, got shape {img.shape}")
+    if src == dst:
+        return np.asarray(img, dtype=np.float32)
+    if {src, dst} == {"linear-srgb", "srgb"}:
+        return srgb_encode(img) if dst == "srgb" else srgb_decode(img)
+    return _from_xyz(_to_xyz(img, src), dst)

@@ -1,0 +1,489 @@
+"""Raw mosaic input and output.
+
+:func:`read_raw` returns one :class:`RawImage` whatever the source:
+
+* anything LibRaw opens (DNG, NEF, CR2, ARW, ...) through rawpy — the visible
+  area (``raw_image_visible``), per-channel black levels honoured;
+* a headerless dump ``NAME.raw`` described by a sidecar ``NAME.raw.toml``
+  (``width``, ``height``, ``dtype``, ``cfa``, ``black_level``, ``white_level``);
+* a single-channel integer image (16-bit TIFF or PNG mosaic) with a sidecar
+  ``NAME.tif.toml`` / ``NAME.png.toml`` — the format :func:`write_raw` uses for
+  CFAs that DNG cannot describe (W, NIR).
+
+:func:`write_raw` writes a DNG with tifffile where the DNG colour codes describe
+the CFA, and a 16-bit TIFF plus sidecar otherwise.
+
+The mosaic is float32, normalised so that black is 0 and the white level is 1
+(``(DN - black) / (white - black)``; values may be slightly negative from noise).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from l3cli.cfa import CFA
+from l3cli.errors import ConfigError, InputError
+from l3cli.io.atomic import atomic_path
+
+__all__ = ["RawImage", "read_raw", "write_raw", "sidecar_path", "RAW_SUFFIXES"]
+
+log = logging.getLogger(__name__)
+
+#: File suffixes l3 treats as raw input when scanning folders (lower case).
+RAW_SUFFIXES = frozenset(
+    {".dng", ".nef", ".nrw", ".cr2", ".cr3", ".crw", ".arw", ".srf", ".sr2", ".orf", ".rw2",
+     ".raf", ".pef", ".srw", ".x3f", ".3fr", ".iiq", ".mos", ".mef", ".erf", ".kdc", ".dcr",
+     ".raw"}
+)
+
+_SIDECAR_KEYS = {
+    "width": "image width in pixels (int > 0)",
+    "height": "image height in pixels (int > 0)",
+    "dtype": "uint8 | uint16 (little-endian) | uint16be",
+    "cfa": "CFA pattern string or 2-D list of channel names",
+    "black_level": "number, or one number per CFA position",
+    "white_level": "number > black_level",
+    "offset": "bytes to skip at the start of the file (int >= 0, default 0)",
+    "bit_depth": "significant bits (informative)",
+    "description": "free text",
+}
+_DTYPES = {"uint8": np.dtype("<u1"), "uint16": np.dtype("<u2"), "uint16be": np.dtype(">u2")}
+
+
+@dataclass
+class RawImage:
+    """A raw CFA mosaic, normalised.
+
+    Attributes
+    ----------
+    mosaic
+        float32 (H, W): 0 = black level, 1 = white level.
+    cfa
+        The colour filter array, phase relative to ``mosaic[0, 0]``.
+    black_level
+        Black level in DN, per CFA position (float64 array of ``cfa.n_positions``).
+    white_level
+        White (saturation) level in DN.
+    path
+        Source file, if any.
+    metadata
+        Source details (format, camera matrices, crop, ...), JSON-serialisable.
+    """
+
+    mosaic: np.ndarray
+    cfa: CFA
+    black_level: np.ndarray
+    white_level: float
+    path: Path | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.mosaic.shape  # type: ignore[return-value]
+
+    @property
+    def height(self) -> int:
+        return int(self.mosaic.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.mosaic.shape[1])
+
+    def crop(self, y0: int, x0: int, height: int, width: int) -> RawImage:
+        """A view of a window; the CFA phase follows the crop origin."""
+        ph, pw = self.cfa.period
+        bl = self.black_level.reshape(ph, pw)
+        bl = np.roll(bl, (-y0, -x0), axis=(0, 1)).ravel()
+        return RawImage(
+            mosaic=self.mosaic[y0 : y0 + height, x0 : x0 + width],
+            cfa=self.cfa.shifted(y0, x0),
+            black_level=bl,
+            white_level=self.white_level,
+            path=self.path,
+            metadata={**self.metadata, "crop": [int(y0), int(x0), int(height), int(width)]},
+        )
+
+    def planes(self) -> dict[str, np.ndarray]:
+        """Sub-sampled planes per CFA position, keyed ``"<pos>_<channel>"``."""
+        ph, pw = self.cfa.period
+        out = {}
+        for y in range(ph):
+            for x in range(pw):
+                out[f"{y * pw + x}_{self.cfa.pattern[y][x]}"] = self.mosaic[y::ph, x::pw]
+        return out
+
+
+def sidecar_path(path: str | os.PathLike) -> Path:
+    """The sidecar of a raw file: ``NAME.raw`` → ``NAME.raw.toml``."""
+    path = Path(path)
+    return path.with_name(path.name + ".toml")
+
+
+def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.ndarray:
+    ph, pw = cfa.period
+    h, w = dn.shape
+    reps = (-(-h // ph), -(-w // pw))
+    black_map = np.tile(black.reshape(ph, pw), reps)[:h, :w]
+    scale = np.float32(1.0 / (white - black_map.max()))
+    out = dn.astype(np.float32)
+    out -= black_map.astype(np.float32)
+    out *= scale
+    return out
+
+
+def _per_position(value: Any, cfa: CFA, where: str) -> np.ndarray:
+    arr = np.atleast_1d(np.asarray(value, dtype=np.float64)).ravel()
+    if arr.size == 1:
+        return np.full(cfa.n_positions, arr[0])
+    if arr.size != cfa.n_positions:
+        raise ConfigError(
+            f"{where}: black_level has {arr.size} values; give one, or one per CFA position "
+            f"({cfa.n_positions} for {cfa.spec})"
+        )
+    return arr
+
+
+def _read_sidecar(raw_path: Path, sc: Path) -> dict[str, Any]:
+    if not sc.exists():
+        raise InputError(f"{raw_path}: sidecar {sc.name} is missing (headerless raw needs it)")
+    try:
+        with open(sc, "rb") as fh:
+            meta = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{sc}: TOML syntax error: {exc}") from exc
+    unknown = sorted(set(meta) - set(_SIDECAR_KEYS))
+    if unknown:
+        raise ConfigError(
+            f"{sc}: unknown key {unknown[0]!r}; allowed keys: {', '.join(_SIDECAR_KEYS)}"
+        )
+    for key in ("cfa", "black_level", "white_level"):
+        if key not in meta:
+            raise ConfigError(f"{sc}: missing key {key!r} ({_SIDECAR_KEYS[key]})")
+    return meta
+
+
+def _levels(meta: dict[str, Any], cfa: CFA, sc: Path) -> tuple[np.ndarray, float]:
+    try:
+        cfa_black = _per_position(meta["black_level"], cfa, str(sc))
+        white = float(meta["white_level"])
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{sc}: black_level/white_level must be numbers") from exc
+    if not white > cfa_black.max():
+        raise ConfigError(
+            f"{sc}: white_level {white:g} must be greater than black_level {cfa_black.max():g}"
+        )
+    return cfa_black, white
+
+
+def _read_headerless(path: Path) -> RawImage:
+    sc = sidecar_path(path)
+    meta = _read_sidecar(path, sc)
+    for key in ("width", "height", "dtype"):
+        if key not in meta:
+            raise ConfigError(f"{sc}: missing key {key!r} ({_SIDECAR_KEYS[key]})")
+    w, h = meta["width"], meta["height"]
+    if not (isinstance(w, int) and isinstance(h, int) and w > 0 and h > 0):
+        raise ConfigError(f"{sc}: width and height must be positive integers, got {w!r}x{h!r}")
+    if meta["dtype"] not in _DTYPES:
+        raise ConfigError(
+            f"{sc}: dtype {meta['dtype']!r} is not allowed; use one of {', '.join(_DTYPES)}"
+        )
+    dtype = _DTYPES[meta["dtype"]]
+    offset = int(meta.get("offset", 0))
+    cfa = CFA.from_spec(meta["cfa"])
+    black, white = _levels(meta, cfa, sc)
+    expected = offset + w * h * dtype.itemsize
+    size = path.stat().st_size
+    if size != expected:
+        raise InputError(
+            f"{path}: file is {size} bytes but {sc.name} describes {w}x{h} {meta['dtype']}"
+            f" ({expected} bytes)"
+        )
+    dn = np.fromfile(path, dtype=dtype, offset=offset).reshape(h, w)
+    if white > np.iinfo(dtype).max:
+        raise ConfigError(f"{sc}: white_level {white:g} exceeds the {meta['dtype']} range")
+    return RawImage(
+        mosaic=_normalise(dn, black, white, cfa),
+        cfa=cfa,
+        black_level=black,
+        white_level=white,
+        path=path,
+        metadata={"format": "headerless", "dtype": meta["dtype"],
+                  "bit_depth": meta.get("bit_depth"), "description": meta.get("description")},
+    )
+
+
+def _read_image_mosaic(path: Path) -> RawImage:
+    """A single-channel integer TIFF/PNG mosaic with a ``.toml`` sidecar."""
+    sc = sidecar_path(path)
+    meta = _read_sidecar(path, sc)
+    try:
+        if path.suffix.lower() in (".tif", ".tiff"):
+            import tifffile
+
+            dn = tifffile.imread(path)
+        else:
+            import OpenImageIO as oiio
+
+            inp = oiio.ImageInput.open(str(path))
+            if inp is None:
+                raise InputError(f"{path}: cannot open image mosaic ({oiio.geterror()})")
+            spec = inp.spec()
+            dn = inp.read_image(0, 0, 0, spec.nchannels, "uint16")
+            inp.close()
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - any decoder failure is a bad input
+        raise InputError(f"{path}: cannot read image mosaic ({exc})") from exc
+    dn = np.asarray(dn)
+    if dn.ndim == 3 and dn.shape[2] == 1:
+        dn = dn[:, :, 0]
+    if dn.ndim != 2 or dn.dtype.kind not in "ui":
+        raise InputError(
+            f"{path}: expected a single-channel integer mosaic, got shape {dn.shape} {dn.dtype}"
+        )
+    cfa = CFA.from_spec(meta["cfa"])
+    black, white = _levels(meta, cfa, sc)
+    return RawImage(
+        mosaic=_normalise(dn, black, white, cfa),
+        cfa=cfa,
+        black_level=black,
+        white_level=white,
+        path=path,
+        metadata={"format": "mosaic-image", "bit_depth": meta.get("bit_depth"),
+                  "description": meta.get("description")},
+    )
+
+
+def _read_rawpy(path: Path) -> RawImage:
+    import rawpy
+
+    try:
+        rp = rawpy.imread(str(path))
+    except (rawpy.LibRawError, OSError, ValueError) as exc:
+        kind = type(exc).__name__.replace("LibRaw", "").replace("Error", "")
+        raise InputError(f"{path}: not a raw file LibRaw can read ({kind or exc})") from exc
+    with rp:
+        try:
+            vis = rp.raw_image_visible
+        except (rawpy.LibRawError, AttributeError) as exc:
+            raise InputError(f"{path}: cannot unpack raw data ({type(exc).__name__})") from exc
+        if vis is None or vis.ndim != 2 or rp.raw_type != rawpy.RawType.Flat:
+            raise InputError(f"{path}: not a CFA mosaic (linear or Foveon raw); l3 needs a CFA")
+        colors = rp.raw_colors_visible
+        desc = rp.color_desc.decode("ascii")
+        pat = np.asarray(rp.raw_pattern)
+        ph, pw = pat.shape
+        names = [[desc[int(colors[y, x])] for x in range(pw)] for y in range(ph)]
+        # LibRaw reports 4-colour patterns like RGBG: the second G is still green.
+        cfa = CFA.from_spec(names)
+        bl_per_colour = np.asarray(rp.black_level_per_channel, dtype=np.float64)
+        black = np.array(
+            [bl_per_colour[int(colors[y, x])] for y in range(ph) for x in range(pw)]
+        )
+        white = float(rp.white_level)
+        dn = np.array(vis)
+        meta: dict[str, Any] = {
+            "format": "rawpy",
+            "suffix": path.suffix.lower(),
+            "color_desc": desc,
+            "camera_whitebalance": [float(v) for v in rp.camera_whitebalance],
+            "rgb_xyz_matrix": np.asarray(rp.rgb_xyz_matrix).tolist(),
+            "sizes": {k: int(v) if isinstance(v, int | np.integer) else float(v)
+                      for k, v in rp.sizes._asdict().items()},
+        }
+    if dn.size == 0:
+        raise InputError(f"{path}: the raw image is empty")
+    return RawImage(
+        mosaic=_normalise(dn, black, white, cfa),
+        cfa=cfa,
+        black_level=black,
+        white_level=white,
+        path=path,
+        metadata=meta,
+    )
+
+
+def read_raw(path: str | os.PathLike) -> RawImage:
+    """Read a raw mosaic from any supported source.
+
+    Parameters
+    ----------
+    path
+        A raw file LibRaw opens, a headerless ``.raw`` with ``.raw.toml``
+        sidecar, or a ``.tif``/``.png`` mosaic with a ``.toml`` sidecar.
+
+    Returns
+    -------
+    RawImage
+        Normalised float32 mosaic with its CFA and levels.
+
+    Raises
+    ------
+    InputError
+        Missing, truncated, or non-raw file; sidecar missing or not matching.
+    ConfigError
+        Invalid sidecar content.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a raw file")
+    suffix = path.suffix.lower()
+    if suffix == ".raw":
+        return _read_headerless(path)
+    if suffix in (".tif", ".tiff", ".png") and sidecar_path(path).exists():
+        return _read_image_mosaic(path)
+    if suffix in (".png", ".jpg", ".jpeg", ".exr"):
+        raise InputError(
+            f"{path}: a {suffix} image is not a raw file (a mosaic image needs a sidecar "
+            f"{sidecar_path(path).name})"
+        )
+    return _read_rawpy(path)
+
+
+# --------------------------------------------------------------------- writing
+def _rational(values: np.ndarray, denominator: int = 10000) -> list[int]:
+    out: list[int] = []
+    for v in np.asarray(values, dtype=np.float64).ravel():
+        out += [int(round(v * denominator)), denominator]
+    return out
+
+
+#: XYZ (D65) → linear sRGB; a sensible ColorMatrix1 for a camera whose raw
+#: channels are close to linear sRGB.
+_XYZ_TO_SRGB = np.array(
+    [[3.2404542, -1.5371385, -0.4985314],
+     [-0.9692660, 1.8760108, 0.0415560],
+     [0.0556434, -0.2040259, 1.0572252]]
+)
+
+
+def write_raw(
+    path: str | os.PathLike,
+    mosaic: np.ndarray,
+    cfa: CFA | str,
+    *,
+    black_level: float | np.ndarray = 0,
+    white_level: float = 65535,
+    color_matrix: np.ndarray | None = None,
+    as_shot_neutral: np.ndarray | None = None,
+    make: str = "l3",
+    model: str = "simulated camera",
+    description: str = "",
+) -> Path:
+    """Write an integer CFA mosaic as DNG, or as a 16-bit TIFF + sidecar.
+
+    Parameters
+    ----------
+    path
+        Output path. A ``.dng`` path whose CFA has no DNG colour codes (W, NIR,
+        ...) is written as ``.tif`` with a ``.tif.toml`` sidecar instead.
+    mosaic
+        (H, W) integer digital numbers (cast to uint16).
+    cfa
+        The CFA, phase at ``mosaic[0, 0]``.
+    black_level, white_level
+        Levels in DN (black: scalar or one per CFA position).
+    color_matrix
+        ColorMatrix1 (XYZ → camera, 3x3, D65) for 3-colour CFAs; defaults to
+        the XYZ → linear sRGB matrix.
+    as_shot_neutral
+        Camera neutral (white balance) per colour, defaults to ones.
+    make, model, description
+        Identification tags.
+
+    Returns
+    -------
+    Path
+        The path written (may differ in suffix from ``path``).
+    """
+    import tifffile
+
+    cfa = CFA.from_spec(cfa)
+    path = Path(path)
+    mosaic = np.asarray(mosaic)
+    if mosaic.ndim != 2:
+        raise InputError(f"{path}: mosaic must be 2-D, got shape {mosaic.shape}")
+    if mosaic.dtype.kind == "f":
+        raise InputError(f"{path}: write_raw needs integer DN, got {mosaic.dtype}")
+    dn = np.clip(mosaic, 0, 65535).astype(np.uint16)
+    black = _per_position(black_level, cfa, str(path))
+    codes = cfa.dng_codes()
+    colours = sorted(set(codes)) if codes else []
+    if codes is None or path.suffix.lower() not in (".dng",) or len(colours) != 3:
+        out = path if path.suffix.lower() in (".tif", ".tiff") else path.with_suffix(".tif")
+        with atomic_path(out) as tmp:
+            tifffile.imwrite(tmp, dn, photometric="minisblack", compression=None,
+                             description=description or None, metadata=None)
+        side = {
+            "cfa": cfa.to_list() if any(len(c) > 1 for c in cfa.channels) else cfa.spec,
+            "black_level": black.tolist() if np.ptp(black) else float(black[0]),
+            "white_level": float(white_level),
+            "bit_depth": 16,
+            "description": description or f"{make} {model}",
+        }
+        sc = sidecar_path(out)
+        with atomic_path(sc) as tmp:
+            tmp.write_text(_toml_dumps(side))
+        return out
+
+    ph, pw = cfa.period
+    cmat = _XYZ_TO_SRGB if color_matrix is None else np.asarray(color_matrix, dtype=np.float64)
+    neutral = np.ones(3) if as_shot_neutral is None else np.asarray(as_shot_neutral, float)
+    plane_colour = tuple(colours)
+    # CFAPattern codes index the CFAPlaneColor order; keep R, G, B = 0, 1, 2.
+    extratags = [
+        (271, "s", 0, make, True),
+        (272, "s", 0, model, True),
+        (33421, "H", 2, (ph, pw), True),  # CFARepeatPatternDim
+        (33422, "B", ph * pw, tuple(codes), True),  # CFAPattern
+        (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
+        (50707, "B", 4, (1, 1, 0, 0), True),  # DNGBackwardVersion
+        (50708, "s", 0, f"{make} {model}", True),  # UniqueCameraModel
+        (50710, "B", 3, plane_colour, True),  # CFAPlaneColor
+        (50711, "H", 1, 1, True),  # CFALayout: rectangular
+        (50713, "H", 2, (ph, pw), True),  # BlackLevelRepeatDim
+        (50714, "I", ph * pw, tuple(int(round(b)) for b in black), True),  # BlackLevel
+        (50717, "I", 1, int(white_level), True),  # WhiteLevel
+        (50721, "2i", 9, tuple(_rational(cmat)), True),  # ColorMatrix1 (SRATIONAL)
+        (50728, "2I", 3, tuple(_rational(neutral)), True),  # AsShotNeutral
+        (50778, "H", 1, 21, True),  # CalibrationIlluminant1: D65
+    ]
+    if description:
+        extratags.append((270, "s", 0, description, True))
+    with atomic_path(path) as tmp:
+        tifffile.imwrite(
+            tmp,
+            dn,
+            photometric=32803,  # CFA
+            planarconfig=1,
+            compression=None,
+            subfiletype=0,
+            extratags=extratags,
+            metadata=None,
+        )
+    return path
+
+
+def _toml_dumps(d: dict[str, Any]) -> str:
+    """Minimal TOML writer for flat sidecars (strings, numbers, lists)."""
+
+    def val(v: Any) -> str:
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(val(x) for x in v) + "]"
+        return repr(v)
+
+    return "".join(f"{k} = {val(v)}\n" for k, v in d.items())
