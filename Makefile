@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.l3-installed
 SHARED ?= ../shared/data
 DEMO   ?= demo_out
 
-.PHONY: setup demo test test-all bench lint docs clean
+.PHONY: setup demo test test-fast bench lint clean
 
 setup: $(STAMP)
 
@@ -18,8 +18,10 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 test: $(STAMP)
+	$(PY) -m pytest -n 2 -q
+
+test-fast: $(STAMP)
 	$(PY) -m pytest -n 2 -q -m "not slow"
-	$(PY) -m pytest -q -m slow
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check l3cli tests benchmarks
