@@ -1,0 +1,130 @@
+"""S-CIELAB against independent facts: identity, uniform fields, unit-sum filters,
+the samples-per-degree formula worked by hand, and the blur of fine chromatic noise."""
+
+from __future__ import annotations
+
+import math
+
+import colour
+import numpy as np
+import pytest
+
+from l3cli.errors import ConfigError, InputError
+from l3cli.metrics.scielab import (
+    SCIELAB_FILTER_PARAMETERS,
+    SRGB_WHITE_XYZ,
+    filter_support,
+    samples_per_degree,
+    scielab,
+    scielab_filter_1d,
+    scielab_filters,
+)
+
+WHITE = np.array(SRGB_WHITE_XYZ)
+
+
+def plain_cielab_de(xyz_a, xyz_b):
+    """ΔE*ab straight from colour-science, white (95.047, 100, 108.883)."""
+    xy = colour.XYZ_to_xy(WHITE / 100)
+    lab_a = colour.XYZ_to_Lab(np.asarray(xyz_a) / 100, xy)
+    lab_b = colour.XYZ_to_Lab(np.asarray(xyz_b) / 100, xy)
+    return colour.delta_E(lab_a, lab_b, method="CIE 1976")
+
+
+def test_samples_per_degree_by_hand():
+    # 96 dpi: pitch = 0.0254 m / 96 = 0.26458 mm. At 1 m that subtends
+    # atan(0.00026458) = 0.015159 degrees, so 1 / 0.015159 = 65.97 -> 66.
+    assert samples_per_degree(96, 1.0) == 66
+    assert filter_support(66) == 65
+    # ISETCam's own default (120 dpi at 0.5 m) gives 41 (scParams comment).
+    assert samples_per_degree(120, 0.5) == 41
+    assert filter_support(41) == 41
+
+
+@pytest.mark.parametrize("bad", [0, -1, float("nan")])
+def test_samples_per_degree_rejects_bad_values(bad):
+    with pytest.raises(ConfigError, match="dpi"):
+        samples_per_degree(bad, 1.0)
+
+
+@pytest.mark.parametrize("version", sorted(SCIELAB_FILTER_PARAMETERS))
+@pytest.mark.parametrize("spd", [23, 66, 100])
+def test_filters_have_unit_sum_and_odd_support(version, spd):
+    for k in scielab_filters(spd, version=version):
+        assert k.shape == (filter_support(spd),) * 2
+        assert k.shape[0] % 2 == 1
+        np.testing.assert_allclose(k.sum(), 1.0, atol=1e-12)
+        # symmetric about the centre
+        np.testing.assert_allclose(k, k[::-1, ::-1], atol=1e-15)
+
+
+def test_gaussian_half_width_is_at_half_maximum():
+    # At 100 samples/deg the first luminance Gaussian (HWHM 0.05 deg) has its
+    # half maximum 5 samples from the centre.
+    parts = scielab_filter_1d(100, version="distribution")
+    g = parts[0][0][1]
+    c = g.size // 2
+    assert g[c + 5] / g[c] == pytest.approx(0.5, rel=1e-12)
+
+
+def test_identical_images_score_zero():
+    rng = np.random.default_rng(1)
+    xyz = rng.uniform(5, 90, size=(40, 50, 3))
+    res = scielab(xyz, xyz)
+    assert res.mean == 0.0 and res.p90 == 0.0
+    assert float(res.delta_e_2000.max()) == 0.0
+
+
+@pytest.mark.parametrize("version", ["distribution", "original"])
+def test_uniform_images_equal_plain_cielab(version):
+    a = np.array([30.0, 25.0, 20.0])
+    b = np.array([28.0, 27.0, 30.0])
+    res = scielab(np.broadcast_to(a, (33, 47, 3)), np.broadcast_to(b, (33, 47, 3)), version=version)
+    expected = plain_cielab_de(a, b)
+    np.testing.assert_allclose(res.delta_e_ab, expected, rtol=1e-5)
+    xy = colour.XYZ_to_xy(WHITE / 100)
+    de2000 = colour.delta_E(colour.XYZ_to_Lab(a / 100, xy), colour.XYZ_to_Lab(b / 100, xy), method="CIE 2000")
+    np.testing.assert_allclose(res.delta_e_2000, de2000, rtol=1e-5)
+    assert res.mean == pytest.approx(expected, rel=1e-5)
+
+
+def test_fine_chromatic_noise_scores_lower_than_plain_cielab():
+    rng = np.random.default_rng(3)
+    grey = np.full((64, 64, 3), 0.2) @ np.eye(3) * WHITE  # 20 % grey, D65 chromaticity
+    # Pixel-scale noise along the red-green direction with constant Y.
+    n = rng.normal(0, 1, size=(64, 64, 1))
+    noisy = grey + n * np.array([2.0, 0.0, -1.0])
+    plain = plain_cielab_de(grey, noisy).mean()
+    s = scielab(grey, noisy).mean
+    assert plain > 3
+    assert s < 0.25 * plain
+
+
+def test_blur_depends_on_viewing_distance():
+    rng = np.random.default_rng(4)
+    grey = np.full((48, 48, 3), 0.3) * WHITE
+    noisy = grey + rng.normal(0, 1.5, size=(48, 48, 3))
+    near = scielab(grey, noisy, dpi=96, distance=0.25).mean
+    far = scielab(grey, noisy, dpi=96, distance=1.0).mean
+    assert far < near
+
+
+def test_different_sizes_names_both():
+    with pytest.raises(InputError, match=r"40x30.*50x30|50x30.*40x30"):
+        scielab(np.zeros((30, 50, 3)), np.zeros((30, 40, 3)))
+
+
+def test_unknown_filter_version():
+    with pytest.raises(ConfigError, match="distribution, original"):
+        scielab(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), version="hires2")
+
+
+def test_opponent_matrix_is_hpe_then_poirson_wandell():
+    from l3cli.metrics.scielab import xyz_to_opponent_matrix
+
+    m = xyz_to_opponent_matrix()
+    # D65 white -> HPE LMS is (100, 100, 100) (normalised for D65, to 4 digits),
+    # so the opponent luminance of white is 100 * (0.990 - 0.106 - 0.094).
+    opp = m @ WHITE
+    assert opp[0] == pytest.approx(100 * (0.990 - 0.106 - 0.094), rel=2e-3)
+    assert math.isfinite(np.linalg.cond(m))
