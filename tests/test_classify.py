@@ -1,0 +1,159 @@
+"""The shared classifier: padding, features and classes against a numpy reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from l3cli.cfa import CFA
+from l3cli.classify import (
+    ClassDefinition,
+    ContrastHistogram,
+    classify,
+    level_cuts_between,
+    mirror_indices,
+    pad_mosaic,
+    patch_features,
+    position_groups,
+)
+from l3cli.errors import ConfigError, InputError
+from tests.l3ref import classify_reference, features_reference, pad_reference
+
+CFAS = ["RGGB", "GRBG", "RGBW/GWRB/BRWG/WBGR", "R G/NIR B"]
+
+
+@pytest.mark.parametrize("n,r,period", [(10, 2, 2), (10, 3, 2), (17, 4, 4), (9, 6, 3), (6, 4, 3)])
+def test_mirror_keeps_phase(n, r, period):
+    idx = mirror_indices(n, r, period)
+    assert idx.shape == (n + 2 * r,)
+    assert np.all((idx >= 0) & (idx < n))
+    np.testing.assert_array_equal(idx % period, np.arange(-r, n + r) % period)
+    np.testing.assert_array_equal(idx[r : r + n], np.arange(n))
+
+
+def test_mirror_is_numpy_reflect_for_period_two():
+    idx = mirror_indices(12, 4, 2)
+    np.testing.assert_array_equal(idx, np.pad(np.arange(12), 4, mode="reflect"))
+
+
+@pytest.mark.parametrize("spec", CFAS)
+def test_padding_matches_reference(spec):
+    cfa = CFA.from_spec(spec)
+    rng = np.random.default_rng(1)
+    m = rng.random((13, 18)).astype(np.float32)
+    np.testing.assert_array_equal(pad_mosaic(m, 3, cfa.period), pad_reference(m, 3, cfa))
+    band = pad_mosaic(m, 3, cfa.period, rows=(4, 9))
+    np.testing.assert_array_equal(band, pad_reference(m, 3, cfa)[4 : 9 + 6])
+
+
+@pytest.mark.parametrize("spec", CFAS)
+@pytest.mark.parametrize("patch", [3, 5])
+def test_features_match_reference(spec, patch):
+    cfa = CFA.from_spec(spec)
+    rng = np.random.default_rng(2)
+    m = (rng.random((15, 21)) ** 2).astype(np.float32)
+    lev, con, sat = patch_features(m, cfa, patch=patch, saturation_threshold=0.9)
+    rlev, rcon, rsat, _ = features_reference(m, cfa, patch, 0.9, 1e-4)
+    np.testing.assert_allclose(lev, rlev, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(con, rcon, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(sat, rsat)
+
+
+def test_level_of_flat_patch_is_its_value_and_contrast_zero():
+    cfa = CFA.from_spec("RGGB")
+    m = np.full((12, 12), 0.3, dtype=np.float32)
+    lev, con, sat = patch_features(m, cfa)
+    np.testing.assert_allclose(lev, 0.3, rtol=1e-6)
+    np.testing.assert_allclose(con, 0.0, atol=1e-12)
+    assert not sat.any()
+
+
+def test_level_is_mean_of_channel_means_not_pixel_mean():
+    # Bayer planes: R = 0.1, G = 0.4, B = 0.7 -> mean of channel means = 0.4, while
+    # the 5x5 pixel mean at an R site weights R 9/25, G 12/25, B 4/25.
+    cfa = CFA.from_spec("RGGB")
+    vals = np.array([0.1, 0.4, 0.7])
+    m = vals[cfa.channel_map(10, 10)].astype(np.float32)
+    lev, con, _ = patch_features(m, cfa)
+    np.testing.assert_allclose(lev, 0.4, rtol=1e-6)
+    np.testing.assert_allclose(con, 0.0, atol=1e-7)  # colour is not texture
+
+
+def test_saturation_bits_per_channel():
+    cfa = CFA.from_spec("RGGB")
+    m = np.full((20, 20), 0.2, dtype=np.float32)
+    m[10, 10] = 1.0  # an R pixel (even, even)
+    _, _, sat = patch_features(m, cfa, saturation_threshold=0.95)
+    r_bit = 1 << cfa.channels.index("R")
+    assert sat[10, 10] == r_bit and sat[8, 8] == r_bit and sat[12, 12] == r_bit
+    assert sat[7, 10] == 0 and sat[10, 13] == 0
+
+
+@pytest.mark.parametrize("spec", CFAS)
+def test_classes_match_reference(spec):
+    cfa = CFA.from_spec(spec)
+    rng = np.random.default_rng(3)
+    m = (rng.random((19, 24)) ** 3).astype(np.float32)
+    m[5, 5] = 1.0
+    d = ClassDefinition.build(cfa, patch=5, level_cuts=level_cuts_between(0.01, 0.8, 12),
+                              contrast_cuts=[0.2, 0.6], saturation_threshold=0.97)
+    got = classify(m, d)
+    np.testing.assert_array_equal(got, classify_reference(m, d))
+    assert got.min() >= 0 and got.max() < d.n_classes
+
+
+def test_class_index_layout():
+    d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.1, 0.2], contrast_cuts=0.5)
+    assert d.shape == (4, 8, 3, 2)
+    assert d.n_classes == 4 * 8 * 3 * 2
+    assert d.class_index(1, 2, 0, 1) == ((1 * 8 + 2) * 3 + 0) * 2 + 1
+    assert tuple(int(v) for v in d.class_tuple(d.class_index(3, 7, 2, 1))) == (3, 7, 2, 1)
+
+
+def test_equivalent_positions_merge():
+    # horizontal stripes RGB/GBR... : build a CFA whose two rows are the same layout shifted
+    cfa = CFA.from_spec("RG/RG")
+    grp = position_groups(cfa, 5)
+    assert grp.tolist() == [0, 1, 0, 1]
+    assert position_groups(cfa, 5, merge=False).tolist() == [0, 1, 2, 3]
+    bayer = position_groups(CFA.from_spec("RGGB"), 5)
+    assert bayer.tolist() == [0, 1, 2, 3]
+
+
+def test_level_cuts():
+    c = level_cuts_between(0.001, 0.9, 25)
+    assert c.size == 24 and c[0] == pytest.approx(0.001) and c[-1] == pytest.approx(0.9)
+    np.testing.assert_allclose(np.diff(np.log(c)), np.log(900) / 23)
+    lin = level_cuts_between(0.1, 0.9, 5, "linear")
+    np.testing.assert_allclose(lin, [0.1, 0.3666666, 0.6333333, 0.9], rtol=1e-6)
+    with pytest.raises(ConfigError, match="spacing"):
+        level_cuts_between(0.1, 0.9, 5, "cubic")
+
+
+def test_histogram_places_cuts_in_data_and_median_contrast():
+    cfa = CFA.from_spec("RGGB")
+    rng = np.random.default_rng(4)
+    base = np.exp(rng.uniform(np.log(0.01), np.log(0.5), (60, 80)))
+    m = (base * (1 + 0.1 * rng.standard_normal((60, 80)))).astype(np.float32)
+    h = ContrastHistogram.empty()
+    h.add_mosaic(m, cfa, patch=5, saturation_threshold=0.95)
+    h2 = ContrastHistogram.empty()
+    h2.add_mosaic(m, cfa, patch=5, saturation_threshold=0.95)
+    assert (h + h2).total == 2 * h.total == 2 * m.size
+    lo, hi = h.level_range(low_quantile=0.0, high_quantile=1.0)
+    lev, con, _ = patch_features(m, cfa)
+    assert lo == pytest.approx(lev.min(), rel=0.03) and hi == pytest.approx(lev.max(), rel=0.03)
+    cuts = level_cuts_between(lo, hi, 2)
+    cc = h.contrast_cuts(cuts, 2)
+    for b in range(2):
+        sel = np.searchsorted(cuts, lev, side="right") == b
+        assert cc[b, 0] == pytest.approx(np.median(con[sel]), rel=0.06)
+
+
+def test_bad_definitions():
+    with pytest.raises(ConfigError, match="patch size 4"):
+        ClassDefinition.build("RGGB", patch=4, level_cuts=[0.1])
+    with pytest.raises(ConfigError, match="increasing"):
+        ClassDefinition.build("RGGB", level_cuts=[0.2, 0.1])
+    with pytest.raises(InputError, match="too small"):
+        classify(np.zeros((1, 1), np.float32), ClassDefinition.build("RGGB", level_cuts=[0.1]))
