@@ -1,0 +1,269 @@
+"""The transform table: an NPZ file of per-class affine kernels.
+
+A table holds everything :mod:`l3cli.render` needs: the class definition
+(:class:`l3cli.classify.ClassDefinition`), one affine kernel per class and
+output channel, the training counts and ridge parameters, the output colour
+space and the training provenance. It is a plain ``numpy.savez`` archive
+(no pickled objects), loadable with ``numpy.load(allow_pickle=False)``.
+
+Keys (format ``l3-table``, version 1; strings are 0-d unicode arrays)
+--------------------------------------------------------------------
+================== ============ ===============================================
+key                dtype        shape / meaning
+================== ============ ===============================================
+format             str          ``"l3-table"``
+version            int64        ``1``
+cfa                str          CFA spec (:attr:`l3cli.cfa.CFA.spec`)
+patch              int64        odd patch size S
+level_cuts         float64      (n_levels - 1,) increasing level cut points
+level_spacing      str          ``"log"`` or ``"linear"``
+contrast_rule      str          ``"relative-mad-v1"``
+contrast_cuts      float64      (n_levels, n_contrast - 1) thresholds per level
+contrast_eps       float64      () eps of the contrast rule
+saturation_rule    str          ``"any-pixel-per-channel-v1"``
+saturation_threshold float64    () normalised saturation threshold
+position_group     int64        (n_positions,) group of each CFA position
+kernels            float32      (n_classes, S*S + 1, n_out): rows 0..S*S-1 weight
+                                the patch in raster order (dy, dx), the last row
+                                is the constant term; empty classes hold the
+                                kernel of ``source_class``
+counts             int64        (n_classes,) training samples per class
+lambdas            float64      (n_classes, n_out) ridge λ chosen by GCV
+                                (NaN for empty classes)
+empty              bool         (n_classes,) too few samples to train
+source_class       int64        (n_classes,) class whose kernel is used
+output_space       str          ``xyz``, ``linear-srgb``, ``srgb`` or ``lab``
+provenance         str          JSON: inputs, options, seed, l3 version, date
+================== ============ ===============================================
+
+Class index ``= ((group * 2**n_channels + sat) * n_levels + level) * n_contrast
++ contrast``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from l3cli.cfa import CFA
+from l3cli.classify import ClassDefinition
+from l3cli.colourspace import SPACES
+from l3cli.errors import ConfigError, L3Error, TableError
+from l3cli.io.atomic import atomic_path
+
+__all__ = ["TransformTable", "save_table", "load_table", "TABLE_FORMAT", "TABLE_VERSION"]
+
+TABLE_FORMAT = "l3-table"
+TABLE_VERSION = 1
+
+_STR_KEYS = ("format", "cfa", "level_spacing", "contrast_rule", "saturation_rule",
+             "output_space", "provenance")
+_KEYS = {
+    "format": "U", "version": "i", "cfa": "U", "patch": "i", "level_cuts": "f",
+    "level_spacing": "U", "contrast_rule": "U", "contrast_cuts": "f", "contrast_eps": "f",
+    "saturation_rule": "U", "saturation_threshold": "f", "position_group": "i",
+    "kernels": "f", "counts": "i", "lambdas": "f", "empty": "b", "source_class": "i",
+    "output_space": "U", "provenance": "U",
+}
+
+
+@dataclass(eq=False)
+class TransformTable:
+    """An L3 transform table.
+
+    Attributes
+    ----------
+    definition
+        How pixels are classified.
+    kernels
+        float32 (n_classes, S*S + 1, n_out) affine kernels (constant term last).
+    counts
+        int64 (n_classes,) training samples per class.
+    lambdas
+        float64 (n_classes, n_out) ridge parameter per class and output (NaN = empty).
+    empty
+        bool (n_classes,) classes with too few samples.
+    source_class
+        int64 (n_classes,) class whose kernel each class uses (itself when trained).
+    output_space
+        Colour space of the output (:data:`l3cli.colourspace.SPACES`).
+    provenance
+        JSON-serialisable training record.
+    """
+
+    definition: ClassDefinition
+    kernels: np.ndarray
+    counts: np.ndarray
+    lambdas: np.ndarray
+    empty: np.ndarray
+    source_class: np.ndarray
+    output_space: str = "xyz"
+    provenance: dict = field(default_factory=dict)
+    format: str = TABLE_FORMAT
+    version: int = TABLE_VERSION
+
+    def __post_init__(self) -> None:
+        self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
+        self.counts = np.asarray(self.counts, dtype=np.int64)
+        self.lambdas = np.asarray(self.lambdas, dtype=np.float64)
+        self.empty = np.asarray(self.empty, dtype=bool)
+        self.source_class = np.asarray(self.source_class, dtype=np.int64)
+        problem = self._shape_problem()
+        if problem:
+            raise TableError(f"inconsistent table: {problem}")
+        if self.output_space not in SPACES:
+            raise TableError(f"output space {self.output_space!r} is not one of {', '.join(SPACES)}")
+
+    def _shape_problem(self) -> str | None:
+        d = self.definition
+        nc, q = d.n_classes, d.n_coeffs
+        k = self.kernels
+        if k.ndim != 3 or k.shape[:2] != (nc, q) or k.shape[2] < 1:
+            return f"kernels have shape {k.shape}, the class definition needs ({nc}, {q}, n_out)"
+        n_out = k.shape[2]
+        for name, arr, shape in (("counts", self.counts, (nc,)),
+                                 ("lambdas", self.lambdas, (nc, n_out)),
+                                 ("empty", self.empty, (nc,)),
+                                 ("source_class", self.source_class, (nc,))):
+            if arr.shape != shape:
+                return f"{name} has shape {arr.shape}, expected {shape}"
+        if np.any((self.source_class < 0) | (self.source_class >= nc)):
+            return "source_class holds indices outside the classes"
+        if np.any(self.empty[self.source_class]):
+            return "an empty class falls back to another empty class"
+        if np.all(self.empty):
+            return "no class is trained"
+        if not np.all(np.isfinite(self.kernels)):
+            return "kernels hold NaN or Inf"
+        return None
+
+    @property
+    def n_out(self) -> int:
+        return int(self.kernels.shape[2])
+
+    @property
+    def cfa(self) -> CFA:
+        return self.definition.cfa
+
+    @property
+    def patch(self) -> int:
+        return self.definition.patch
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The NPZ content."""
+        out = {
+            "format": np.array(self.format),
+            "version": np.array(self.version, dtype=np.int64),
+            **self.definition.to_dict(),
+            "kernels": self.kernels,
+            "counts": self.counts,
+            "lambdas": self.lambdas,
+            "empty": self.empty,
+            "source_class": self.source_class,
+            "output_space": np.array(self.output_space),
+            "provenance": np.array(json.dumps(self.provenance, sort_keys=True, default=str)),
+        }
+        return out
+
+
+def save_table(path: str | os.PathLike, table: TransformTable) -> Path:
+    """Write ``table`` to ``path`` (NPZ, atomically). Returns the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **table.to_arrays())
+    return path
+
+
+def _scalar(arrs, key, path, kind):
+    a = arrs[key]
+    if a.ndim != 0:
+        raise TableError(f"{path}: key {key!r} must be a scalar, has shape {a.shape}")
+    return str(a) if kind == "U" else (int(a) if kind == "i" else float(a))
+
+
+def load_table(path: str | os.PathLike) -> TransformTable:
+    """Read and validate a table written by :func:`save_table`.
+
+    Raises
+    ------
+    TableError
+        Not an NPZ, damaged, another format or version, missing keys, wrong
+        dtypes, or shapes that do not fit together. The message names the file.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise TableError(f"{path}: no such table file")
+    if path.is_dir():
+        raise TableError(f"{path}: is a folder, expected a table .npz")
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise TableError(f"{path}: cannot read table ({exc.strerror})") from exc
+    if magic[:2] != b"PK":
+        raise TableError(f"{path}: not an NPZ table (not a zip archive)")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            keys = set(npz.files)
+            if "format" not in keys:
+                raise TableError(f"{path}: not an l3 table (no 'format' key)")
+            arrs = {k: npz[k] for k in npz.files}
+    except TableError:
+        raise
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise TableError(f"{path}: not an NPZ table or damaged ({msg})") from exc
+    fmt = arrs["format"]
+    if fmt.dtype.kind != "U" or str(fmt) != TABLE_FORMAT:
+        raise TableError(f"{path}: format is {str(fmt)!r}, expected {TABLE_FORMAT!r}")
+    missing = [k for k in _KEYS if k not in arrs]
+    if missing:
+        raise TableError(f"{path}: damaged table, missing keys {', '.join(missing)}")
+    for k, kind in _KEYS.items():
+        dk = arrs[k].dtype.kind
+        ok = dk == kind or (kind == "i" and dk == "u") or (kind == "f" and dk == "f")
+        if not ok:
+            raise TableError(f"{path}: key {k!r} has dtype {arrs[k].dtype}, expected kind {kind!r}")
+    version = _scalar(arrs, "version", path, "i")
+    if version != TABLE_VERSION:
+        raise TableError(
+            f"{path}: table version {version} is not supported; this l3 reads version "
+            f"{TABLE_VERSION}"
+        )
+    try:
+        definition = ClassDefinition(
+            cfa=CFA.from_spec(_scalar(arrs, "cfa", path, "U")),
+            patch=_scalar(arrs, "patch", path, "i"),
+            level_cuts=arrs["level_cuts"],
+            level_spacing=_scalar(arrs, "level_spacing", path, "U"),
+            contrast_cuts=arrs["contrast_cuts"],
+            saturation_threshold=_scalar(arrs, "saturation_threshold", path, "f"),
+            position_group=arrs["position_group"],
+            contrast_eps=_scalar(arrs, "contrast_eps", path, "f"),
+            contrast_rule=_scalar(arrs, "contrast_rule", path, "U"),
+            saturation_rule=_scalar(arrs, "saturation_rule", path, "U"),
+        )
+    except ConfigError as exc:
+        raise TableError(f"{path}: bad class definition: {exc}") from exc
+    try:
+        prov = json.loads(_scalar(arrs, "provenance", path, "U") or "{}")
+    except json.JSONDecodeError as exc:
+        raise TableError(f"{path}: provenance is not JSON ({exc.msg})") from exc
+    try:
+        return TransformTable(
+            definition=definition,
+            kernels=arrs["kernels"],
+            counts=arrs["counts"],
+            lambdas=arrs["lambdas"],
+            empty=arrs["empty"],
+            source_class=arrs["source_class"],
+            output_space=_scalar(arrs, "output_space", path, "U"),
+            provenance=prov,
+        )
+    except L3Error as exc:
+        raise TableError(f"{path}: {exc}") from exc

@@ -1,0 +1,173 @@
+"""Training inputs: aligned (raw mosaic, target image) pairs.
+
+Two kinds of input folder give pairs:
+
+* a ``simulate`` output folder (``manifest.json`` with ``"format":
+  "l3-simulation"``): each capture's raw and ideal target (CIE XYZ EXR);
+* a *pairs* folder: every raw file with a rendered image of the same stem
+  (``a.dng`` + ``a.jpg``; ``b.raw`` + ``b.raw.toml`` + ``b.png``; a mosaic
+  ``c.tif`` + ``c.tif.toml`` + ``c.png``). Images other than EXR are display
+  sRGB; EXR carries its space in the ``l3:space`` attribute.
+
+:func:`find_pairs` lists :class:`Pair` records (paths only, cheap and
+picklable so distributed workers can read them themselves); :func:`load_pair`
+reads one, converts the target to the requested space and checks it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from l3cli.colourspace import check_space, convert
+from l3cli.errors import InputError
+
+__all__ = ["Pair", "find_pairs", "load_pair", "RAW_SUFFIXES", "IMAGE_SUFFIXES"]
+
+#: Suffixes of raw files in a pairs folder (plus mosaics with a .toml sidecar).
+RAW_SUFFIXES = (".dng", ".nef", ".cr2", ".cr3", ".arw", ".orf", ".rw2", ".raf", ".pef",
+                ".srw", ".raw")
+#: Suffixes of target images in a pairs folder, in order of preference.
+IMAGE_SUFFIXES = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
+
+
+@dataclass(frozen=True)
+class Pair:
+    """One training pair.
+
+    Attributes
+    ----------
+    raw
+        Raw file path.
+    target
+        Target image path (pixel-aligned with the raw).
+    stem
+        Name of the capture.
+    space
+        Colour space of the target file's values, or ``None`` to take it from
+        the file (EXR attribute / display sRGB).
+    """
+
+    raw: Path
+    target: Path
+    stem: str
+    space: str | None = None
+
+
+def _simulation_pairs(folder: Path) -> list[Pair]:
+    mpath = folder / "manifest.json"
+    try:
+        manifest = json.loads(mpath.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"{mpath}: cannot read the simulation manifest ({exc})") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != "l3-simulation":
+        raise InputError(f"{mpath}: not an l3 simulation manifest (format must be 'l3-simulation')")
+    space = (manifest.get("target") or {}).get("space", "xyz")
+    captures = manifest.get("captures")
+    if not isinstance(captures, list):
+        raise InputError(f"{mpath}: 'captures' must be a list")
+    pairs = []
+    for i, cap in enumerate(captures):
+        try:
+            pairs.append(Pair(folder / cap["raw"], folder / cap["target"], str(cap["stem"]),
+                              check_space(space)))
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"{mpath}: capture {i} lacks 'raw', 'target' or 'stem'") from exc
+    return pairs
+
+
+def _is_raw(path: Path) -> bool:
+    suffix = path.suffix.lower()
+    if suffix in (".tif", ".tiff", ".png"):
+        return Path(str(path) + ".toml").exists()
+    return suffix in RAW_SUFFIXES
+
+
+def _pairs_folder(folder: Path) -> list[Pair]:
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    raws = [p for p in files if _is_raw(p)]
+    pairs = []
+    for raw in raws:
+        stem = raw.name[: -len(raw.suffix)]
+        target = None
+        for suf in IMAGE_SUFFIXES:
+            for cand in (folder / f"{stem}{suf}", folder / f"{stem}{suf.upper()}"):
+                if cand.exists() and cand != raw and not _is_raw(cand):
+                    target = cand
+                    break
+            if target is not None:
+                break
+        if target is None:
+            raise InputError(
+                f"{raw}: no target image with the same stem "
+                f"({', '.join(stem + s for s in IMAGE_SUFFIXES)})"
+            )
+        pairs.append(Pair(raw, target, stem, None))
+    return pairs
+
+
+def find_pairs(inputs: list[str | os.PathLike]) -> list[Pair]:
+    """Training pairs of every input folder, in a stable order.
+
+    Raises
+    ------
+    InputError
+        A missing path, a folder without pairs, or a raw without its target.
+    """
+    pairs: list[Pair] = []
+    for inp in inputs:
+        folder = Path(inp)
+        if not folder.exists():
+            raise InputError(f"{folder}: no such folder")
+        if not folder.is_dir():
+            raise InputError(f"{folder}: training input must be a simulate or pairs folder")
+        found = (_simulation_pairs(folder) if (folder / "manifest.json").exists()
+                 else _pairs_folder(folder))
+        if not found:
+            raise InputError(
+                f"{folder}: no training pairs (no manifest.json and no raw file with a "
+                "same-stem image)"
+            )
+        pairs.extend(found)
+    return pairs
+
+
+def load_pair(pair: Pair, *, target_space: str = "xyz"):
+    """Read a pair: ``(RawImage, target float32 (H, W, 3) in target_space)``.
+
+    Raises
+    ------
+    InputError
+        Unreadable files, raw and target of different sizes, a target with NaN
+        or Inf, or a target that is not a 3-channel image.
+    """
+    from l3cli.io.image import read_image
+    from l3cli.io.raw import read_raw
+
+    raw = read_raw(pair.raw)
+    img, file_space = read_image(pair.target)
+    space = pair.space or file_space
+    if img.shape[:2] != raw.mosaic.shape:
+        raise InputError(
+            f"{pair.target}: target is {img.shape[1]}x{img.shape[0]} but raw {pair.raw.name} is "
+            f"{raw.width}x{raw.height}; a pair must be pixel-aligned"
+        )
+    if img.shape[2] == 4:
+        img = img[:, :, :3]
+    if img.shape[2] != 3:
+        raise InputError(f"{pair.target}: target has {img.shape[2]} channels, expected 3")
+    bad = ~np.isfinite(img)
+    if bad.any():
+        y, x, _ = np.argwhere(bad)[0]
+        raise InputError(
+            f"{pair.target}: target holds {int(bad.any(axis=2).sum())} pixels with NaN or Inf "
+            f"(first at x={x}, y={y})"
+        )
+    if not np.all(np.isfinite(raw.mosaic)):
+        raise InputError(f"{pair.raw}: raw mosaic holds NaN or Inf")
+    target = convert(img, space, check_space(target_space))
+    return raw, np.ascontiguousarray(target, dtype=np.float32)

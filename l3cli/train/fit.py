@@ -1,0 +1,251 @@
+"""Training: classify, accumulate statistics, solve per class, build the table.
+
+Two passes over the inputs:
+
+1. the (level, contrast) histogram of the raw patches (cheap, additive) places
+   the level cut points between the data's noise floor and near saturation
+   and the per-level contrast thresholds (skipped when both are given);
+2. per-class sufficient statistics (:mod:`l3cli.train.stats`), then ridge +
+   GCV per class (:mod:`l3cli.train.ridge`).
+
+Classes with fewer than ``min_samples_factor`` x (S*S + 1) samples are marked
+empty and use the kernel of the nearest trained class of the same position
+group (same saturation pattern and contrast first, nearest level).
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+from collections.abc import Callable, Iterable, Sequence
+
+import numpy as np
+
+from l3cli import __version__
+from l3cli.cfa import CFA
+from l3cli.classify import ClassDefinition, ContrastHistogram, level_cuts_between
+from l3cli.colourspace import check_space
+from l3cli.errors import ConfigError, InputError, TableError
+from l3cli.table import TransformTable
+from l3cli.train.data import Pair, load_pair
+from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
+from l3cli.train.stats import ClassStats, accumulate
+
+__all__ = ["TrainOptions", "sample_mask", "define_classes", "collect_stats", "table_from_stats",
+           "fallback_sources", "train"]
+
+log = logging.getLogger(__name__)
+
+#: Default number of response levels.
+DEFAULT_LEVELS = 24
+
+
+class TrainOptions:
+    """Options of :func:`train` (keyword-only; see ``l3 train --help``)."""
+
+    def __init__(self, *, patch: int = 5, levels: int = DEFAULT_LEVELS, spacing: str = "log",
+                 contrast_bins: int = 2, saturation: float = 0.95,
+                 level_range: tuple[float, float] | None = None,
+                 contrast_threshold: float | None = None, merge_positions: bool = True,
+                 target_space: str = "xyz", sample_fraction: float = 1.0, seed: int = 0,
+                 min_samples_factor: float = 3.0,
+                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID)) -> None:
+        if patch < 1 or patch % 2 == 0:
+            raise ConfigError(f"--patch {patch} is not allowed; use an odd size >= 1")
+        if levels < 2:
+            raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
+        if contrast_bins < 1:
+            raise ConfigError(f"contrast bins {contrast_bins} is not allowed; use 1 or more")
+        if not 0.0 < sample_fraction <= 1.0:
+            raise ConfigError(f"sample fraction {sample_fraction} is not allowed; use (0, 1]")
+        if not 0.0 < saturation <= 1.5:
+            raise ConfigError(f"saturation threshold {saturation} is not allowed; use (0, 1.5]")
+        if min_samples_factor <= 1.0:
+            raise ConfigError(f"min samples factor {min_samples_factor} must be > 1")
+        self.patch = int(patch)
+        self.levels = int(levels)
+        self.spacing = spacing
+        self.contrast_bins = int(contrast_bins)
+        self.saturation = float(saturation)
+        self.level_range = level_range
+        self.contrast_threshold = contrast_threshold
+        self.merge_positions = bool(merge_positions)
+        self.target_space = check_space(target_space)
+        self.sample_fraction = float(sample_fraction)
+        self.seed = int(seed)
+        self.min_samples_factor = float(min_samples_factor)
+        self.lambda_grid = np.asarray(lambda_grid, dtype=np.float64)
+
+    def as_dict(self) -> dict:
+        d = dict(vars(self))
+        d["lambda_grid"] = self.lambda_grid.tolist()
+        return d
+
+
+def sample_mask(shape: tuple[int, int], fraction: float, seed: int, index: int,
+                stream: int = 0) -> np.ndarray | None:
+    """Deterministic random pixel subset of image number ``index`` (None = all)."""
+    if fraction >= 1.0:
+        return None
+    rng = np.random.default_rng([seed, index, stream])
+    return rng.random(shape, dtype=np.float32) < fraction
+
+
+def _progress(items, label, progress):
+    if progress is None:
+        return items
+    return progress(items, label)
+
+
+def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *,
+                   progress: Callable | None = None) -> ClassDefinition:
+    """Class definition for the data: CFA from the raws, cut points from pass 1."""
+    from l3cli.io.raw import read_raw
+
+    need_hist = opts.level_range is None or (opts.contrast_bins > 1 and
+                                             opts.contrast_threshold is None)
+    hist = ContrastHistogram.empty()
+    cfa: CFA | None = None
+    first = None
+    items = list(enumerate(pairs))
+    if need_hist:
+        items_it = _progress(items, "classes", progress)
+    else:
+        items_it = items[:1]
+    for i, pair in items_it:
+        raw = read_raw(pair.raw)
+        if cfa is None:
+            cfa, first = raw.cfa, pair.raw
+        elif raw.cfa.spec != cfa.spec:
+            raise InputError(
+                f"{pair.raw}: CFA {raw.cfa.spec} differs from {cfa.spec} of {first}; "
+                "train one table per CFA"
+            )
+        if need_hist:
+            frac = min(opts.sample_fraction, 0.25)
+            mask = sample_mask(raw.mosaic.shape, frac, opts.seed, i, stream=1)
+            hist.add_mosaic(raw.mosaic, raw.cfa, patch=opts.patch,
+                            saturation_threshold=opts.saturation, mask=mask)
+    assert cfa is not None
+    if opts.level_range is not None:
+        lo, hi = opts.level_range
+    else:
+        lo, hi = hist.level_range(ceiling=0.95 * opts.saturation)
+    cuts = level_cuts_between(lo, hi, opts.levels, opts.spacing)
+    if opts.contrast_bins == 1:
+        ccuts = None
+    elif opts.contrast_threshold is not None:
+        ccuts = np.full((opts.levels, opts.contrast_bins - 1), float(opts.contrast_threshold))
+        ccuts *= np.arange(1, opts.contrast_bins)[None, :]
+    else:
+        ccuts = hist.contrast_cuts(cuts, opts.contrast_bins)
+    return ClassDefinition.build(cfa, patch=opts.patch, level_cuts=cuts,
+                                 level_spacing=opts.spacing, contrast_cuts=ccuts,
+                                 saturation_threshold=opts.saturation,
+                                 merge_positions=opts.merge_positions)
+
+
+def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: TrainOptions, *,
+                  index_offset: int = 0, progress: Callable | None = None) -> ClassStats:
+    """Sufficient statistics of ``pairs`` (pass 2). ``index_offset`` numbers the images
+    for the sampling seed, so splitting a list gives the same samples as one run."""
+    stats = ClassStats.zeros(definition, 3, target_space=opts.target_space)
+    for i, pair in _progress(list(enumerate(pairs)), "statistics", progress):
+        raw, target = load_pair(pair, target_space=opts.target_space)
+        if raw.cfa.spec != definition.cfa.spec:
+            raise InputError(
+                f"{pair.raw}: CFA {raw.cfa.spec} differs from the table's {definition.cfa.spec}"
+            )
+        mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i + index_offset)
+        accumulate(stats, raw.mosaic, target, mask=mask)
+    return stats
+
+
+def fallback_sources(definition: ClassDefinition, trained: np.ndarray) -> np.ndarray:
+    """Class whose kernel each class uses: itself when trained, else the nearest
+    trained class of the same position group -- same saturation pattern and
+    contrast at the nearest level first, then same saturation pattern, then the
+    unsaturated pattern, then any.
+
+    Raises
+    ------
+    TableError
+        No class is trained, or a position group has no trained class.
+    """
+    if not trained.any():
+        raise TableError("no class has enough training samples; train on more data or use "
+                         "fewer --levels")
+    g, s, lev, c = (np.asarray(a) for a in definition.class_tuple(np.arange(definition.n_classes)))
+    src = np.arange(definition.n_classes, dtype=np.int64)
+    tr = np.flatnonzero(trained)
+    for e in np.flatnonzero(~trained):
+        cand = tr[g[tr] == g[e]]
+        if cand.size == 0:
+            members = np.flatnonzero(definition.position_group == g[e]).tolist()
+            raise TableError(f"CFA positions {members} have no trained class; train on more data")
+        same_s = s[cand] == s[e]
+        same_c = c[cand] == c[e]
+        unsat = s[cand] == 0
+        tier = np.where(same_s & same_c, 0, np.where(same_s, 1, np.where(unsat & same_c, 2,
+                                                                          np.where(unsat, 3, 4))))
+        key = np.lexsort((lev[cand], np.abs(c[cand] - c[e]), np.abs(lev[cand] - lev[e]), tier))
+        src[e] = cand[key[0]]
+    return src
+
+
+def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
+                     provenance: dict | None = None) -> TransformTable:
+    """Solve every class (ridge + GCV) and assemble the table."""
+    d = stats.definition
+    nc, q, n_out = d.n_classes, d.n_coeffs, stats.n_out
+    min_n = opts.min_samples_factor * q
+    trained = stats.n >= min_n
+    kernels = np.zeros((nc, q, n_out), dtype=np.float64)
+    lambdas = np.full((nc, n_out), np.nan)
+    lam_rel = np.full((nc, n_out), np.nan)
+    for c in np.flatnonzero(trained):
+        sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c],
+                          grid=opts.lambda_grid)
+        kernels[c] = sol.kernel
+        lambdas[c] = sol.lam
+        lam_rel[c] = sol.lam_rel
+    src = fallback_sources(d, trained)
+    kernels = kernels[src]
+    prov = dict(provenance or {})
+    prov.setdefault("l3_version", __version__)
+    prov.setdefault("python", platform.python_version())
+    prov["options"] = opts.as_dict()
+    prov["trained_classes"] = int(trained.sum())
+    prov["n_classes"] = int(nc)
+    prov["samples"] = int(stats.n.sum())
+    prov["min_samples"] = float(min_n)
+    with np.errstate(all="ignore"):
+        prov["lambda_rel_median"] = float(np.nanmedian(lam_rel)) if trained.any() else None
+    log.info("trained %d of %d classes from %d samples", trained.sum(), nc, stats.n.sum())
+    return TransformTable(definition=d, kernels=kernels.astype(np.float32), counts=stats.n,
+                          lambdas=lambdas, empty=~trained, source_class=src,
+                          output_space=stats.target_space, provenance=prov)
+
+
+def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
+          progress: Callable | None = None) -> TransformTable:
+    """Train a table from pairs (both passes, single process).
+
+    Parameters
+    ----------
+    pairs
+        Training pairs (:func:`l3cli.train.data.find_pairs`).
+    opts
+        Options; defaults when ``None``.
+    progress
+        ``progress(items, label) -> iterable`` wrapper (a progress bar), or None.
+    """
+    opts = opts or TrainOptions()
+    pairs = list(pairs)
+    if not pairs:
+        raise InputError("no training pairs")
+    definition = define_classes(pairs, opts, progress=progress)
+    stats = collect_stats(pairs, definition, opts, progress=progress)
+    prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
+            "seed": opts.seed}
+    return table_from_stats(stats, opts, provenance=prov)

@@ -1,0 +1,54 @@
+"""Render: equals a plain numpy reference, full size, fits checks, bounded bands."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from l3cli.cfa import CFA
+from l3cli.errors import TableError
+from l3cli.io.raw import RawImage
+from l3cli.render import check_fits, render_mosaic, render_raw
+from tests.l3ref import render_reference
+from tests.test_table import make_table
+
+
+def _raw(mosaic, spec):
+    cfa = CFA.from_spec(spec)
+    return RawImage(mosaic=mosaic, cfa=cfa, black_level=np.zeros(cfa.n_positions),
+                    white_level=1.0)
+
+
+@pytest.mark.parametrize("spec", ["RGGB", "RGBW/GWRB/BRWG/WBGR"])
+@pytest.mark.parametrize("patch", [3, 5])
+def test_render_equals_numpy_reference(spec, patch):
+    table = make_table(spec=spec, patch=patch)
+    rng = np.random.default_rng(0)
+    m = (rng.random((23, 30)) ** 2).astype(np.float32)
+    m[4, 7] = 1.0  # a saturated pixel
+    out = render_mosaic(table, m)
+    assert out.shape == (23, 30, 3) and out.dtype == np.float32
+    np.testing.assert_allclose(out, render_reference(table, m), rtol=1e-5, atol=1e-5)
+
+
+def test_render_bands_do_not_change_the_result():
+    table = make_table()
+    m = np.random.default_rng(1).random((41, 37)).astype(np.float32)
+    np.testing.assert_array_equal(render_mosaic(table, m, band_pixels=37 * 3),
+                                  render_mosaic(table, m))
+
+
+def test_identity_kernel_returns_the_mosaic_at_every_pixel():
+    table = make_table(n_out=1)
+    table.kernels[:] = 0
+    table.kernels[:, 12, 0] = 1.0  # centre of the 5x5 patch
+    m = np.random.default_rng(2).random((17, 19)).astype(np.float32)
+    np.testing.assert_array_equal(render_mosaic(table, m)[:, :, 0], m)
+
+
+def test_table_for_another_cfa_or_too_small_raw():
+    table = make_table("RGGB", patch=5)
+    with pytest.raises(TableError, match="table is for CFA RG/GB but .* has CFA GR/BG"):
+        render_raw(table, _raw(np.zeros((16, 16), np.float32), "GRBG"))
+    with pytest.raises(TableError, match="uses 5x5 patches but .* is only 4x4"):
+        check_fits(table, _raw(np.zeros((4, 4), np.float32), "RGGB"))

@@ -1,0 +1,313 @@
+"""Training: sufficient statistics, ridge + GCV, exactness, additivity, inputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from l3cli.classify import ClassDefinition, classify
+from l3cli.errors import InputError, TableError
+from l3cli.train import (
+    ClassStats,
+    TrainOptions,
+    accumulate,
+    find_pairs,
+    gcv_curve,
+    load_pair,
+    solve_class,
+    table_from_stats,
+    train,
+)
+from l3cli.train.fit import fallback_sources
+from l3cli.train.ridge import DEFAULT_LAMBDA_GRID
+from tests.l3ref import features_reference
+
+RTOL = 1e-8
+
+
+def _design(mosaic, d):
+    """Explicit design matrix (H*W, q) from the numpy reference patches."""
+    _, _, _, win = features_reference(mosaic, d.cfa, d.patch, d.saturation_threshold,
+                                      d.contrast_eps)
+    h, w = mosaic.shape
+    return np.concatenate([win.reshape(h * w, -1), np.ones((h * w, 1))], axis=1)
+
+
+def _synthetic(seed=0, shape=(120, 160), spec="RGGB"):
+    rng = np.random.default_rng(seed)
+    m = (0.05 + 0.55 * rng.random(shape)).astype(np.float32)
+    d = ClassDefinition.build(spec, patch=5, level_cuts=[0.3, 0.34], contrast_cuts=0.3,
+                              saturation_threshold=2.0)
+    return rng, m, d
+
+
+# ---------------------------------------------------------------- exactness
+def test_noise_free_affine_kernels_are_recovered_with_near_zero_lambda():
+    rng, m, d = _synthetic()
+    cls = classify(m, d).ravel()
+    X = _design(m, d)
+    K = rng.normal(size=(d.n_classes, d.n_coeffs, 3))
+    Y = np.einsum("nq,nqo->no", X, K[cls]).reshape(*m.shape, 3).astype(np.float32)
+    Yd = Y.reshape(-1, 3).astype(np.float64)
+    stats = ClassStats.zeros(d, 3)
+    accumulate(stats, m, Y)
+    table = table_from_stats(stats, TrainOptions(min_samples_factor=3))
+    trained = np.flatnonzero(~table.empty)
+    assert trained.size >= 8
+    # the float32 target is the only rounding: compare with the exact solution of it
+    for c in trained:
+        sel = cls == c
+        exact, *_ = np.linalg.lstsq(X[sel], Yd[sel], rcond=None)
+        np.testing.assert_allclose(table.kernels[c], exact, atol=1e-5)
+        np.testing.assert_allclose(table.kernels[c], K[c], atol=1e-4)
+        sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c])
+        assert np.all(sol.lam_rel <= 1e-7), sol.lam_rel
+
+
+def test_exact_float64_targets_to_1e5():
+    rng, m, d = _synthetic(seed=5)
+    cls = classify(m, d).ravel()
+    X = _design(m, d)
+    K = rng.normal(size=(d.n_classes, d.n_coeffs, 2))
+    Y = np.einsum("nq,nqo->no", X, K[cls])
+    stats = ClassStats.zeros(d, 2)
+    for c in np.unique(cls):  # accumulate the float64 targets directly
+        Xc, Yc = X[cls == c], Y[cls == c]
+        stats.n[c] += Xc.shape[0]
+        stats.xtx[c] += Xc.T @ Xc
+        stats.xty[c] += Xc.T @ Yc
+        stats.yy[c] += (Yc**2).sum(0)
+    for c in np.flatnonzero(stats.n > 3 * d.n_coeffs):
+        sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c])
+        np.testing.assert_allclose(sol.kernel, K[c], atol=1e-5)
+        assert sol.lam_rel.max() <= 1e-7
+
+
+# --------------------------------------------------- GCV equals explicit SVD
+def _gcv_svd(X, y, lambdas):
+    n = X.shape[0]
+    Z = X[:, :-1]
+    Zc = Z - Z.mean(axis=0)
+    yc = y - y.mean()
+    U, s, Vt = np.linalg.svd(Zc, full_matrices=False)
+    uty = U.T @ yc
+    out = []
+    for lam in lambdas:
+        beta = Vt.T @ (s / (s**2 + lam) * uty)
+        resid = y - (Zc @ beta + y.mean())
+        rss = resid @ resid
+        df = 1 + np.sum(s**2 / (s**2 + lam))
+        out.append(n * rss / (n - df) ** 2)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_gcv_from_statistics_equals_svd(seed):
+    rng = np.random.default_rng(seed)
+    n, p = 800, 25
+    base = rng.random((n, 1))
+    Z = 0.6 * base + 0.4 * rng.random((n, p))  # correlated like neighbouring pixels
+    X = np.hstack([Z, np.ones((n, 1))])
+    beta = rng.normal(size=p)
+    Y = np.stack([Z @ beta + 0.3 + 0.05 * rng.standard_normal(n),
+                  Z @ (0.5 * beta) - 0.1 + 0.2 * rng.standard_normal(n)], axis=1)
+    xtx, xty, yy = X.T @ X, X.T @ Y, (Y**2).sum(0)
+    zc = Z - Z.mean(0)
+    scale = np.trace(zc.T @ zc) / p
+    lambdas = DEFAULT_LAMBDA_GRID * scale
+    gcv, _, _ = gcv_curve(float(n), xtx, xty, yy, lambdas)
+    for o in range(2):
+        ref = _gcv_svd(X, Y[:, o], lambdas)
+        np.testing.assert_allclose(gcv[:, o], ref, rtol=RTOL)
+    # the solution at the chosen λ is the ridge solution with an unpenalised intercept
+    sol = solve_class(float(n), xtx, xty, yy)
+    for o in range(2):
+        lam = sol.lam[o]
+        A = zc.T @ zc + lam * np.eye(p)
+        b = np.linalg.solve(A, zc.T @ (Y[:, o] - Y[:, o].mean()))
+        np.testing.assert_allclose(sol.kernel[:p, o], b, rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(sol.kernel[p, o], Y[:, o].mean() - Z.mean(0) @ b, rtol=1e-7)
+        assert sol.lam[o] == pytest.approx(lambdas[np.argmin(_gcv_svd(X, Y[:, o], lambdas))], rel=1e-12)
+
+
+def test_gcv_prefers_more_regularisation_for_noisier_data():
+    rng = np.random.default_rng(3)
+    n, p = 300, 25
+    Z = rng.random((n, p))
+    X = np.hstack([Z, np.ones((n, 1))])
+    y = Z @ (0.05 * rng.normal(size=p))
+    lam_rel = []
+    for noise in (0.0, 0.3, 3.0):
+        Y = (y + noise * rng.standard_normal(n))[:, None]
+        sol = solve_class(float(n), X.T @ X, X.T @ Y, (Y**2).sum(0))
+        lam_rel.append(sol.lam_rel[0])
+    assert lam_rel[0] < lam_rel[1] <= lam_rel[2]
+
+
+# ---------------------------------------------------------------- additivity
+def test_statistics_add_and_round_trip(tmp_path):
+    rng, a, d = _synthetic(seed=1)
+    b = (0.05 + 0.55 * rng.random(a.shape)).astype(np.float32)
+    ta = rng.random((*a.shape, 3)).astype(np.float32)
+    tb = rng.random((*a.shape, 3)).astype(np.float32)
+    one = ClassStats.zeros(d, 3)
+    accumulate(one, a, ta)
+    accumulate(one, b, tb)
+    sa, sb = ClassStats.zeros(d, 3), ClassStats.zeros(d, 3)
+    accumulate(sa, a, ta)
+    accumulate(sb, b, tb)
+    sa.save(tmp_path / "a.npz")
+    sb.save(tmp_path / "b.npz")
+    merged = ClassStats.load(tmp_path / "a.npz") + ClassStats.load(tmp_path / "b.npz")
+    for k in ("n", "xtx", "xty", "yy"):
+        np.testing.assert_allclose(getattr(merged, k), getattr(one, k), rtol=1e-13, atol=1e-12)
+    opts = TrainOptions()
+    t1, t2 = table_from_stats(one, opts), table_from_stats(merged, opts)
+    np.testing.assert_allclose(t1.kernels, t2.kernels, rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(t1.empty, t2.empty)
+    assert sum([sa, sb]).n.sum() == one.n.sum()
+
+
+def test_adding_statistics_of_other_definitions_fails():
+    _, m, d = _synthetic()
+    d2 = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.3], contrast_cuts=0.3,
+                               saturation_threshold=2.0)
+    with pytest.raises(TableError, match="different class definitions"):
+        ClassStats.zeros(d, 3) + ClassStats.zeros(d2, 3)
+
+
+def test_accumulate_counts_every_pixel_once_and_mask():
+    rng, m, d = _synthetic()
+    t = rng.random((*m.shape, 3)).astype(np.float32)
+    s = ClassStats.zeros(d, 3)
+    accumulate(s, m, t, max_pixels=1000)  # many bands
+    np.testing.assert_array_equal(s.n, np.bincount(classify(m, d).ravel(), minlength=d.n_classes))
+    np.testing.assert_allclose(s.xtx[:, -1, -1], s.n)
+    np.testing.assert_allclose(s.yy.sum(0), (t.astype(np.float64) ** 2).sum((0, 1)), rtol=1e-10)
+    mask = rng.random(m.shape) < 0.3
+    s2 = ClassStats.zeros(d, 3)
+    accumulate(s2, m, t, mask=mask)
+    assert s2.n.sum() == mask.sum()
+
+
+def test_accumulate_rejects_size_mismatch():
+    _, m, d = _synthetic()
+    with pytest.raises(InputError, match="target is 10x10 but the raw is 160x120"):
+        accumulate(ClassStats.zeros(d, 3), m, np.zeros((10, 10, 3), np.float32))
+
+
+# ---------------------------------------------------------------- fallback
+def test_fallback_goes_to_nearest_trained_level_same_position_and_contrast():
+    d = ClassDefinition.build("RGGB", patch=3, level_cuts=[0.1, 0.2, 0.3, 0.4],
+                              contrast_cuts=0.5)
+    trained = np.zeros(d.n_classes, bool)
+    trained[d.class_index(0, 0, 1, 0)] = True
+    trained[d.class_index(0, 0, 4, 0)] = True
+    trained[d.class_index(0, 0, 3, 1)] = True
+    for g in (1, 2, 3):
+        trained[d.class_index(g, 0, 0, 0)] = True
+    src = fallback_sources(d, trained)
+    assert src[d.class_index(0, 0, 0, 0)] == d.class_index(0, 0, 1, 0)
+    assert src[d.class_index(0, 0, 2, 0)] == d.class_index(0, 0, 1, 0)  # tie -> lower level
+    assert src[d.class_index(0, 0, 3, 0)] == d.class_index(0, 0, 4, 0)
+    assert src[d.class_index(0, 0, 0, 1)] == d.class_index(0, 0, 3, 1)
+    assert src[d.class_index(0, 5, 2, 1)] == d.class_index(0, 0, 3, 1)  # saturated -> unsaturated
+    assert src[d.class_index(1, 0, 4, 1)] == d.class_index(1, 0, 0, 0)
+    assert np.all(trained[src])
+    with pytest.raises(TableError, match="no class has enough"):
+        fallback_sources(d, np.zeros(d.n_classes, bool))
+    trained[d.class_index(3, 0, 0, 0)] = False
+    with pytest.raises(TableError, match=r"CFA positions \[3\] have no trained class"):
+        fallback_sources(d, trained)
+
+
+# ------------------------------------------------------------- input folders
+def _write_pair(folder, stem, mosaic, target, cfa="RGGB", target_space="xyz"):
+    from l3cli.io.image import write_image
+    from l3cli.io.raw import write_raw
+
+    raw = write_raw(folder / f"{stem}.dng", np.round(mosaic * 4095).astype(np.uint16), cfa,
+                    white_level=4095)
+    write_image(folder / f"{stem}.target.exr", target, space=target_space)
+    return raw
+
+
+def _sim_dir(tmp_path, n=2, shape=(40, 48), seed=0, nan=False, bad_size=False):
+    rng = np.random.default_rng(seed)
+    folder = tmp_path / f"sim{seed}"
+    folder.mkdir()
+    caps = []
+    for i in range(n):
+        m = rng.random(shape) * 0.8
+        t = rng.random((*shape, 3)).astype(np.float32)
+        if nan and i == n - 1:
+            t[3, 4, 1] = np.nan
+        if bad_size and i == n - 1:
+            t = t[:-2]
+        raw = _write_pair(folder, f"cap{i}", m, t)
+        caps.append({"stem": f"cap{i}", "raw": raw.name, "target": f"cap{i}.target.exr"})
+    (folder / "manifest.json").write_text(json.dumps(
+        {"format": "l3-simulation", "version": 1, "target": {"space": "xyz"}, "captures": caps}))
+    return folder
+
+
+def test_find_pairs_simulation_and_pairs_folders(tmp_path):
+    sim = _sim_dir(tmp_path)
+    pairs = find_pairs([sim])
+    assert [p.stem for p in pairs] == ["cap0", "cap1"]
+    raw, target = load_pair(pairs[0])
+    assert target.shape == (40, 48, 3) and raw.cfa.spec == "RG/GB"
+    pf = tmp_path / "pairs"
+    pf.mkdir()
+    from l3cli.io.image import write_image
+    from l3cli.io.raw import write_raw
+
+    write_raw(pf / "a.dng", np.full((40, 48), 1000, np.uint16), "RGGB", white_level=4095)
+    write_image(pf / "a.png", np.full((40, 48, 3), 0.5, np.float32), space="srgb")
+    pp = find_pairs([pf])
+    assert len(pp) == 1 and pp[0].target.name == "a.png"
+    _, t = load_pair(pp[0], target_space="srgb")
+    np.testing.assert_allclose(t, 0.5, atol=1 / 255)
+
+
+def test_bad_inputs(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="no training pairs"):
+        find_pairs([empty])
+    with pytest.raises(InputError, match="no such folder"):
+        find_pairs([tmp_path / "missing"])
+    nan = _sim_dir(tmp_path, seed=1, nan=True)
+    with pytest.raises(InputError, match="NaN or Inf.*x=4, y=3"):
+        train(find_pairs([nan]), TrainOptions(levels=3))
+    bad = _sim_dir(tmp_path, seed=2, bad_size=True)
+    with pytest.raises(InputError, match="target is 48x38 but raw cap1.dng is 48x40"):
+        train(find_pairs([bad]), TrainOptions(levels=3))
+    lonely = tmp_path / "lonely"
+    lonely.mkdir()
+    from l3cli.io.raw import write_raw
+
+    write_raw(lonely / "x.dng", np.zeros((40, 48), np.uint16), "RGGB", white_level=4095)
+    with pytest.raises(InputError, match="no target image with the same stem"):
+        find_pairs([lonely])
+
+
+def test_too_little_data_gives_zero_trained_classes(tmp_path):
+    sim = _sim_dir(tmp_path, n=1, shape=(40, 48), seed=3)
+    with pytest.raises(TableError, match="no class has enough training samples"):
+        train(find_pairs([sim]), TrainOptions(levels=40, min_samples_factor=50))
+
+
+def test_train_is_deterministic_with_seed_and_subsampling(tmp_path):
+    sim = _sim_dir(tmp_path, n=2, seed=4, shape=(48, 64))
+    pairs = find_pairs([sim])
+    opts = dict(levels=4, sample_fraction=0.5, min_samples_factor=2)
+    t1 = train(pairs, TrainOptions(seed=7, **opts))
+    t2 = train(pairs, TrainOptions(seed=7, **opts))
+    t3 = train(pairs, TrainOptions(seed=8, **opts))
+    np.testing.assert_array_equal(t1.kernels, t2.kernels)
+    np.testing.assert_array_equal(t1.definition.level_cuts, t2.definition.level_cuts)
+    assert t1.counts.sum() == pytest.approx(0.5 * 2 * 48 * 64, rel=0.05)
+    assert not np.array_equal(t1.counts, t3.counts)
