@@ -1,0 +1,61 @@
+"""``l3 render``: render raw files with a transform table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from l3cli.cli.options import output_opt, quiet
+
+_FORMATS = {"exr": ".exr", "tiff": ".tif", "png": ".png", "jpg": ".jpg"}
+_ALIASES = {".tiff": ".tif", ".jpeg": ".jpg"}
+
+
+@click.command(short_help="Render raw files with a transform table.")
+@click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
+@click.argument("raws", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@output_opt
+@click.option("--format", "fmt", type=click.Choice(sorted(_FORMATS)), default=None,
+              help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
+                   "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
+def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None) -> None:
+    """Render RAW files with TABLE.npz into OUT (-o).
+
+    OUT is a file for one input, a folder for several (created if missing;
+    outputs are named after the inputs' stems). Each output has the raw's
+    full size, pixel-aligned with it.
+    """
+    from l3cli.errors import OutputError
+    from l3cli.progress import progress
+    from l3cli.render import render_file
+    from l3cli.table import load_table
+
+    table = load_table(table_path)
+    out = Path(output)
+    targets: list[tuple[str, Path]] = []
+    if len(raws) == 1 and not out.is_dir():
+        suffix = out.suffix.lower()
+        if suffix == "":
+            out = out.with_suffix(_FORMATS[fmt or "exr"])
+        elif fmt is not None and _ALIASES.get(suffix, suffix) != _FORMATS[fmt]:
+            raise click.BadParameter(
+                f"{output} does not end in {_FORMATS[fmt]} as --format {fmt} asks",
+                param_hint="-o")
+        targets.append((raws[0], out))
+    else:
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"{out}: is a file; several inputs need an output folder")
+        out.mkdir(parents=True, exist_ok=True)
+        suffix = _FORMATS[fmt or "exr"]
+        stems: set[str] = set()
+        for r in raws:
+            p = Path(r)
+            stem = p.name[: -len(p.suffix)] if p.suffix else p.name
+            if stem in stems:
+                raise click.BadParameter(f"two inputs share the stem {stem!r}", param_hint="RAW")
+            stems.add(stem)
+            targets.append((r, out / f"{stem}{suffix}"))
+    name = Path(table_path).name
+    for raw_path, dst in progress(targets, label="render", enabled=not quiet()):
+        render_file(table, raw_path, dst, table_name=name)

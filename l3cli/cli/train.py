@@ -1,0 +1,79 @@
+"""``l3 train``: learn a transform table from (raw, target) pairs."""
+
+from __future__ import annotations
+
+import click
+
+from l3cli.cli.options import output_opt, quiet, seed_opt
+
+
+@click.command(short_help="Learn a transform table from simulate or pairs folders.")
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@output_opt
+@click.option("--patch", type=int, default=5, show_default=True,
+              help="Patch size (odd): the kernel sees PATCH x PATCH raw pixels.")
+@click.option("--levels", type=click.IntRange(min=2), default=24, show_default=True,
+              help="Number of response-level bins.")
+@click.option("--spacing", type=click.Choice(["log", "linear"]), default="log",
+              show_default=True, help="Spacing of the level cut points.")
+@click.option("--level-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
+              help="First and last level cut (normalised raw units); default: from the data "
+                   "(just above its noise floor to near saturation).")
+@click.option("--contrast-bins", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Contrast bins per level (2 = flat / textured).")
+@click.option("--contrast-threshold", type=float, default=None,
+              help="Fixed relative-contrast threshold; default: the median of the data per level.")
+@click.option("--saturation", type=float, default=0.95, show_default=True,
+              help="Normalised value at or above which a pixel counts as saturated.")
+@click.option("--merge-positions/--no-merge-positions", default=True, show_default=True,
+              help="Share classes between CFA positions whose patch layouts coincide.")
+@click.option("--target", "target_space",
+              type=click.Choice(["xyz", "linear-srgb", "srgb", "lab"]), default="xyz",
+              show_default=True, help="Colour space the table renders into.")
+@click.option("--sample-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
+              default=1.0, show_default=True,
+              help="Use this random fraction of the pixels of each image (fixed by --seed).")
+@click.option("--min-samples", "min_samples_factor", type=float, default=3.0,
+              show_default=True,
+              help="A class needs at least this many samples per coefficient to be trained.")
+@seed_opt
+def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing: str,
+          level_range: tuple[float, float] | None, contrast_bins: int,
+          contrast_threshold: float | None, saturation: float, merge_positions: bool,
+          target_space: str, sample_fraction: float, min_samples_factor: float,
+          seed: int) -> None:
+    """Train a table from INPUT folders and write it to TABLE.npz (-o).
+
+    Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
+    folder (each raw file with a same-stem rendered image). Per class, an
+    affine kernel is fitted by ridge regression with λ chosen by generalised
+    cross-validation from per-class sufficient statistics.
+    """
+    import logging
+
+    from l3cli.progress import progress
+    from l3cli.table import save_table
+    from l3cli.train import TrainOptions, find_pairs
+    from l3cli.train import train as train_table
+
+    if patch < 1 or patch % 2 == 0:
+        raise click.BadParameter(f"{patch} is not an odd size >= 1", param_hint="--patch")
+    opts = TrainOptions(patch=patch, levels=levels, spacing=spacing,
+                        level_range=tuple(level_range) if level_range else None,
+                        contrast_bins=contrast_bins, contrast_threshold=contrast_threshold,
+                        saturation=saturation, merge_positions=merge_positions,
+                        target_space=target_space, sample_fraction=sample_fraction, seed=seed,
+                        min_samples_factor=min_samples_factor)
+    pairs = find_pairs(list(inputs))
+    show = not quiet()
+
+    def bar(items, label):
+        return progress(items, label=f"{label:<10}", enabled=show)
+
+    table = train_table(pairs, opts, progress=bar)
+    save_table(output, table)
+    n_tr = int((~table.empty).sum())
+    logging.getLogger(__name__).info("wrote %s", output)
+    if show:
+        click.echo(f"{output}: {n_tr} of {table.empty.size} classes trained from "
+                   f"{len(pairs)} captures ({int(table.counts.sum())} samples)", err=True)
