@@ -1,0 +1,91 @@
+"""``l3 simulate``: simulate (raw, ideal XYZ) training captures of a camera."""
+
+from __future__ import annotations
+
+import click
+
+from l3cli.cli.options import quiet, seed_opt
+
+
+def _size(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    try:
+        w, h = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not WIDTHxHEIGHT (e.g. 480x320)") from None
+    if w < 48 or h < 32:
+        raise click.BadParameter(f"{value!r} is too small; at least 48x32")
+    return w, h
+
+
+@click.command(short_help="Simulate raw captures and ideal XYZ targets of a camera.")
+@click.argument("camera", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "output", required=True, type=click.Path(file_okay=False),
+              help="Output folder SIM_DIR (created; its parent must exist).")
+@click.option("--scene", "scenes", multiple=True, metavar="NAME|PATH",
+              help="Scene: macbeth, slanted-edge, natural (all bundled photos), "
+                   "natural:NAME, or a path to an RGB image or a spectral cube .npz. "
+                   "Repeatable. Default: macbeth and natural.")
+@click.option("--illuminant", default=None, metavar="NAME",
+              help="Illuminant (default: the camera's exposure.illuminant). "
+                   "Run with --list to see the names.")
+@click.option("--lux", "lux", multiple=True, type=float, metavar="LUX",
+              help="Scene illuminance in lux, repeatable (default: the camera's "
+                   "exposure.light_levels_lux).")
+@click.option("--size", callback=_size, default=None, metavar="WxH",
+              help="Image size in pixels  [default: 480x320]")
+@click.option("--exposure", "exposure_s", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Fixed exposure time in seconds (overrides the camera's exposure mode).")
+@click.option("--no-blur", is_flag=True, help="Perfect lens (no diffraction blur).")
+@click.option("--no-noise", is_flag=True, help="No sensor noise (raw = quantised noise-free signal).")
+@click.option("--list", "list_", is_flag=True, help="List scenes, illuminants and QE presets, then exit.")
+@seed_opt
+def simulate(camera: str, output: str, scenes: tuple[str, ...], illuminant: str | None,
+             lux: tuple[float, ...], size: tuple[int, int] | None, exposure_s: float | None,
+             no_blur: bool, no_noise: bool, list_: bool, seed: int) -> None:
+    """Simulate captures of CAMERA.toml into SIM_DIR (-o).
+
+    For each scene and light level it writes STEM.dng (or STEM.tif +
+    STEM.tif.toml where DNG cannot describe the CFA), STEM.target.exr (ideal
+    CIE XYZ, pixel-aligned), STEM.noisefree.exr and one manifest.json.
+    """
+    import logging
+
+    from l3cli import spectral
+    from l3cli.camera import load_camera
+    from l3cli.simulate.run import run_simulation
+    from l3cli.simulate.scenes import SCENES
+
+    if list_:
+        click.echo("scenes:      " + ", ".join(SCENES) + ", or a path")
+        click.echo("illuminants: " + ", ".join(spectral.ILLUMINANTS))
+        click.echo("QE presets:  " + ", ".join(spectral.QE_PRESETS))
+        click.echo("IR filters:  " + ", ".join(spectral.IR_FILTERS))
+        return
+    for x in lux:
+        if not x > 0:
+            raise click.BadParameter(f"{x:g} lux: light levels must be > 0", param_hint="--lux")
+    cam = load_camera(camera)
+    show = not quiet()
+    state = {"bar": None}
+
+    def on_capture(i: int, n: int, stem: str) -> None:
+        if not show:
+            return
+        if state["bar"] is None:
+            import sys
+
+            state["bar"] = click.progressbar(length=n, label="simulate", file=sys.stderr)
+            state["bar"].__enter__()
+        state["bar"].update(1)
+        if i == n:
+            state["bar"].__exit__(None, None, None)
+
+    manifest = run_simulation(cam, output, scenes=list(scenes) or None, illuminant=illuminant,
+                              lux=list(lux) or None, seed=seed, size=size,
+                              blur=not no_blur, noise=not no_noise, exposure_s=exposure_s,
+                              on_capture=on_capture)
+    logging.getLogger(__name__).info("wrote %d captures to %s", len(manifest["captures"]), output)
+    if show:
+        click.echo(f"{output}: {len(manifest['captures'])} captures", err=True)

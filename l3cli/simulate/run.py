@@ -1,0 +1,280 @@
+"""Write a simulation directory: raw mosaics, ideal targets, noise-free responses, manifest.
+
+Everything is first written into a temporary folder next to ``SIM_DIR`` and
+moved into place only when every capture succeeded, the manifest last; on any
+error the temporary folder is removed and ``SIM_DIR`` is left as it was.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from l3cli import spectral
+from l3cli.camera import Camera
+from l3cli.errors import ConfigError, OutputError
+from l3cli.simulate.core import (
+    TARGET_SCALE_DOC,
+    CameraModel,
+    Capture,
+    capture_stem,
+    illuminant_irradiance,
+    prepare_camera,
+    simulate_capture,
+)
+from l3cli.simulate.scenes import check_scene_name, expand_scene_names, make_scene
+
+__all__ = ["run_simulation", "DEFAULT_SCENES", "DEFAULT_SIZE", "MANIFEST_FORMAT",
+           "MANIFEST_VERSION", "dng_colour_matrix", "write_capture"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_SCENES: tuple[str, ...] = ("macbeth", "natural")
+DEFAULT_SIZE: tuple[int, int] = (480, 320)
+MANIFEST_FORMAT = "l3-simulation"
+MANIFEST_VERSION = 1
+MIN_SIZE = (48, 32)
+
+
+def dng_colour_matrix(model: CameraModel) -> tuple[np.ndarray, np.ndarray] | None:
+    """ColorMatrix1 (XYZ → camera, D65) for a 3-colour camera, fitted on the Macbeth chart.
+
+    Returns ``(matrix, camera_white_d65)`` or None when the CFA is not R, G, B
+    (or D65 does not cover the camera's wavelengths: then the visible+IR
+    daylight ``visir-DAY`` is used).
+    """
+    ch = model.channels
+    if sorted(ch) != ["B", "G", "R"]:
+        return None
+    wl = model.wavelengths
+    ill = "D65" if _covers("D65", wl) else "visir-DAY"
+    e = illuminant_irradiance(ill, 1000.0, wl)
+    refl = spectral.macbeth_reflectances(wl)  # (N, 24)
+    order = [ch.index(c) for c in ("R", "G", "B")]
+    photons = e * wl
+    cam = (refl * photons[:, None]).T @ model.qe[:, order]  # (24, 3)
+    xyz = (refl * e[:, None]).T @ model.cmfs  # (24, 3)
+    m, *_ = np.linalg.lstsq(xyz, cam, rcond=None)  # xyz @ m ≈ cam
+    mat = m.T  # XYZ → camera
+    white_xyz = model.cmfs.T @ e
+    white_cam = mat @ white_xyz
+    mat = mat / np.max(white_cam / white_xyz[1])  # D65 white (Y = 1) → max channel 1
+    return mat, photons @ model.qe[:, order]
+
+
+def _covers(name: str, wl: np.ndarray) -> bool:
+    try:
+        spectral.load_illuminant(name, wl)
+    except ConfigError:
+        return False
+    return True
+
+
+def write_capture(folder: Path, cap: Capture, model: CameraModel) -> dict[str, Any]:
+    """Write one capture's files into ``folder``; return its manifest entry."""
+    from l3cli.io.image import write_image
+    from l3cli.io.raw import write_raw
+
+    cam = model.camera
+    ro = cam.readout
+    cmat = dng_colour_matrix(model)
+    kwargs: dict[str, Any] = {}
+    if cmat is not None:
+        mat, _ = cmat
+        wl = model.wavelengths
+        neutral = None
+        if cap.illuminant:
+            e = illuminant_irradiance(cap.illuminant, 1.0, wl)
+            ch = model.channels
+            order = [ch.index(c) for c in ("R", "G", "B")]
+            resp = (e * wl) @ model.qe[:, order]
+            neutral = resp / resp.max()
+        kwargs = {"color_matrix": mat, "as_shot_neutral": neutral}
+    raw_path = write_raw(folder / f"{cap.stem}.dng", cap.dn, cam.cfa.cfa,
+                         black_level=float(ro.black_level_dn), white_level=float(ro.white_level_dn),
+                         make="l3", model=f"simulated {cam.name}",
+                         description=f"l3 simulate: {cap.stem}", **kwargs)
+    target = folder / f"{cap.stem}.target.exr"
+    write_image(target, cap.target, space="xyz")
+    nf = folder / f"{cap.stem}.noisefree.exr"
+    write_image(nf, cap.noise_free, space="data")
+    h, w = cap.dn.shape
+    entry: dict[str, Any] = {
+        "stem": cap.stem,
+        "raw": raw_path.name,
+        "target": target.name,
+        "noise_free": nf.name,
+        "scene": cap.scene,
+        "illuminant": cap.illuminant,
+        "lux": cap.lux,
+        "exposure_s": cap.exposure_s,
+        "width": int(w),
+        "height": int(h),
+        "seed": cap.seed,
+        "black_level": float(ro.black_level_dn),
+        "white_level": float(ro.white_level_dn),
+        "chart": cap.chart,
+        "edge": cap.edge,
+    }
+    if raw_path.suffix.lower() != ".dng":
+        entry["raw_sidecar"] = raw_path.name + ".toml"
+    for k in ("white_xyz", "photometric_exposure_white_lux_s"):
+        if k in cap.extra:
+            entry[k] = cap.extra[k]
+    return entry
+
+
+def _commit(tmp: Path, out_dir: Path) -> None:
+    umask = os.umask(0)
+    os.umask(umask)
+    for p in tmp.iterdir():
+        os.chmod(p, 0o666 & ~umask)
+    os.chmod(tmp, 0o777 & ~umask)
+    if not out_dir.exists():
+        os.replace(tmp, out_dir)
+        return
+    if not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: exists and is not a folder")
+    names = sorted(p.name for p in tmp.iterdir() if p.name != "manifest.json")
+    for n in names:
+        os.replace(tmp / n, out_dir / n)
+    os.replace(tmp / "manifest.json", out_dir / "manifest.json")
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def run_simulation(
+    camera: Camera,
+    out_dir: str | os.PathLike,
+    *,
+    scenes: Sequence[str] | None = None,
+    illuminant: str | None = None,
+    lux: Sequence[float] | None = None,
+    seed: int = 0,
+    size: tuple[int, int] | None = None,
+    blur: bool = True,
+    noise: bool = True,
+    exposure_s: float | None = None,
+    on_capture: Callable[[int, int, str], None] | None = None,
+) -> dict[str, Any]:
+    """Simulate every (scene, light level) capture of a camera into ``out_dir``.
+
+    Parameters
+    ----------
+    camera
+        From :func:`l3cli.camera.load_camera`.
+    out_dir
+        SIM_DIR; created if missing (its parent must exist and be writable).
+        Files of the same names are replaced; the manifest lists this run.
+    scenes
+        Scene names or paths (default :data:`DEFAULT_SCENES`); ``natural``
+        expands to every bundled photo.
+    illuminant
+        Illuminant name (default: the camera's ``exposure.illuminant``).
+    lux
+        Light levels in lux (default: the camera's ``exposure.light_levels_lux``).
+    seed
+        Noise seed; each capture draws from (seed, stem).
+    size
+        (width, height) in pixels (default :data:`DEFAULT_SIZE`).
+    blur, noise, exposure_s
+        Switch off the optics blur or the noise, or fix the exposure time.
+    on_capture
+        Progress callback ``(index, total, stem)`` called after each capture.
+
+    Returns
+    -------
+    dict
+        The manifest.
+
+    Raises
+    ------
+    ConfigError, InputError, OutputError
+        Bad scene/illuminant/lux/size, unreadable scene file, unwritable output.
+    """
+    out_dir = Path(out_dir)
+    width, height = size or DEFAULT_SIZE
+    if width < MIN_SIZE[0] or height < MIN_SIZE[1] or width > 20000 or height > 20000:
+        raise ConfigError(f"size {width}x{height} is out of range; allowed: "
+                          f"{MIN_SIZE[0]}x{MIN_SIZE[1]} to 20000x20000")
+    names = expand_scene_names(list(scenes or DEFAULT_SCENES))
+    for n in names:
+        check_scene_name(n)
+    ill = illuminant or camera.exposure.illuminant
+    levels = [float(x) for x in (lux if lux else camera.exposure.light_levels_lux)]
+    for x in levels:
+        if not (np.isfinite(x) and x > 0):
+            raise ConfigError(f"--lux must be > 0, got {x:g}")
+    model = prepare_camera(camera)
+    illuminant_irradiance(ill, 1.0, model.wavelengths)  # unknown / range errors now
+    parent = out_dir.parent if str(out_dir.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"{out_dir}: parent folder {parent} does not exist")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: exists and is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK) or (out_dir.is_dir() and not os.access(out_dir, os.W_OK | os.X_OK)):
+        raise OutputError(f"{out_dir}: output folder is not writable")
+    stems = [capture_stem(_scene_label(n), ill, x) for n in names for x in levels]
+    if len(set(stems)) != len(stems):
+        dup = next(s for s in stems if stems.count(s) > 1)
+        raise ConfigError(f"two captures would both be named {dup!r}; give distinct scenes and light levels")
+
+    tmp = Path(tempfile.mkdtemp(prefix=f".l3-tmp-{out_dir.name}-", dir=parent))
+    try:
+        captures: list[dict[str, Any]] = []
+        total = len(stems)
+        i = 0
+        for n in names:
+            scene = make_scene(n, height, width, model.wavelengths)
+            if scene.name != _scene_label(n):
+                scene.name = _scene_label(n)
+            for x in levels:
+                stem = capture_stem(scene.name, ill, x)
+                cap = simulate_capture(model, scene, illuminant=ill, lux=x, seed=seed, stem=stem,
+                                       blur=blur, noise=noise, exposure_s=exposure_s)
+                captures.append(write_capture(tmp, cap, model))
+                log.info("simulated %s (exposure %.4g s)", stem, cap.exposure_s)
+                i += 1
+                if on_capture is not None:
+                    on_capture(i, total, stem)
+        manifest = {
+            "format": MANIFEST_FORMAT,
+            "version": MANIFEST_VERSION,
+            "camera": {**camera.to_dict(), "target_h_ref_lux_s": model.h_ref,
+                       "saturation_e": model.sat_e, "dn_per_electron": model.dn_per_e,
+                       "channels": list(model.channels)},
+            "target": {"space": "xyz", "observer": "CIE 1931 2 degree",
+                       "scale": TARGET_SCALE_DOC.format(h_ref=model.h_ref),
+                       "h_ref_lux_s": model.h_ref},
+            "noise_free": "linear sensor response without noise or fixed-pattern noise, "
+                          "full-well clipped, same normalisation as the raw (0 black, 1 white level)",
+            "options": {"seed": int(seed), "blur": blur, "noise": noise,
+                        "illuminant": ill, "lux": levels, "scenes": names,
+                        "width": width, "height": height},
+            "captures": captures,
+        }
+        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+        _commit(tmp, out_dir)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            shutil.rmtree(tmp)
+        raise
+    return manifest
+
+
+def _scene_label(name: str) -> str:
+    if name.startswith("natural:"):
+        return name.split(":", 1)[1]
+    if name in ("macbeth", "slanted-edge"):
+        return name
+    from l3cli.simulate.scenes import _stem_name
+
+    return _stem_name(Path(name))
