@@ -1,0 +1,139 @@
+"""Registration of renders against their raw (l3cli.align).
+
+Synthetic pairs: a random scene of coloured rectangles and discs is mosaicked
+(RGGB) into a RawImage and, independently, rendered as display sRGB; the
+render is then cropped, mirrored or resized by known amounts, and the
+registration must recover exactly those amounts (or refuse the pair).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter, zoom
+
+from l3cli.align import (
+    FLIPS,
+    Alignment,
+    align,
+    aligned_pair,
+    apply_flip,
+    raw_luminance,
+    register,
+)
+from l3cli.cfa import CFA
+from l3cli.colourspace import srgb_encode
+from l3cli.errors import InputError
+from l3cli.io.raw import RawImage
+
+
+def scene(h: int, w: int, seed: int) -> np.ndarray:
+    """Linear RGB scene with sharp edges at many orientations and fine texture."""
+    rng = np.random.default_rng(seed)
+    img = np.full((h, w, 3), 0.2, dtype=np.float32)
+    yy, xx = np.mgrid[0:h, 0:w]
+    for _ in range(60):
+        col = rng.uniform(0.02, 0.9, 3).astype(np.float32)
+        if rng.random() < 0.5:
+            y0, x0 = rng.integers(0, h), rng.integers(0, w)
+            img[y0 : y0 + rng.integers(4, h // 3), x0 : x0 + rng.integers(4, w // 3)] = col
+        else:
+            cy, cx, r = rng.integers(0, h), rng.integers(0, w), rng.integers(3, 30)
+            img[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = col
+    img *= (1 + 0.1 * rng.standard_normal((h, w, 1))).astype(np.float32)
+    return np.clip(gaussian_filter(img, (0.7, 0.7, 0)), 0, 1).astype(np.float32)
+
+
+def mosaic(lin: np.ndarray, cfa: str = "RGGB") -> RawImage:
+    c = CFA.from_spec(cfa)
+    idx = c.channel_map(*lin.shape[:2])
+    order = {n: i for i, n in enumerate("RGB")}
+    chan = np.vectorize(lambda i: order[c.channels[i]])(idx)
+    m = np.take_along_axis(lin, chan[:, :, None], axis=2)[:, :, 0]
+    return RawImage(mosaic=m.astype(np.float32), cfa=c, black_level=np.zeros(4),
+                    white_level=1.0)
+
+
+@pytest.fixture(scope="module")
+def pair() -> tuple[RawImage, np.ndarray]:
+    lin = scene(192, 256, seed=1)
+    return mosaic(lin), srgb_encode(lin)
+
+
+def test_full_frame_aligns_at_zero(pair):
+    raw, render = pair
+    a = align(raw, render)
+    assert (a.dy, a.dx, a.flip) == (0, 0, "none")
+    assert a.score > 0.8 and a.sharpness > 20
+
+
+def test_rawtherapee_crop_4_each_side(pair):
+    raw, render = pair
+    a = align(raw, render[4:-4, 4:-4])
+    assert (a.dy, a.dx, a.flip, a.height, a.width) == (4, 4, "none", 184, 248)
+
+
+def test_dng_default_crop():
+    # Blackmagic Pocket 4K: DefaultCrop origin (x=16, y=8); scaled-down geometry.
+    lin = scene(200, 280, seed=2)
+    raw = mosaic(lin)
+    render = srgb_encode(lin)[8 : 8 + 180, 16 : 16 + 256]
+    a = align(raw, render)
+    assert (a.dy, a.dx, a.flip) == (8, 16, "none")
+    crop, target = aligned_pair(raw, render, a)
+    # the crop keeps the CFA phase: (8, 16) is even, RGGB stays RGGB
+    assert crop.cfa.spec == "RG/GB" and crop.shape == (180, 256)
+    np.testing.assert_array_equal(crop.mosaic, raw.mosaic[8:188, 16:272])
+    np.testing.assert_array_equal(target, render)
+
+
+@pytest.mark.parametrize("flip", FLIPS)
+def test_mirrored_render(pair, flip):
+    raw, render = pair
+    cropped = render[3:-5, 5:-3]  # odd offsets: the CFA phase changes
+    mirrored = apply_flip(cropped, flip)
+    a = align(raw, mirrored)
+    assert (a.dy, a.dx, a.flip) == (3, 5, flip)
+    crop, target = aligned_pair(raw, mirrored, a)
+    np.testing.assert_array_equal(target, cropped)
+    assert crop.cfa.spec == "BG/GR"  # RGGB from (3, 5): odd row (G B), odd column -> B
+    np.testing.assert_array_equal(crop.mosaic, raw.mosaic[3:-5, 5:-3])
+
+
+def test_resized_render_refused(pair):
+    raw, render = pair
+    small = np.clip(zoom(render, (0.9, 0.9, 1), order=1), 0, 1)
+    with pytest.raises(InputError, match=r"small\.png does not align with big\.raw.*scaled"):
+        align(raw, small, raw_name="big.raw", render_name="small.png")
+
+
+def test_different_shot_refused(pair):
+    raw, _ = pair
+    other = srgb_encode(scene(192, 256, seed=7))
+    with pytest.raises(InputError, match="does not align.*different shot"):
+        align(raw, other, raw_name="a.raw", render_name="b.png")
+
+
+def test_render_larger_than_raw_refused(pair):
+    raw, render = pair
+    big = np.pad(render, ((2, 2), (2, 2), (0, 0)))
+    with pytest.raises(InputError, match="larger than its raw"):
+        align(raw, big)
+
+
+def test_raw_luminance_is_phase_free():
+    # A flat grey scene seen through any CFA phase gives a flat luminance.
+    lin = np.full((16, 20, 3), 0.25, dtype=np.float32)
+    lin[..., 0] = 0.5  # reddish: grey world balances the channels
+    for spec in ("RGGB", "GRBG", "BGGR"):
+        lum = raw_luminance(mosaic(lin, spec))
+        assert lum.shape == (16, 20)
+        np.testing.assert_allclose(lum, lum[0, 0], rtol=1e-6)
+
+
+def test_register_recovers_shift_on_luminance():
+    rng = np.random.default_rng(3)
+    lum = gaussian_filter(rng.random((128, 160)).astype(np.float32), 1.5)
+    a = register(lum, lum[10:100, 7:140])
+    assert isinstance(a, Alignment)
+    assert (a.dy, a.dx, a.flip) == (10, 7, "none")

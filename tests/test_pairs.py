@@ -1,0 +1,141 @@
+"""Pairs directories (l3cli.pairs): scanning, alignment, clipping and margin masks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_align import scene
+
+from l3cli.colourspace import srgb_decode, srgb_encode
+from l3cli.errors import InputError
+from l3cli.io.image import write_image
+from l3cli.io.raw import write_raw
+from l3cli.pairs import (
+    CLIP_HIGH,
+    CLIP_LOW,
+    find_pairs,
+    is_pairs_dir,
+    iter_pairs,
+    weight_mask,
+)
+
+H, W = 128, 160
+
+
+def _mosaic_dn(lin: np.ndarray, spec: str, white: int) -> np.ndarray:
+    from l3cli.cfa import CFA
+
+    c = CFA.from_spec(spec)
+    chan = np.array([["RGB".index(n) for n in row] for row in c.pattern])
+    reps = (H // 2, W // 2)
+    idx = np.tile(chan, reps)
+    m = np.take_along_axis(lin, idx[:, :, None], axis=2)[:, :, 0]
+    return np.round(m * white).astype(np.uint16)
+
+
+def write_headerless(folder: Path, stem: str, lin: np.ndarray) -> Path:
+    dn = _mosaic_dn(lin, "GRBG", 255).astype(np.uint8)
+    raw = folder / f"{stem}.raw"
+    dn.tofile(raw)
+    (folder / f"{stem}.raw.toml").write_text(
+        f'width = {W}\nheight = {H}\ndtype = "uint8"\ncfa = "GRBG"\n'
+        "black_level = 0\nwhite_level = 255\n"
+    )
+    return raw
+
+
+@pytest.fixture
+def pairs_dir(tmp_path: Path) -> Path:
+    d = tmp_path / "pairs"
+    d.mkdir()
+    lin_a = scene(H, W, seed=11)
+    write_headerless(d, "a", lin_a)
+    write_image(d / "a.png", srgb_encode(lin_a), space="srgb")
+    lin_b = scene(H, W, seed=12)
+    write_raw(d / "b.dng", _mosaic_dn(lin_b, "RGGB", 4095), "RGGB", white_level=4095)
+    # RawTherapee-like: raw minus 4 pixels each side, 16-bit TIFF
+    write_image(d / "b.tif", srgb_encode(lin_b)[4:-4, 4:-4], space="srgb")
+    return d
+
+
+def test_find_pairs(pairs_dir: Path):
+    pairs = find_pairs([pairs_dir])
+    assert [(p.name, p.raw.name, p.render.name) for p in pairs] == [
+        ("a", "a.raw", "a.png"), ("b", "b.dng", "b.tif")]
+    assert is_pairs_dir(pairs_dir)
+
+
+def test_iter_pairs_aligns_and_masks(pairs_dir: Path):
+    got = {p.name: p for p in iter_pairs([pairs_dir], margin=4)}
+    a, b = got["a"], got["b"]
+    assert (a.alignment.dy, a.alignment.dx, a.alignment.flip) == (0, 0, "none")
+    assert (b.alignment.dy, b.alignment.dx) == (4, 4)
+    assert b.raw.shape == (H - 8, W - 8) and b.target.shape == (H - 8, W - 8, 3)
+    assert b.raw.cfa.spec == "RG/GB"  # (4, 4) is even: phase unchanged
+    assert a.space == "srgb" and a.target.dtype == np.float32
+    for p in (a, b):
+        m = p.weight_mask
+        assert m.shape == p.raw.shape
+        assert not m[:4].any() and not m[-4:].any() and not m[:, :4].any()
+        assert not m[:, -4:].any()
+        assert m[4:-4, 4:-4].mean() > 0.9
+
+
+def test_target_space_conversion(pairs_dir: Path):
+    (lin_pair,) = [p for p in iter_pairs([pairs_dir / "a.raw"], target_space="linear-srgb")]
+    (enc_pair,) = [p for p in iter_pairs([pairs_dir / "a.raw"])]
+    assert lin_pair.space == "linear-srgb"
+    np.testing.assert_allclose(lin_pair.target, srgb_decode(enc_pair.target), atol=1e-6)
+
+
+def test_weight_mask_clipping_and_margin():
+    img = np.full((10, 12, 3), 0.5, dtype=np.float32)
+    img[5, 6, 1] = 255 / 255  # clipped white in one channel
+    img[6, 6, 2] = 0.0  # clipped black in one channel
+    img[5, 7] = 254 / 255  # the largest unclipped 8-bit code
+    img[6, 7] = 1 / 255  # the smallest unclipped code
+    m = weight_mask(img, margin=2)
+    assert not m[5, 6] and not m[6, 6] and m[5, 7] and m[6, 7]
+    assert not m[:2].any() and not m[-2:].any() and not m[:, :2].any() and not m[:, -2:].any()
+    assert m[2:-2, 2:-2].sum() == 6 * 8 - 2
+    assert CLIP_LOW * 255 == pytest.approx(0.5) and CLIP_HIGH * 255 == pytest.approx(254.5)
+    assert weight_mask(img, margin=0, clip_low=None, clip_high=None).all()
+    with pytest.raises(InputError, match="margin -1"):
+        weight_mask(img, margin=-1)
+
+
+def test_raw_without_render(pairs_dir: Path):
+    (pairs_dir / "a.png").unlink()
+    with pytest.raises(InputError, match=r"a\.raw: no rendered image with the same stem"):
+        find_pairs([pairs_dir])
+
+
+def test_empty_folder(tmp_path: Path):
+    with pytest.raises(InputError, match="no raw files in this folder"):
+        find_pairs([tmp_path])
+    assert not is_pairs_dir(tmp_path)
+
+
+def test_missing_path(tmp_path: Path):
+    with pytest.raises(InputError, match="no such file or folder"):
+        find_pairs([tmp_path / "nope"])
+
+
+def test_two_renders_ambiguous(pairs_dir: Path):
+    write_image(pairs_dir / "a.jpg", np.zeros((H, W, 3), np.float32), space="srgb")
+    with pytest.raises(InputError, match=r"several rendered images.*a\.jpg, a\.png"):
+        find_pairs([pairs_dir])
+
+
+def test_misaligned_pair_refused_naming_both(pairs_dir: Path):
+    other = srgb_encode(scene(H, W, seed=99))
+    write_image(pairs_dir / "a.png", other, space="srgb")
+    with pytest.raises(InputError, match=r"a\.png does not align with .*a\.raw"):
+        list(iter_pairs([pairs_dir]))
+
+
+def test_simulation_dir_is_not_pairs_dir(pairs_dir: Path):
+    (pairs_dir / "manifest.json").write_text("{}")
+    assert not is_pairs_dir(pairs_dir)
