@@ -224,8 +224,9 @@ def render_planes(model: CameraModel, scene: Scene, weights: np.ndarray, *,
     maps = scene.maps
     spectra_w = np.asarray(weights, dtype=np.float64)
     k, h, w = maps.shape
+    s = scene.oversample
     outs = list(range(spectra_w.shape[0])) if outputs is None else list(outputs)
-    pitch_mm = cam.pixel.pitch_um * 1e-3
+    pitch_mm = cam.pixel.pitch_um * 1e-3 / s
     falloff = (cos4_falloff(h, w, pitch_mm, cam.optics.focal_length_mm)
                if cam.optics.cos4 else None)
     if not blur:
@@ -239,10 +240,10 @@ def render_planes(model: CameraModel, scene: Scene, weights: np.ndarray, *,
             if falloff is not None:
                 acc *= falloff
             planes[i] = acc
-        return planes
+        return _bin(planes, s)
 
     lam_max = float(model.wavelengths[-1])
-    margin = int(min(64, max(8, np.ceil(10 * lam_max * 1e-3 * cam.optics.f_number / cam.pixel.pitch_um))))
+    margin = int(min(64 * s, max(8, np.ceil(10 * lam_max * 1e-6 * cam.optics.f_number / pitch_mm))))
     hp, pt, pb = _pad_widths(h, margin)
     wp, pl, pr = _pad_widths(w, margin)
     rho = radial_frequency(hp, wp, pitch_mm)
@@ -273,7 +274,15 @@ def render_planes(model: CameraModel, scene: Scene, weights: np.ndarray, *,
         planes[i] = full[pt:pt + h, pl:pl + w]
         acc[i] = None  # free
         del full
-    return planes
+    return _bin(planes, s)
+
+
+def _bin(planes: np.ndarray, s: int) -> np.ndarray:
+    """Average s x s blocks (the pixel aperture over oversampled scene samples)."""
+    if s == 1:
+        return planes
+    o, h, w = planes.shape
+    return planes.reshape(o, h // s, s, w // s, s).mean(axis=(2, 4), dtype=np.float64).astype(np.float32)
 
 
 def capture_seed(seed: int, stem: str) -> np.random.SeedSequence:

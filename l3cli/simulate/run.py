@@ -163,6 +163,7 @@ def run_simulation(
     blur: bool = True,
     noise: bool = True,
     exposure_s: float | None = None,
+    oversample: int = 1,
     on_capture: Callable[[int, int, str], None] | None = None,
 ) -> dict[str, Any]:
     """Simulate every (scene, light level) capture of a camera into ``out_dir``.
@@ -187,6 +188,9 @@ def run_simulation(
         (width, height) in pixels (default :data:`DEFAULT_SIZE`).
     blur, noise, exposure_s
         Switch off the optics blur or the noise, or fix the exposure time.
+    oversample
+        Scene samples per pixel and axis (1-8) for the optics; the pixel
+        aperture then averages them. 1 applies the OTF at the pixel grid.
     on_capture
         Progress callback ``(index, total, stem)`` called after each capture.
 
@@ -233,7 +237,7 @@ def run_simulation(
         total = len(stems)
         i = 0
         for n in names:
-            scene = make_scene(n, height, width, model.wavelengths)
+            scene = make_scene(n, height, width, model.wavelengths, oversample=oversample)
             if scene.name != _scene_label(n):
                 scene.name = _scene_label(n)
             for x in levels:
@@ -256,7 +260,7 @@ def run_simulation(
                        "h_ref_lux_s": model.h_ref},
             "noise_free": "linear sensor response without noise or fixed-pattern noise, "
                           "full-well clipped, same normalisation as the raw (0 black, 1 white level)",
-            "options": {"seed": int(seed), "blur": blur, "noise": noise,
+            "options": {"seed": int(seed), "blur": blur, "noise": noise, "oversample": oversample,
                         "illuminant": ill, "lux": levels, "scenes": names,
                         "width": width, "height": height},
             "captures": captures,

@@ -116,12 +116,13 @@ class Scene:
     chart: dict[str, Any] | None = None
     edge: dict[str, Any] | None = None
     source: str = ""
+    oversample: int = 1
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def shape(self) -> tuple[int, int]:
-        """(H, W)."""
-        return int(self.maps.shape[1]), int(self.maps.shape[2])
+        """(H, W) in sensor pixels (the maps hold ``oversample`` samples per pixel and axis)."""
+        return int(self.maps.shape[1]) // self.oversample, int(self.maps.shape[2]) // self.oversample
 
 
 # ---------------------------------------------------------------- Macbeth
@@ -150,17 +151,19 @@ def macbeth_geometry(height: int, width: int) -> dict[str, Any]:
     return {"rows": rows, "cols": cols, "patches": boxes, "white_index": 18, "black_index": 23}
 
 
-def macbeth_scene(height: int, width: int, wavelengths: np.ndarray) -> Scene:
-    """The Macbeth chart: 24 patch maps + a surround map."""
+def macbeth_scene(height: int, width: int, wavelengths: np.ndarray, *, oversample: int = 1) -> Scene:
+    """The Macbeth chart: 24 patch maps + a surround map (patch edges on pixel boundaries)."""
     geo = macbeth_geometry(height, width)
     refl = spectral.macbeth_reflectances(wavelengths)  # (N, 24)
-    maps = np.zeros((25, height, width), dtype=np.float32)
+    s = oversample
+    maps = np.zeros((25, height * s, width * s), dtype=np.float32)
     maps[24] = 1.0
     for i, (x0, y0, x1, y1) in enumerate(geo["patches"]):
-        maps[i, y0:y1, x0:x1] = 1.0
-        maps[24, y0:y1, x0:x1] = 0.0
+        maps[i, y0 * s:y1 * s, x0 * s:x1 * s] = 1.0
+        maps[24, y0 * s:y1 * s, x0 * s:x1 * s] = 0.0
     spectra = np.concatenate([refl.T, np.full((1, len(wavelengths)), SURROUND_REFLECTANCE)], axis=0)
-    return Scene("macbeth", maps, spectra, chart=geo, source="ISETCam macbethChart reflectances")
+    return Scene("macbeth", maps, spectra, chart=geo, source="ISETCam macbethChart reflectances",
+                 oversample=s)
 
 
 # ------------------------------------------------------------ slanted edge
@@ -191,9 +194,10 @@ def edge_area_coverage(height: int, width: int, *, angle_deg: float = EDGE_ANGLE
 
 
 def slanted_edge_scene(height: int, width: int, wavelengths: np.ndarray,
-                       *, angle_deg: float = EDGE_ANGLE_DEG) -> Scene:
+                       *, angle_deg: float = EDGE_ANGLE_DEG, oversample: int = 1) -> Scene:
     """A light (left) / dark (right) edge through the centre, tilted 5°."""
-    cover = edge_area_coverage(height, width, angle_deg=angle_deg).astype(np.float32)
+    s = oversample
+    cover = edge_area_coverage(height * s, width * s, angle_deg=angle_deg).astype(np.float32)
     maps = np.stack([cover, 1.0 - cover]).astype(np.float32)
     n = len(wavelengths)
     spectra = np.stack([np.full(n, EDGE_LIGHT), np.full(n, EDGE_DARK)])
@@ -202,7 +206,8 @@ def slanted_edge_scene(height: int, width: int, wavelengths: np.ndarray,
            height // 2 - rh // 2 + rh]
     edge = {"roi": roi, "angle_deg": float(angle_deg), "orientation": "vertical",
             "light_reflectance": EDGE_LIGHT, "dark_reflectance": EDGE_DARK}
-    return Scene("slanted-edge", maps, spectra, edge=edge, source="analytic slanted edge")
+    return Scene("slanted-edge", maps, spectra, edge=edge, source="analytic slanted edge",
+                 oversample=s)
 
 
 # ------------------------------------------------------------- RGB photos
@@ -284,17 +289,18 @@ def _read_rgb(path: Path) -> np.ndarray:
 
 
 def rgb_image_scene(path: str | os.PathLike, height: int, width: int, wavelengths: np.ndarray,
-                    *, name: str | None = None) -> Scene:
+                    *, name: str | None = None, oversample: int = 1) -> Scene:
     """An RGB image up-sampled to spectral reflectance (see module notes)."""
     path = Path(path)
-    lin = _resize(_read_rgb(path), height, width)
-    maps = np.concatenate([np.moveaxis(lin, 2, 0), np.ones((1, height, width), np.float32)])
+    s = oversample
+    lin = _resize(_read_rgb(path), height * s, width * s)
+    maps = np.concatenate([np.moveaxis(lin, 2, 0), np.ones((1, height * s, width * s), np.float32)])
     return Scene(name or _stem_name(path), np.ascontiguousarray(maps, dtype=np.float32),
-                 rgb_to_reflectance_basis(wavelengths), source=str(path))
+                 rgb_to_reflectance_basis(wavelengths), source=str(path), oversample=s)
 
 
 def spectral_cube_scene(path: str | os.PathLike, height: int, width: int,
-                        wavelengths: np.ndarray) -> Scene:
+                        wavelengths: np.ndarray, *, oversample: int = 1) -> Scene:
     """A spectral cube ``.npz``: ``wavelength`` (N,) nm + ``reflectance`` or ``radiance`` (H, W, N)."""
     path = Path(path)
     try:
@@ -318,7 +324,7 @@ def spectral_cube_scene(path: str | os.PathLike, height: int, width: int,
     s = spectral.Spectra(wl, np.eye(wl.size), tuple(str(w) for w in wl), str(path))
     # Interpolation matrix from the cube's wavelengths onto the grid.
     interp = s.resample(wavelengths, what=f"spectral cube {kind}")  # (Ngrid, Ncube)
-    small = _resize(cube, height, width)  # (H, W, Ncube)
+    small = _resize(cube, height * oversample, width * oversample)  # (H, W, Ncube)
     if wl.size > interp.shape[0]:
         # More bands than simulation wavelengths: resample the maps instead.
         maps = np.ascontiguousarray(np.moveaxis(small @ interp.T.astype(np.float32), 2, 0))
@@ -326,7 +332,7 @@ def spectral_cube_scene(path: str | os.PathLike, height: int, width: int,
     else:
         maps = np.ascontiguousarray(np.moveaxis(small, 2, 0))
         spectra = interp.T.copy()
-    return Scene(_stem_name(path), maps, spectra, kind=kind, source=str(path))
+    return Scene(_stem_name(path), maps, spectra, kind=kind, source=str(path), oversample=oversample)
 
 
 def _stem_name(path: Path) -> str:
@@ -358,8 +364,21 @@ def check_scene_name(name: str) -> None:
                       "(or a path to an RGB image or a spectral cube .npz)")
 
 
-def make_scene(name: str, height: int, width: int, wavelengths: np.ndarray) -> Scene:
+def make_scene(name: str, height: int, width: int, wavelengths: np.ndarray, *,
+               oversample: int = 1) -> Scene:
     """Build a scene by name (:data:`SCENES`) or from a file path.
+
+    Parameters
+    ----------
+    name
+        Scene name or path.
+    height, width
+        Sensor size in pixels.
+    wavelengths
+        Simulation grid (nm).
+    oversample
+        Scene samples per pixel and axis (1-8); the optics are applied at that
+        resolution and the result is averaged over each pixel's area.
 
     Raises
     ------
@@ -369,16 +388,20 @@ def make_scene(name: str, height: int, width: int, wavelengths: np.ndarray) -> S
         Unreadable image or cube.
     """
     check_scene_name(name)
+    s = int(oversample)
+    if not 1 <= s <= 8:
+        raise ConfigError(f"oversample must be 1-8, got {oversample!r}")
     if name == "macbeth":
-        return macbeth_scene(height, width, wavelengths)
+        return macbeth_scene(height, width, wavelengths, oversample=s)
     if name == "slanted-edge":
-        return slanted_edge_scene(height, width, wavelengths)
+        return slanted_edge_scene(height, width, wavelengths, oversample=s)
     if name.startswith("natural:"):
         key = name.split(":", 1)[1]
-        return rgb_image_scene(SCENE_DIR / NATURAL_IMAGES[key], height, width, wavelengths, name=key)
+        return rgb_image_scene(SCENE_DIR / NATURAL_IMAGES[key], height, width, wavelengths,
+                               name=key, oversample=s)
     if name == "natural":
         raise ConfigError("'natural' names several scenes; expand it with expand_scene_names")
     p = Path(name)
     if p.suffix.lower() == ".npz":
-        return spectral_cube_scene(p, height, width, wavelengths)
-    return rgb_image_scene(p, height, width, wavelengths)
+        return spectral_cube_scene(p, height, width, wavelengths, oversample=s)
+    return rgb_image_scene(p, height, width, wavelengths, oversample=s)
