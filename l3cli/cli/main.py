@@ -24,6 +24,7 @@ from l3cli.errors import L3Error
 _COMMANDS: dict[str, str] = {
     "info": "l3cli.cli.info:info",
     "evaluate": "l3cli.cli.evaluate:evaluate",
+    "baseline": "l3cli.cli.baseline:baseline",
     "train": "l3cli.cli.train:train",
     "render": "l3cli.cli.render:render",
     "simulate": "l3cli.cli.simulate:simulate",

@@ -1,0 +1,102 @@
+"""``l3 baseline``: render Bayer raws with demosaicking + a fitted 3x3 colour matrix."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from l3cli.cli.options import output_opt, quiet, seed_opt
+
+_FORMATS = {"exr": ".exr", "tiff": ".tif", "png": ".png", "jpg": ".jpg"}
+_ALIASES = {".tiff": ".tif", ".jpeg": ".jpg"}
+_METHODS = ("bilinear", "malvar2004", "menon2007")
+
+
+def _expand_raws(raws: tuple[str, ...]) -> list[Path]:
+    """Raw files; a ``simulate`` folder stands for all its captures' raws."""
+    from l3cli.errors import InputError
+
+    out: list[Path] = []
+    for r in raws:
+        p = Path(r)
+        if p.is_dir():
+            mpath = p / "manifest.json"
+            if not mpath.exists():
+                raise InputError(f"{p}: a folder RAW must be a `l3 simulate` output (no manifest.json)")
+            try:
+                caps = json.loads(mpath.read_text())["captures"]
+                out.extend(p / c["raw"] for c in caps)
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                raise InputError(f"{mpath}: cannot list the captures' raws ({exc})") from exc
+        else:
+            out.append(p)
+    return out
+
+
+@click.command(short_help="Conventional pipeline: demosaic + fitted 3x3 colour matrix.")
+@click.argument("raws", nargs=-1, required=True, type=click.Path(exists=True))
+@click.option("--train", "train_inputs", multiple=True, required=True,
+              type=click.Path(exists=True, file_okay=False),
+              help="Training folder (a `l3 simulate` output or a pairs folder) for the colour "
+                   "matrix; repeatable. Use the data the L3 table was trained on.")
+@output_opt
+@click.option("--demosaic", "method", type=click.Choice(_METHODS), default="menon2007",
+              show_default=True, help="Demosaicking method (colour-demosaicing).")
+@click.option("--target", "target_space", type=click.Choice(["xyz", "linear-srgb", "srgb", "lab"]),
+              default="xyz", show_default=True, help="Output colour space (as a table's).")
+@click.option("--format", "fmt", type=click.Choice(sorted(_FORMATS)), default=None,
+              help="Output format (default: from OUT's suffix, else exr). EXR keeps the target "
+                   "space (linear); TIFF/PNG/JPEG get display sRGB.")
+@click.option("--save-model", type=click.Path(dir_okay=False),
+              help="Also write the fitted method and matrix as JSON.")
+@seed_opt
+def baseline(raws: tuple[str, ...], train_inputs: tuple[str, ...], output: str, method: str,
+             target_space: str, fmt: str | None, save_model: str | None, seed: int) -> None:
+    """Render Bayer RAWS with a classic pipeline into OUT (-o).
+
+    Each raw is demosaicked (bilinear, Malvar 2004 or Menon 2007) and mapped to
+    the target space by a 3x3 matrix fitted by least squares on the --train
+    data. A RAW may be a `l3 simulate` folder (all its captures). OUT is a file
+    for one input, a folder for several (outputs named after the inputs' stems),
+    as for `l3 render`:
+
+    \b
+    l3 baseline SIM_DIR --train SIM_DIR -o BASE_DIR --demosaic menon2007
+    l3 evaluate BASE_DIR --reference SIM_DIR --json base.json
+    """
+    from l3cli.baseline import fit_baseline, render_baseline_file
+    from l3cli.errors import OutputError
+    from l3cli.io.atomic import atomic_path
+    from l3cli.progress import progress
+
+    raw_paths = _expand_raws(raws)
+    out = Path(output)
+    targets: list[tuple[Path, Path]] = []
+    if len(raw_paths) == 1 and not out.is_dir():
+        suffix = out.suffix.lower()
+        if suffix == "":
+            out = out.with_suffix(_FORMATS[fmt or "exr"])
+        elif fmt is not None and _ALIASES.get(suffix, suffix) != _FORMATS[fmt]:
+            raise click.BadParameter(f"{output} does not end in {_FORMATS[fmt]} as --format {fmt} asks",
+                                     param_hint="-o")
+        targets.append((raw_paths[0], out))
+    else:
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"{out}: is a file; several inputs need an output folder")
+        out.mkdir(parents=True, exist_ok=True)
+        suffix = _FORMATS[fmt or "exr"]
+        stems: set[str] = set()
+        for p in raw_paths:
+            stem = p.name[: -len(p.suffix)] if p.suffix else p.name
+            if stem in stems:
+                raise click.BadParameter(f"two inputs share the stem {stem!r}", param_hint="RAW")
+            stems.add(stem)
+            targets.append((p, out / f"{stem}{suffix}"))
+    model = fit_baseline(list(train_inputs), method=method, target_space=target_space, seed=seed)
+    if save_model:
+        with atomic_path(save_model) as tmp:
+            tmp.write_text(model.to_json() + "\n")
+    for raw_path, dst in progress(targets, label="baseline", enabled=not quiet()):
+        render_baseline_file(model, raw_path, dst)
