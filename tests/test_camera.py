@@ -1,0 +1,183 @@
+"""Camera TOML loader: sample configs, validation errors naming file, key and what is allowed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from l3cli.camera import load_camera
+from l3cli.errors import ConfigError, InputError
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLES = sorted((REPO / "sample_configs").glob("*.toml"))
+
+MINIMAL = """
+name = "t"
+[pixel]
+pitch_um = 2.0
+conversion_gain_uv_per_e = 100.0
+voltage_swing_v = 1.0
+[cfa]
+pattern = "RGGB"
+qe = "bayer-rgb"
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "cam.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("path", SAMPLES, ids=[p.stem for p in SAMPLES])
+def test_sample_configs_load(path: Path) -> None:
+    cam = load_camera(path)
+    d = cam.to_dict()
+    json.dumps(d)  # JSON-able for the manifest
+    assert d["file"] == path.name
+    qe = cam.qe_curves()
+    assert qe.shape == (cam.wavelengths.size, cam.cfa.cfa.n_channels)
+    assert np.all(qe >= 0) and np.all(qe.max(axis=0) > 0)
+
+
+def test_required_samples_exist() -> None:
+    names = {p.stem for p in SAMPLES}
+    assert {"bayer", "rgbw", "rgbnir", "nikon-d200-like"} <= names
+
+
+def test_rgbw_is_the_l3_camera() -> None:
+    cam = load_camera(REPO / "sample_configs" / "rgbw.toml")
+    assert cam.pixel.pitch_um == 1.4 and cam.optics.f_number == 4.0
+    assert set(cam.cfa.cfa.channels) == {"R", "G", "B", "W"}
+
+
+def test_rgbnir_reaches_nir() -> None:
+    cam = load_camera(REPO / "sample_configs" / "rgbnir.toml")
+    assert cam.wavelengths[-1] >= 1000
+    qe = cam.qe_curves()
+    ch = cam.cfa.cfa.channels
+    nir = qe[:, ch.index("NIR")]
+    wl = cam.wavelengths
+    # NIR pixel: mostly beyond 700 nm; R, G, B: IR-blocked.
+    assert nir[wl > 750].sum() > 5 * nir[wl < 650].sum()
+    for c in ("R", "G", "B"):
+        q = qe[:, ch.index(c)]
+        assert q[wl > 800].sum() < 0.02 * q.sum()
+    assert cam.cfa.cfa.period == (2, 2)
+
+
+def test_minimal_defaults(tmp_path: Path) -> None:
+    cam = load_camera(write(tmp_path, MINIMAL))
+    assert cam.pixel.full_well_e == pytest.approx(10000.0)
+    assert cam.optics.f_number == 4.0
+    assert cam.exposure.mode == "auto" and cam.exposure.illuminant == "D65"
+    assert cam.wavelengths[0] == 400 and cam.wavelengths[-1] == 700  # visible-only QE
+    assert cam.readout.white_level_dn == 1023
+
+
+@pytest.mark.parametrize(
+    "patch, key, allowed",
+    [
+        ("[optics]\nf_numbr = 2.0\n", "optics.f_numbr", "f_number"),
+        ("[optics]\nf_number = 0.1\n", "optics.f_number", "[0.5, 64]"),
+        ("[optics]\nf_number = \"4\"\n", "optics.f_number", "must be a number"),
+        ("[optics]\ncos4 = 1\n", "optics.cos4", "true or false"),
+        ("[readout]\nbit_depth = 20\n", "readout.bit_depth", "[8, 16]"),
+        ("[readout]\nbit_depth = 10.5\n", "readout.bit_depth", "integer"),
+        ("[exposure]\nmode = \"manual\"\n", "exposure.mode", "auto, fixed"),
+        ("[exposure]\nilluminant = \"D66\"\n", "exposure.illuminant", "D65"),
+        ("[exposure]\nlight_levels_lux = [100, 0]\n", "exposure.light_levels_lux", "(0, 1e6]"),
+        ("[spectrum]\nwavelength_nm = [400, 700, 7]\n", "spectrum.wavelength_nm", "divide"),
+        ("colour = 1\n", "colour", "keys allowed"),
+    ],
+)
+def test_bad_values_name_file_key_and_allowed(tmp_path: Path, patch: str, key: str, allowed: str) -> None:
+    # Put the top-level key before the first table.
+    text = patch + MINIMAL if not patch.startswith("[") else MINIMAL + patch
+    p = write(tmp_path, text)
+    with pytest.raises(ConfigError) as e:
+        load_camera(p)
+    msg = str(e.value)
+    assert str(p) in msg and key in msg and allowed in msg
+    assert "\n" not in msg
+
+
+def test_pixel_needs_two_of_three(tmp_path: Path) -> None:
+    text = MINIMAL.replace("voltage_swing_v = 1.0\n", "")
+    with pytest.raises(ConfigError, match="give two of"):
+        load_camera(write(tmp_path, text))
+    text = MINIMAL.replace("voltage_swing_v = 1.0\n", "voltage_swing_v = 1.0\nfull_well_e = 5000\n")
+    with pytest.raises(ConfigError, match="pixel.full_well_e.*inconsistent"):
+        load_camera(write(tmp_path, text))
+
+
+def test_toml_syntax_error_names_line(tmp_path: Path) -> None:
+    p = write(tmp_path, MINIMAL + "[optics\nf_number = 2\n")
+    with pytest.raises(ConfigError) as e:
+        load_camera(p)
+    assert str(p) in str(e.value) and "line 10" in str(e.value)
+
+
+def test_missing_file() -> None:
+    with pytest.raises(InputError, match="no such camera file"):
+        load_camera("/nonexistent/cam.toml")
+
+
+def test_unknown_qe_preset_lists_valid(tmp_path: Path) -> None:
+    p = write(tmp_path, MINIMAL.replace('"bayer-rgb"', '"bayr"'))
+    with pytest.raises(ConfigError) as e:
+        load_camera(p)
+    msg = str(e.value)
+    assert "cfa.qe" in msg and "bayer-rgb" in msg and "interleaved-rgbw" in msg
+
+
+def test_unknown_ir_filter_lists_valid(tmp_path: Path) -> None:
+    p = write(tmp_path, MINIMAL + 'ir_cut = "hotmirror"\n')
+    with pytest.raises(ConfigError, match="cfa.ir_cut.*ircf-public"):
+        load_camera(p)
+
+
+def test_channel_without_qe_column(tmp_path: Path) -> None:
+    p = write(tmp_path, MINIMAL.replace('"RGGB"', '[["R", "G"], ["NIR", "B"]]'))
+    with pytest.raises(ConfigError, match="no QE column 'NIR'.*R, G, B"):
+        load_camera(p)
+
+
+def _qe_csv(tmp_path: Path, rows: list[tuple[float, float, float, float]]) -> Path:
+    lines = ["# test QE", "wavelength_nm,R,G,B"] + [",".join(f"{v:g}" for v in r) for r in rows]
+    p = tmp_path / "qe.csv"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def test_user_qe_csv(tmp_path: Path) -> None:
+    wl = np.arange(380, 731, 10)
+    _qe_csv(tmp_path, [(w, 0.3, 0.4, 0.5) for w in wl])
+    cam = load_camera(write(tmp_path, MINIMAL.replace('"bayer-rgb"', '"qe.csv"')))
+    np.testing.assert_allclose(cam.qe_curves()[:, 2], 0.5)
+
+
+@pytest.mark.parametrize(
+    "rows, match",
+    [
+        ([(400, 0.1, 0.1, 0.1), (420, 0.1, 0.1, 0.1), (410, 0.1, 0.1, 0.1)], "strictly increasing"),
+        ([(w, 0.1, -0.2 if w == 500 else 0.1, 0.1) for w in range(380, 731, 10)], "non-negative"),
+        ([(w, 0.1, 0.1, 0.1) for w in range(450, 651, 10)], "covers 450-650 nm.*400-700 nm"),
+    ],
+    ids=["non-monotonic", "negative", "range-not-covered"],
+)
+def test_bad_qe_csv(tmp_path: Path, rows, match: str) -> None:
+    _qe_csv(tmp_path, rows)
+    p = write(tmp_path, MINIMAL.replace('"bayer-rgb"', '"qe.csv"') + "[spectrum]\nwavelength_nm = [400, 700, 10]\n")
+    with pytest.raises(ConfigError, match=match) as e:
+        load_camera(p)
+    assert "qe.csv" in str(e.value)
+
+
+def test_qe_csv_non_numeric(tmp_path: Path) -> None:
+    (tmp_path / "qe.csv").write_text("wavelength_nm,R,G,B\n400,0.1,x,0.1\n500,0.1,0.1,0.1\n")
+    with pytest.raises(ConfigError, match="non-numeric"):
+        load_camera(write(tmp_path, MINIMAL.replace('"bayer-rgb"', '"qe.csv"')))
