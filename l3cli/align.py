@@ -44,6 +44,10 @@ Verification
     correlation peak must also stand out of the rest of the surface (peak to
     side-lobe ratio ``sharpness``).
 
+A featureless render (flat field, grey card) cannot be registered: one of
+the raw's exact size is taken as pixel-aligned (with a warning), a smaller
+one is refused.
+
 Scaled renders (a camera JPEG at reduced size) are refused: training needs
 pixel-aligned pairs, and l3 does not resample the raw to the render's grid.
 
@@ -89,6 +93,9 @@ FLIPS: tuple[str, ...] = ("none", "horizontal", "vertical", "both")
 MIN_SCORE = 0.5
 #: Smallest peak-to-side-lobe ratio of the phase-correlation peak accepted.
 MIN_SHARPNESS = 10.0
+#: A render whose band-passed encoded luminance varies less than this (RMS,
+#: about a tenth of an 8-bit code) has no structure to register.
+FEATURELESS = 0.4 / 1020
 
 
 @dataclass(frozen=True)
@@ -333,6 +340,8 @@ def align(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
     Returns
     -------
     Alignment
+        ``score`` and ``sharpness`` are NaN for a featureless render of the
+        raw's size, taken as pixel-aligned.
 
     Raises
     ------
@@ -350,7 +359,18 @@ def align(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
         )
     if min(h, w) < 32:
         raise InputError(f"{iname} ({w}x{h}) is too small to align with {rname} (need 32x32)")
-    a = register(raw_luminance(raw), render_luminance(render, space), flips=flips)
+    rlum = render_luminance(render, space)
+    if float(np.std(_bandpass(_encode(rlum)))) < FEATURELESS:
+        # A flat render (grey card, flat field) holds nothing to register.
+        if (h, w) == (raw.height, raw.width):
+            log.warning("%s is featureless: cannot verify its alignment with %s; "
+                        "assumed pixel-aligned (same size)", iname, rname)
+            return Alignment(0, 0, "none", float("nan"), float("nan"), int(h), int(w))
+        raise InputError(
+            f"{iname} is featureless and smaller than its raw {rname} ({w}x{h} vs "
+            f"{raw.width}x{raw.height}): its position cannot be found"
+        )
+    a = register(raw_luminance(raw), rlum, flips=flips)
     if a.score < min_score or a.sharpness < min_sharpness:
         scaled = ""
         if (h, w) != (raw.height, raw.width):

@@ -90,7 +90,9 @@ class Pair:
     name
         The common stem.
     raw
-        The raw cropped to the render's area (CFA phase of the crop origin).
+        The raw cropped to the render's area, with the full raw's CFA phase: a
+        render whose top-left lies at an odd row or column (of a period-2 CFA)
+        is trimmed by that row or column, here and in ``target``.
     target
         float32 (H, W, 3): the render in the raw's orientation, in ``space``.
     weight_mask
@@ -277,6 +279,15 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
     a = align(raw, img, space=space, raw_name=files.raw, render_name=files.render,
               flips=tuple(flips), min_score=min_score, min_sharpness=min_sharpness)
     crop, encoded = aligned_pair(raw, img, a)
+    # Keep the raw's CFA phase: a render starting at an odd row/column of a
+    # Bayer raw loses its first row/column, so the crop's CFA equals the raw's
+    # (one table per CFA, and renders of whole raws later use that phase).
+    ph, pw = raw.cfa.period
+    ty, tx = (-a.dy) % ph, (-a.dx) % pw
+    if ty or tx:
+        crop = raw.crop(a.dy + ty, a.dx + tx, crop.height - ty, crop.width - tx)
+        crop.metadata["alignment"] = a.to_dict()
+        encoded = encoded[ty:, tx:]
     is_float = files.render.suffix.lower() == ".exr"
     mask = weight_mask(encoded, margin=margin,
                        clip_low=None if is_float else clip_low,

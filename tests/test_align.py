@@ -137,3 +137,12 @@ def test_register_recovers_shift_on_luminance():
     a = register(lum, lum[10:100, 7:140])
     assert isinstance(a, Alignment)
     assert (a.dy, a.dx, a.flip) == (10, 7, "none")
+
+
+def test_featureless_render(pair):
+    raw, render = pair
+    flat = np.full_like(render, 0.5)
+    a = align(raw, flat)
+    assert (a.dy, a.dx, a.flip) == (0, 0, "none") and np.isnan(a.score)
+    with pytest.raises(InputError, match="featureless and smaller"):
+        align(raw, flat[4:-4, 4:-4])

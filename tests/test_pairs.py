@@ -139,3 +139,16 @@ def test_misaligned_pair_refused_naming_both(pairs_dir: Path):
 def test_simulation_dir_is_not_pairs_dir(pairs_dir: Path):
     (pairs_dir / "manifest.json").write_text("{}")
     assert not is_pairs_dir(pairs_dir)
+
+
+def test_odd_crop_keeps_the_raw_cfa_phase(pairs_dir: Path):
+    lin = scene(H, W, seed=21)
+    write_raw(pairs_dir / "c.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
+    write_image(pairs_dir / "c.png", srgb_encode(lin)[3:-4, 5:-2][:, ::-1], space="srgb")
+    (c,) = [p for p in iter_pairs([pairs_dir / "c.dng"], margin=0)]
+    assert (c.alignment.dy, c.alignment.dx, c.alignment.flip) == (3, 5, "horizontal")
+    assert c.raw.cfa.spec == "RG/GB"
+    assert c.raw.shape == (H - 8, W - 8) and c.target.shape == (H - 8, W - 8, 3)
+    assert c.raw.metadata["crop"] == [4, 6, H - 8, W - 8]
+    expect = np.round(srgb_encode(lin)[4:-4, 6:-2] * 255) / 255
+    np.testing.assert_allclose(c.target, expect, atol=1e-6)

@@ -28,8 +28,9 @@ from l3cli.cli.options import output_opt, quiet, seed_opt
 @click.option("--merge-positions/--no-merge-positions", default=True, show_default=True,
               help="Share classes between CFA positions whose patch layouts coincide.")
 @click.option("--target", "target_space",
-              type=click.Choice(["xyz", "linear-srgb", "srgb", "lab"]), default="xyz",
-              show_default=True, help="Colour space the table renders into.")
+              type=click.Choice(["xyz", "linear-srgb", "srgb", "lab"]), default=None,
+              help="Colour space the table renders into [default: srgb (the renders' own "
+                   "encoding) when every input is a pairs folder, else xyz].")
 @click.option("--sample-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
               default=1.0, show_default=True,
               help="Use this random fraction of the pixels of each image (fixed by --seed).")
@@ -58,13 +59,15 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
 
     if patch < 1 or patch % 2 == 0:
         raise click.BadParameter(f"{patch} is not an odd size >= 1", param_hint="--patch")
+    pairs = find_pairs(list(inputs))
+    if target_space is None:  # pairs folders reproduce their renders' encoding
+        target_space = "srgb" if all(p.align for p in pairs) else "xyz"
     opts = TrainOptions(patch=patch, levels=levels, spacing=spacing,
                         level_range=tuple(level_range) if level_range else None,
                         contrast_bins=contrast_bins, contrast_threshold=contrast_threshold,
                         saturation=saturation, merge_positions=merge_positions,
                         target_space=target_space, sample_fraction=sample_fraction, seed=seed,
                         min_samples_factor=min_samples_factor)
-    pairs = find_pairs(list(inputs))
     show = not quiet()
 
     def bar(items, label):

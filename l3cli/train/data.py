@@ -50,12 +50,17 @@ class Pair:
     space
         Colour space of the target file's values, or ``None`` to take it from
         the file (EXR attribute / display sRGB).
+    align
+        True for pairs-folder renders: :func:`load_pair` registers the render
+        on the raw (crop, flips; :mod:`l3cli.align`) and masks clipped pixels
+        and the border (:mod:`l3cli.pairs`).
     """
 
     raw: Path
     target: Path
     stem: str
     space: str | None = None
+    align: bool = False
 
 
 def _simulation_pairs(folder: Path) -> list[Pair]:
@@ -106,7 +111,7 @@ def _pairs_folder(folder: Path) -> list[Pair]:
                 f"{raw}: no target image with the same stem "
                 f"({', '.join(stem + s for s in IMAGE_SUFFIXES)})"
             )
-        pairs.append(Pair(raw, target, stem, None))
+        pairs.append(Pair(raw, target, stem, None, align=True))
     return pairs
 
 
@@ -136,8 +141,13 @@ def find_pairs(inputs: list[str | os.PathLike]) -> list[Pair]:
     return pairs
 
 
-def load_pair(pair: Pair, *, target_space: str = "xyz"):
+def load_pair(pair: Pair, *, target_space: str = "xyz", with_mask: bool = False):
     """Read a pair: ``(RawImage, target float32 (H, W, 3) in target_space)``.
+
+    Pairs-folder pairs (``pair.align``) are aligned by :func:`l3cli.pairs.load_pair`:
+    the raw comes back cropped to the render's area. With ``with_mask`` a third
+    item is returned: bool (H, W) pixels that may train (clipped render pixels
+    and a border margin excluded), or ``None`` (all pixels).
 
     Raises
     ------
@@ -148,6 +158,14 @@ def load_pair(pair: Pair, *, target_space: str = "xyz"):
     from l3cli.io.image import read_image
     from l3cli.io.raw import read_raw
 
+    if pair.align:
+        from l3cli.pairs import PairFiles
+        from l3cli.pairs import load_pair as load_aligned
+
+        al = load_aligned(PairFiles(pair.stem, pair.raw, pair.target), target_space=target_space)
+        if not np.all(np.isfinite(al.raw.mosaic)):
+            raise InputError(f"{pair.raw}: raw mosaic holds NaN or Inf")
+        return (al.raw, al.target, al.weight_mask) if with_mask else (al.raw, al.target)
     raw = read_raw(pair.raw)
     img, file_space = read_image(pair.target)
     space = pair.space or file_space
@@ -170,4 +188,6 @@ def load_pair(pair: Pair, *, target_space: str = "xyz"):
     if not np.all(np.isfinite(raw.mosaic)):
         raise InputError(f"{pair.raw}: raw mosaic holds NaN or Inf")
     target = convert(img, space, check_space(target_space))
+    if with_mask:
+        return raw, np.ascontiguousarray(target, dtype=np.float32), None
     return raw, np.ascontiguousarray(target, dtype=np.float32)

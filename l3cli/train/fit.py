@@ -151,12 +151,14 @@ def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: Trai
     for the sampling seed, so splitting a list gives the same samples as one run."""
     stats = ClassStats.zeros(definition, 3, target_space=opts.target_space)
     for i, pair in _progress(list(enumerate(pairs)), "statistics", progress):
-        raw, target = load_pair(pair, target_space=opts.target_space)
+        raw, target, valid = load_pair(pair, target_space=opts.target_space, with_mask=True)
         if raw.cfa.spec != definition.cfa.spec:
             raise InputError(
                 f"{pair.raw}: CFA {raw.cfa.spec} differs from the table's {definition.cfa.spec}"
             )
         mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i + index_offset)
+        if valid is not None:
+            mask = valid if mask is None else mask & valid
         accumulate(stats, raw.mosaic, target, mask=mask)
     return stats
 
