@@ -413,6 +413,7 @@ def evaluate_item(
     dpi: float = 96.0,
     distance: float = 1.0,
     filters: str = "distribution",
+    opponent: str = "hpe",
     chart_corners: Sequence[float] | None = None,
     edge_roi: Sequence[int] | None = None,
     pixel_pitch_um: float | None = None,
@@ -429,6 +430,8 @@ def evaluate_item(
         Display resolution and viewing distance (metres) for S-CIELAB.
     filters
         S-CIELAB filter version (``distribution`` or ``original``).
+    opponent
+        S-CIELAB XYZ -> opponent matrix (``hpe``, ``isetcam-2deg``, ``isetcam-10deg``).
     chart_corners
         Eight numbers, the chart's outer corners (TL, TR, BR, BL) in the image,
         for a chart in real images; the reference image's patches are the ideal.
@@ -462,6 +465,7 @@ def evaluate_item(
     sc = scielab(
         _crop(ref, exclude_border), _crop(rend, exclude_border),
         white_point=white, samples_per_deg=samples_per_degree(dpi, distance), version=filters,
+        opponent=opponent,
     )
     values.update(sc.summary())
 
@@ -549,6 +553,7 @@ def evaluate(
     dpi: float = 96.0,
     distance: float = 1.0,
     filters: str = "distribution",
+    opponent: str = "hpe",
     chart_corners: Sequence[float] | None = None,
     edge_roi: Sequence[int] | None = None,
     pixel_pitch_um: float | None = None,
@@ -566,7 +571,8 @@ def evaluate(
         log.info("evaluating %s against %s", item.rendered, item.reference)
         reports.append(
             evaluate_item(
-                item, dpi=dpi, distance=distance, filters=filters, chart_corners=chart_corners,
+                item, dpi=dpi, distance=distance, filters=filters, opponent=opponent,
+                chart_corners=chart_corners,
                 edge_roi=edge_roi, pixel_pitch_um=pixel_pitch_um, exclude_border=exclude_border,
                 keep_images=keep_images,
             )

@@ -128,3 +128,16 @@ def test_opponent_matrix_is_hpe_then_poirson_wandell():
     opp = m @ WHITE
     assert opp[0] == pytest.approx(100 * (0.990 - 0.106 - 0.094), rel=2e-3)
     assert math.isfinite(np.linalg.cond(m))
+
+
+@pytest.mark.parametrize("opponent", ["hpe", "isetcam-2deg", "isetcam-10deg"])
+def test_uniform_invariance_for_every_opponent_matrix(opponent):
+    a = np.array([40.0, 42.0, 30.0])
+    b = np.array([38.0, 40.0, 36.0])
+    res = scielab(np.broadcast_to(a, (20, 24, 3)), np.broadcast_to(b, (20, 24, 3)), opponent=opponent)
+    np.testing.assert_allclose(res.delta_e_ab, plain_cielab_de(a, b), rtol=1e-5)
+
+
+def test_unknown_opponent_matrix():
+    with pytest.raises(ConfigError, match="hpe, isetcam-2deg, isetcam-10deg"):
+        scielab(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), opponent="smith-pokorny")

@@ -59,6 +59,9 @@ class _GreedyOption(click.Option):
               help="Viewing distance for S-CIELAB (metres).")
 @click.option("--filters", type=click.Choice(["distribution", "original"]), default="distribution",
               show_default=True, help="S-CIELAB filter set (ISETCam's default, or the 1997 paper's).")
+@click.option("--opponent", type=click.Choice(["hpe", "isetcam-2deg", "isetcam-10deg"]), default="hpe",
+              show_default=True, help="S-CIELAB XYZ -> opponent matrix (HPE LMS then Poirson-Wandell, "
+                                      "or ISETCam's precomputed xyz2opp).")
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False),
               help="Write figures (ΔE map + histogram, MTF, Macbeth, crops) into this folder.")
 @click.option("--chart", "chart", callback=_numbers(8), metavar="x0,y0,x1,y1,x2,y2,x3,y3",
@@ -73,7 +76,7 @@ class _GreedyOption(click.Option):
               metavar="N", help="Ignore N pixels on every side for S-CIELAB and PSNR.")
 @click.pass_context
 def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[str, ...],
-             json_path: str | None, dpi: float, distance: float, filters: str,
+             json_path: str | None, dpi: float, distance: float, filters: str, opponent: str,
              plots_dir: str | None, chart: list[float] | None, edge: list[int] | None,
              pixel_pitch: float | None, exclude_border: int) -> None:
     """Compare RENDERED images (files, or one folder) with references.
@@ -101,12 +104,13 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
         Path(plots_dir).mkdir(parents=True, exist_ok=True)
     reports, summary = run_evaluate(
         list(rendered), list(references), dpi=dpi, distance=distance, filters=filters,
+        opponent=opponent,
         chart_corners=chart, edge_roi=edge, pixel_pitch_um=pixel_pitch,
         exclude_border=exclude_border, keep_images=bool(plots_dir),
     )
     settings = {
         "dpi": dpi, "distance_m": distance, "samples_per_degree": samples_per_degree(dpi, distance),
-        "filters": filters, "exclude_border": exclude_border, "delta_e": "CIE 1976 (extra: CIE 2000)",
+        "filters": filters, "opponent": opponent, "exclude_border": exclude_border, "delta_e": "CIE 1976 (extra: CIE 2000)",
     }
     report = report_dict(reports, summary, settings=settings)
     if json_path:

@@ -46,6 +46,7 @@ __all__ = [
     "XYZ_TO_LMS_HPE",
     "LMS_TO_OPPONENT",
     "SRGB_WHITE_XYZ",
+    "XYZ_TO_OPPONENT",
     "SCIELABResult",
     "samples_per_degree",
     "filter_support",
@@ -65,6 +66,21 @@ XYZ_TO_LMS_HPE = np.array(
 LMS_TO_OPPONENT = np.array(
     [[0.990, -0.106, -0.094], [-0.669, 0.742, -0.027], [-0.212, -0.354, 0.911]]
 )
+
+#: XYZ -> opponent matrices by name. ``hpe`` (default, METRICS.md) is
+#: ``LMS_TO_OPPONENT @ XYZ_TO_LMS_HPE``; ``isetcam-2deg`` and ``isetcam-10deg`` are
+#: ISETCam's precomputed ``xyz2opp`` matrices (Poirson-Wandell cones; ISETCam's
+#: ``scParams`` uses the 10-degree one). On test images the three give S-CIELAB
+#: means within about 5 % of each other.
+XYZ_TO_OPPONENT: dict[str, np.ndarray] = {
+    "hpe": LMS_TO_OPPONENT @ XYZ_TO_LMS_HPE,
+    "isetcam-2deg": np.array(
+        [[278.7336, 721.8031, -106.5520], [-448.7736, 289.8056, 77.1569], [85.9513, -589.9859, 501.1089]]
+    ) / 1000,
+    "isetcam-10deg": np.array(
+        [[288.5613, 659.7617, -130.5654], [-464.8864, 326.2702, 62.4200], [79.8787, -554.7976, 481.4746]]
+    ) / 1000,
+}
 
 #: White of the sRGB display model with XYZ = 100 x (linear sRGB -> XYZ, D65).
 SRGB_WHITE_XYZ = (95.047, 100.0, 108.883)
@@ -205,9 +221,21 @@ def scielab_filters(samples_per_deg: int, *, version: str = "distribution") -> l
     return filters
 
 
-def xyz_to_opponent_matrix() -> NDArray:
-    """XYZ -> opponent matrix: ``LMS_TO_OPPONENT @ XYZ_TO_LMS_HPE``."""
-    return LMS_TO_OPPONENT @ XYZ_TO_LMS_HPE
+def xyz_to_opponent_matrix(opponent: str = "hpe") -> NDArray:
+    """XYZ -> opponent matrix by name (see :data:`XYZ_TO_OPPONENT`).
+
+    The default, ``"hpe"``, is ``LMS_TO_OPPONENT @ XYZ_TO_LMS_HPE``.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown name.
+    """
+    try:
+        return XYZ_TO_OPPONENT[opponent].copy()
+    except KeyError:
+        allowed = ", ".join(XYZ_TO_OPPONENT)
+        raise ConfigError(f"unknown opponent matrix {opponent!r}; allowed: {allowed}") from None
 
 
 def _convolve_separable(plane: NDArray, parts: list[tuple[float, NDArray]]) -> NDArray:
@@ -222,7 +250,7 @@ def _convolve_separable(plane: NDArray, parts: list[tuple[float, NDArray]]) -> N
 
 
 def spatial_filter_xyz(
-    xyz: ArrayLike, *, samples_per_deg: int, version: str = "distribution"
+    xyz: ArrayLike, *, samples_per_deg: int, version: str = "distribution", opponent: str = "hpe"
 ) -> NDArray:
     """Blur an XYZ image by the S-CIELAB opponent filters and return XYZ.
 
@@ -234,6 +262,8 @@ def spatial_filter_xyz(
         Samples per degree of visual angle.
     version
         Filter version (see :data:`SCIELAB_FILTER_PARAMETERS`).
+    opponent
+        XYZ -> opponent matrix name (see :data:`XYZ_TO_OPPONENT`).
 
     Returns
     -------
@@ -241,7 +271,7 @@ def spatial_filter_xyz(
         (H, W, 3) float64 filtered XYZ; a uniform image is returned unchanged.
     """
     img = as_image(xyz, name="xyz", channels=3)
-    m = xyz_to_opponent_matrix()
+    m = xyz_to_opponent_matrix(opponent)
     opp = img @ m.T
     parts = scielab_filter_1d(samples_per_deg, version=version)
     filtered = np.stack([_convolve_separable(opp[..., c], parts[c]) for c in range(3)], axis=-1)
@@ -306,6 +336,7 @@ def scielab(
     dpi: float = 96.0,
     distance: float = 1.0,
     version: str = "distribution",
+    opponent: str = "hpe",
     clip: bool = True,
 ) -> SCIELABResult:
     """S-CIELAB difference between two XYZ images.
@@ -324,6 +355,9 @@ def scielab(
         when ``samples_per_deg`` is not given; 96 dpi at 1 m (66 samples/deg).
     version
         ``"distribution"`` (default) or ``"original"`` filters.
+    opponent
+        XYZ -> opponent matrix: ``"hpe"`` (default; Hunt-Pointer-Estevez LMS then
+        Poirson-Wandell), ``"isetcam-2deg"`` or ``"isetcam-10deg"``.
     clip
         Clip XYZ to [0, white] before filtering, as ISETCam does.
 
@@ -357,6 +391,7 @@ def scielab(
     if ref.shape[2] != 3:
         raise InputError(f"S-CIELAB needs 3-channel XYZ images, got {ref.shape[2]} channels")
     _check_version(version)
+    xyz_to_opponent_matrix(opponent)
     spd = samples_per_degree(dpi, distance) if samples_per_deg is None else int(samples_per_deg)
     if spd < 1:
         raise ConfigError(f"samples_per_deg must be >= 1, got {samples_per_deg!r}")
@@ -365,7 +400,8 @@ def scielab(
     for img in (ref, test):
         if clip:
             img = np.clip(img, 0.0, white)
-        labs.append(xyz_to_lab(spatial_filter_xyz(img, samples_per_deg=spd, version=version), white))
+        filtered = spatial_filter_xyz(img, samples_per_deg=spd, version=version, opponent=opponent)
+        labs.append(xyz_to_lab(filtered, white))
     de_ab = delta_e(labs[0], labs[1], method="CIE 1976")
     de_2000 = delta_e(labs[0], labs[1], method="CIE 2000")
     return SCIELABResult(
