@@ -399,7 +399,8 @@ def _cfa(sec: _Section, base: Path | None) -> CFAConfig:
 
 
 def _default_grid(cfa: CFAConfig) -> tuple[float, float, float]:
-    """400-700 nm unless a channel (after the IR-cut) responds beyond 700 nm."""
+    """380-780 nm in 5 nm steps (within the QE range), or to 1060 nm in 10 nm steps when
+    a channel (after the IR-cut filter) responds beyond 700 nm."""
     from l3cli import spectral
 
     qe = spectral.load_qe(cfa.qe_source)
@@ -409,10 +410,11 @@ def _default_grid(cfa: CFAConfig) -> tuple[float, float, float]:
     cols = np.stack([qe.column(c) for _, c in cfa.channel_columns], axis=1) * t[:, None]
     total = np.trapezoid(cols, wl, axis=0)
     beyond = np.trapezoid(np.where(wl[:, None] > 705, cols, 0.0), wl, axis=0)
+    start = max(380.0, math.ceil(wl[0] / 10.0) * 10.0)
     if np.any(beyond > 0.01 * np.maximum(total, 1e-30)) and wl[-1] >= 1000:
         stop = min(1060.0, math.floor(wl[-1] / 10.0) * 10.0)
-        return (400.0, stop, 10.0)
-    return (400.0, 700.0, 10.0)
+        return (start, stop, 10.0)
+    return (start, min(780.0, math.floor(wl[-1] / 5.0) * 5.0), 5.0)
 
 
 def _spectrum(sec: _Section, cfa: CFAConfig) -> Spectrum:

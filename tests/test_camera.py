@@ -74,7 +74,7 @@ def test_minimal_defaults(tmp_path: Path) -> None:
     assert cam.pixel.full_well_e == pytest.approx(10000.0)
     assert cam.optics.f_number == 4.0
     assert cam.exposure.mode == "auto" and cam.exposure.illuminant == "D65"
-    assert cam.wavelengths[0] == 400 and cam.wavelengths[-1] == 700  # visible-only QE
+    assert cam.wavelengths[0] == 380 and cam.wavelengths[-1] == 730  # the QE's visible range
     assert cam.readout.white_level_dn == 1023
 
 

@@ -190,7 +190,7 @@ def edge_area_coverage(height: int, width: int, *, angle_deg: float = EDGE_ANGLE
     a = xc + s * (i - yc) - j  # x_e(i) - j
     if abs(s) < 1e-12:
         return np.clip(a, 0.0, 1.0)
-    return (_clip_integral(a + s) - _clip_integral(a)) / s
+    return np.clip((_clip_integral(a + s) - _clip_integral(a)) / s, 0.0, 1.0)
 
 
 def slanted_edge_scene(height: int, width: int, wavelengths: np.ndarray,
