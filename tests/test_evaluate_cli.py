@@ -252,3 +252,34 @@ def test_usage_errors(runner, pngs):
 def test_render_not_in_simulation(runner, sim_dir, pngs):
     res = runner.invoke(cli, ["evaluate", str(pngs / "same.png"), "--reference", str(sim_dir)])
     assert res.exit_code == 1 and "is not a capture of" in res.output
+
+
+def test_exposure_error_counts_in_scielab_not_in_macbeth(runner, sim_dir, tmp_path):
+    """S-CIELAB uses the capture's fixed white (manifest white_xyz); the Macbeth ΔE
+    normalises the white patch, so a pure exposure error only shows in S-CIELAB."""
+    from l3cli.io.image import read_image
+
+    man = json.loads((sim_dir / "manifest.json").read_text())
+    cap = next(c for c in man["captures"] if c["chart"])
+    img, _ = read_image(sim_dir / cap["target"])
+    write_image(tmp_path / f"{cap['stem']}.exr", img * 0.7, space="xyz")
+    rep = tmp_path / "r.json"
+    res = runner.invoke(cli, ["evaluate", str(tmp_path / f"{cap['stem']}.exr"), "--reference", str(sim_dir),
+                              "--json", str(rep)])
+    assert res.exit_code == 0, res.output
+    d = json.loads(rep.read_text())["images"][0]
+    assert d["macbeth_de_mean"] < 0.5
+    assert d["scielab_mean"] > 3
+
+
+def test_load_xyz_scales(tmp_path):
+    from l3cli.evaluate import load_xyz
+
+    write_image(tmp_path / "white.png", np.ones((4, 4, 3), np.float32), space="srgb")
+    xyz, space = load_xyz(tmp_path / "white.png")
+    assert space == "srgb"
+    np.testing.assert_allclose(xyz[0, 0], [95.047, 100.0, 108.883], rtol=2e-3)
+    write_image(tmp_path / "lin.exr", np.full((4, 4, 3), 0.5, np.float32), space="linear-srgb")
+    xyz, space = load_xyz(tmp_path / "lin.exr")
+    assert space == "linear-srgb"
+    np.testing.assert_allclose(xyz[0, 0], 0.5 * np.array([0.95047, 1.0, 1.08883]), rtol=2e-3)
