@@ -28,6 +28,7 @@ _COMMANDS: dict[str, str] = {
     "train": "l3cli.cli.train:train",
     "render": "l3cli.cli.render:render",
     "simulate": "l3cli.cli.simulate:simulate",
+    "smooth": "l3cli.cli.smooth:smooth",
 }
 
 

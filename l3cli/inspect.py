@@ -1,0 +1,242 @@
+"""A readable summary of a transform table (``l3 inspect``).
+
+:func:`table_summary` gathers the facts (JSON-friendly dict): class layout,
+level cut points, samples and ridge λ per class, empty classes and their
+fallbacks, classes filled by smoothing, output space and provenance;
+:func:`format_summary` turns them into text.
+
+References
+----------
+.. [1] Q. Tian, S. Lansel, J. E. Farrell, B. A. Wandell, "Automating the design
+   of image processing pipelines for novel color filter arrays: Local, Linear,
+   Learned (L3) method", Proc. SPIE 9023, Digital Photography X (2014).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from l3cli.table import TransformTable
+
+__all__ = ["table_summary", "format_summary", "saturation_name", "class_rows", "compress_ranges"]
+
+
+def saturation_name(bits: int, channels: tuple[str, ...]) -> str:
+    """``"-"`` for no saturated channel, else the channel names joined by ``+``."""
+    names = [c for i, c in enumerate(channels) if bits >> i & 1]
+    return "+".join(names) if names else "-"
+
+
+def compress_ranges(indices) -> str:
+    """``[1, 2, 3, 7]`` -> ``"1-3, 7"``."""
+    idx = sorted(int(i) for i in indices)
+    if not idx:
+        return "none"
+    parts = []
+    start = prev = idx[0]
+    for i in idx[1:]:
+        if i == prev + 1:
+            prev = i
+            continue
+        parts.append(f"{start}-{prev}" if prev > start else f"{start}")
+        start = prev = i
+    parts.append(f"{start}-{prev}" if prev > start else f"{start}")
+    return ", ".join(parts)
+
+
+def _filled(table: TransformTable) -> dict[int, str]:
+    rec = table.provenance.get("smoothing") or {}
+    out: dict[int, str] = {}
+    for prior, idx in (rec.get("filled_by") or {}).items():
+        for i in idx:
+            out.setdefault(int(i), prior)
+    return out
+
+
+def class_rows(table: TransformTable) -> list[dict[str, Any]]:
+    """One dict per class: index, group, positions, saturation, level, contrast,
+    samples, λ per output, status (``trained``, ``filled:<prior>`` or ``empty``)
+    and source class."""
+    d = table.definition
+    g, s, lev, con = (np.asarray(a) for a in d.class_tuple(np.arange(d.n_classes)))
+    filled = _filled(table)
+    members = {gg: np.flatnonzero(d.position_group == gg).tolist() for gg in range(d.n_groups)}
+    rows = []
+    for i in range(d.n_classes):
+        if table.empty[i]:
+            status = "empty"
+        elif i in filled:
+            status = f"filled:{filled[i]}"
+        else:
+            status = "trained"
+        lam = table.lambdas[i]
+        rows.append({
+            "class": i, "group": int(g[i]), "positions": members[int(g[i])],
+            "saturation": saturation_name(int(s[i]), d.cfa.channels),
+            "level": int(lev[i]), "contrast": int(con[i]),
+            "samples": int(table.counts[i]),
+            "lambda": [None if not np.isfinite(v) else float(v) for v in lam],
+            "status": status, "source": int(table.source_class[i]),
+        })
+    return rows
+
+
+def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, Any]:
+    """Facts about a table, JSON-serialisable.
+
+    Parameters
+    ----------
+    table
+        The table.
+    name
+        Shown as the table's name (usually its file path).
+
+    Returns
+    -------
+    dict
+        Keys ``name``, ``format``, ``version``, ``output_space``, ``n_out``,
+        ``cfa`` (spec, period, channels), ``patch``, ``layout`` (groups with
+        their positions, saturation patterns, levels, contrast bins, classes),
+        ``levels`` (per level bin: range, samples, trained classes, contrast
+        cuts), ``classes`` (trained / empty / filled counts), ``empty`` (per
+        saturation pattern: empty class indices), ``filled`` (by prior),
+        ``samples`` (total), ``lambda`` (quantiles over trained classes),
+        ``smoothing`` (record or None), ``provenance``.
+    """
+    d = table.definition
+    cfa = d.cfa
+    ng, ns, nl, nc = d.shape
+    counts = table.counts.reshape(ng, ns, nl, nc)
+    trained = (~table.empty).reshape(ng, ns, nl, nc)
+    filled = _filled(table)
+    cuts = d.level_cuts
+    levels = []
+    for lv in range(nl):
+        lo = 0.0 if lv == 0 else float(cuts[lv - 1])
+        hi = None if lv == nl - 1 else float(cuts[lv])
+        levels.append({
+            "level": lv, "from": lo, "to": hi,
+            "samples": int(counts[:, :, lv].sum()),
+            "samples_unsaturated": int(counts[:, 0, lv].sum()),
+            "trained_classes": int(trained[:, :, lv].sum()),
+            "contrast_cuts": [float(v) for v in d.contrast_cuts[lv]],
+        })
+    empty_by_sat: dict[str, list[int]] = {}
+    for i in np.flatnonzero(table.empty):
+        _, s, _, _ = d.class_tuple(int(i))
+        empty_by_sat.setdefault(saturation_name(int(s), cfa.channels), []).append(int(i))
+    fin = table.lambdas[np.isfinite(table.lambdas)]
+    lam = ({"min": float(fin.min()), "median": float(np.median(fin)), "max": float(fin.max())}
+           if fin.size else None)
+    by_prior: dict[str, list[int]] = {}
+    for i, prior in filled.items():
+        by_prior.setdefault(prior, []).append(i)
+    return {
+        "name": name,
+        "format": table.format,
+        "version": table.version,
+        "output_space": table.output_space,
+        "n_out": table.n_out,
+        "cfa": {"spec": cfa.spec, "period": list(cfa.period), "channels": list(cfa.channels)},
+        "patch": d.patch,
+        "layout": {
+            "groups": [np.flatnonzero(d.position_group == gg).tolist() for gg in range(ng)],
+            "saturation_patterns": ns, "levels": nl, "contrast_bins": nc,
+            "classes": d.n_classes, "coefficients": d.n_coeffs,
+            "level_spacing": d.level_spacing, "saturation_threshold": d.saturation_threshold,
+            "contrast_rule": d.contrast_rule, "saturation_rule": d.saturation_rule,
+        },
+        "levels": levels,
+        "classes": {"trained": int((~table.empty).sum()) - len(filled),
+                    "filled": len(filled), "empty": int(table.empty.sum())},
+        "empty": {k: v for k, v in sorted(empty_by_sat.items())},
+        "filled": {k: sorted(v) for k, v in sorted(by_prior.items())},
+        "samples": int(table.counts.sum()),
+        "lambda": lam,
+        "smoothing": table.provenance.get("smoothing"),
+        "provenance": table.provenance,
+    }
+
+
+def _fmt_level(v: float | None) -> str:
+    return "inf" if v is None else f"{v:.4g}"
+
+
+def format_summary(summary: dict[str, Any], *, table: TransformTable | None = None,
+                   classes: bool = False, provenance: bool = True) -> str:
+    """Text form of :func:`table_summary` (``classes=True`` lists every class; needs ``table``)."""
+    s = summary
+    lay = s["layout"]
+    out = [f"{s['name']}: {s['format']} v{s['version']}, output {s['output_space']} "
+           f"({s['n_out']} channels)",
+           f"CFA {s['cfa']['spec']} (period {s['cfa']['period'][0]}x{s['cfa']['period'][1]}, "
+           f"channels {' '.join(s['cfa']['channels'])}), patch {s['patch']}x{s['patch']} "
+           f"({lay['coefficients']} coefficients per output)",
+           f"classes: {lay['classes']} = {len(lay['groups'])} position groups x "
+           f"{lay['saturation_patterns']} saturation patterns x {lay['levels']} levels x "
+           f"{lay['contrast_bins']} contrast bins",
+           "position groups: " + "; ".join(f"{i}: {g}" for i, g in enumerate(lay["groups"])),
+           f"saturation threshold {lay['saturation_threshold']:g} ({lay['saturation_rule']}), "
+           f"contrast rule {lay['contrast_rule']}",
+           f"classes trained {s['classes']['trained']}, filled by smoothing "
+           f"{s['classes']['filled']}, empty {s['classes']['empty']}; "
+           f"samples {s['samples']}",
+           ]
+    if s["lambda"]:
+        lam = s["lambda"]
+        out.append(f"ridge lambda: min {lam['min']:.3g}, median {lam['median']:.3g}, "
+                   f"max {lam['max']:.3g}")
+    out.append("")
+    out.append(f"levels ({lay['level_spacing']} spacing):")
+    out.append(f"  {'bin':>3}  {'from':>9}  {'to':>9}  {'samples':>10}  {'unsat':>10}  "
+               f"{'trained':>7}  contrast cuts")
+    for lv in s["levels"]:
+        cc = ", ".join(f"{v:.3g}" for v in lv["contrast_cuts"]) or "-"
+        out.append(f"  {lv['level']:>3}  {_fmt_level(lv['from']):>9}  {_fmt_level(lv['to']):>9}  "
+                   f"{lv['samples']:>10}  {lv['samples_unsaturated']:>10}  "
+                   f"{lv['trained_classes']:>7}  {cc}")
+    out.append("")
+    out.append("empty classes (by saturated channels):" if s["empty"] else "empty classes: none")
+    for sat, idx in s["empty"].items():
+        out.append(f"  {sat}: {len(idx)} [{compress_ranges(idx)}]")
+    if s["smoothing"]:
+        sm = s["smoothing"]
+        out.append("")
+        out.append(f"smoothing: priors {', '.join(sm.get('priors', [])) or 'none'}")
+        for prior in ("symmetry", "spline", "uniformity"):
+            if prior in sm:
+                out.append(f"  {prior}: {json.dumps(sm[prior], sort_keys=True, default=str)}")
+        if s["filled"]:
+            out.append("filled classes (by prior):")
+            for prior, idx in s["filled"].items():
+                out.append(f"  {prior}: {len(idx)} [{compress_ranges(idx)}]")
+        else:
+            out.append("filled classes: none")
+    else:
+        out.append("")
+        out.append("smoothing: not smoothed")
+    if classes:
+        if table is None:
+            raise ValueError("classes=True needs the table")
+        out.append("")
+        out.append(f"  {'class':>5} {'grp':>3} {'sat':>7} {'lev':>3} {'con':>3} {'samples':>9}  "
+                   f"{'status':<16} {'src':>5}  lambda")
+        for r in class_rows(table):
+            lam = " ".join("-" if v is None else f"{v:.3g}" for v in r["lambda"])
+            out.append(f"  {r['class']:>5} {r['group']:>3} {r['saturation']:>7} {r['level']:>3} "
+                       f"{r['contrast']:>3} {r['samples']:>9}  {r['status']:<16} "
+                       f"{r['source']:>5}  {lam}")
+    if provenance:
+        prov = {k: v for k, v in s["provenance"].items() if k not in ("smoothing",)}
+        out.append("")
+        out.append("provenance:")
+        for k in sorted(prov):
+            v = prov[k]
+            text = json.dumps(v, sort_keys=True, default=str)
+            if isinstance(v, list) and len(v) > 6:
+                text = json.dumps(v[:6], default=str)[:-1] + f", ... ({len(v)} in all)]"
+            out.append(f"  {k}: {text}")
+    return "\n".join(out)
