@@ -29,6 +29,7 @@ _COMMANDS: dict[str, str] = {
     "render": "l3cli.cli.render:render",
     "simulate": "l3cli.cli.simulate:simulate",
     "smooth": "l3cli.cli.smooth:smooth",
+    "inspect": "l3cli.cli.inspect:inspect",
 }
 
 

@@ -1,0 +1,71 @@
+"""``l3 inspect``: describe a transform table; draw its kernels and coefficient curves."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+def _levels(ctx, param, value):
+    if not value:
+        return None
+    out = []
+    for part in value.split(","):
+        part = part.strip()
+        try:
+            out.append(int(part))
+        except ValueError:
+            raise click.BadParameter(f"{part!r} is not a level bin number") from None
+    return out
+
+
+@click.command(short_help="Describe a table: class layout, samples, λ, filled classes; plots.")
+@click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
+@click.option("--plots", "plots", type=click.Path(file_okay=False), default=None,
+              help="Write kernel weight images (and coefficient-vs-level curves) into this "
+                   "folder (created if missing).")
+@click.option("--compare", "compare", type=click.Path(dir_okay=False), default=None,
+              metavar="OTHER.npz",
+              help="The table before smoothing (same classes): curves show it as markers.")
+@click.option("--levels", "levels", callback=_levels, default=None, metavar="L1,L2,...",
+              help="Level bins for the kernel images (default: low, mid, high and a "
+                   "saturated class).")
+@click.option("--classes", "classes", is_flag=True,
+              help="List every class (samples, λ, status, fallback source).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def inspect(table_path: str, plots: str | None, compare: str | None, levels: list[int] | None,
+            classes: bool, as_json: bool) -> None:
+    """Print a readable summary of TABLE.npz.
+
+    Class layout, levels with their cut points, samples and λ, empty classes,
+    classes filled by `l3 smooth`, output space and provenance. With --plots,
+    draw the kernels as weight images per position group and output channel,
+    and the coefficients against the level (before/after with --compare).
+    """
+    from l3cli.inspect import class_rows, format_summary, table_summary
+    from l3cli.table import load_table
+
+    table = load_table(table_path)
+    other = load_table(compare) if compare else None
+    if other is not None and not other.definition.same_as(table.definition):
+        raise click.BadParameter(
+            f"{compare} has a different class definition than {table_path}",
+            param_hint="--compare")
+    summary = table_summary(table, name=str(table_path))
+    if as_json:
+        if classes:
+            summary["class_list"] = class_rows(table)
+        click.echo(json.dumps(summary, indent=2, default=str))
+    else:
+        click.echo(format_summary(summary, table=table, classes=classes))
+    if plots:
+        from l3cli.plots_table import plot_coefficient_curves, plot_kernels
+
+        folder = Path(plots)
+        folder.mkdir(parents=True, exist_ok=True)
+        stem = Path(table_path).stem
+        written = plot_kernels(table, folder, levels=levels, name=stem)
+        written += plot_coefficient_curves(table, folder, before=other, name=stem)
+        click.echo(f"wrote {len(written)} figures to {folder}", err=True)
