@@ -36,7 +36,9 @@ t1 = time.perf_counter()
 cap = simulate_capture(model, scene, illuminant=cam.exposure.illuminant, lux=100.0, seed=1,
                        workers=2)
 t2 = time.perf_counter()
+ru = resource.getrusage(resource.RUSAGE_SELF)
 print(json.dumps({"scene_s": t1 - t0, "capture_s": t2 - t1, "total_s": t2 - t0,
+                  "cpu_s": ru.ru_utime + ru.ru_stime,
                   "n_wavelengths": int(model.wavelengths.size),
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                   "shape": list(cap.dn.shape)}))
@@ -61,7 +63,8 @@ def run(report=print) -> list[dict]:
         rows.append(r)
         report(f"simulate 4000x3000 {Path(cfg).stem}: {r['n_wavelengths']} wavelengths, "
                f"{r['total_s']:.1f} s (scene {r['scene_s']:.1f} s + capture {r['capture_s']:.1f} s), "
-               f"peak RSS {r['peak_rss_mb']:.0f} MB")
+               f"peak RSS {r['peak_rss_mb']:.0f} MB, process CPU {r['cpu_s']:.1f} s, "
+               f"load average {os.getloadavg()[0]:.1f}")
     return rows
 
 

@@ -212,8 +212,21 @@ def slanted_edge_scene(height: int, width: int, wavelengths: np.ndarray,
 
 # ------------------------------------------------------------- RGB photos
 
+def _linear_axis(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Indices and weights of linear interpolation with pixel-centre alignment."""
+    x = (np.arange(n_out, dtype=np.float64) + 0.5) * (n_in / n_out) - 0.5
+    x = np.clip(x, 0.0, n_in - 1)
+    i0 = np.floor(x).astype(np.intp)
+    i1 = np.minimum(i0 + 1, n_in - 1)
+    return i0, i1, (x - i0).astype(np.float32)
+
+
 def _resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Centre-crop to the target aspect, then resample (area-averaging when shrinking)."""
+    """Centre-crop (H, W, C) to the target aspect, resample; returns (C, height, width) float32.
+
+    Shrinking first low-passes with a Gaussian (σ = 0.5/zoom − 0.5 input pixels) to
+    avoid aliasing; resampling is separable linear interpolation with pixel centres aligned.
+    """
     from scipy import ndimage
 
     h, w = img.shape[:2]
@@ -228,12 +241,19 @@ def _resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
         img = img[y0:y0 + nh]
     h, w = img.shape[:2]
     zy, zx = height / h, width / w
-    out = img.astype(np.float32)
+    chans = np.ascontiguousarray(np.moveaxis(img.astype(np.float32), 2, 0))  # (C, h, w)
     if zy < 1 or zx < 1:
-        sig = (max(0.0, 0.5 / zy - 0.5) if zy < 1 else 0.0, max(0.0, 0.5 / zx - 0.5) if zx < 1 else 0.0, 0.0)
-        out = ndimage.gaussian_filter(out, sigma=sig, mode="nearest")
-    out = ndimage.zoom(out, (zy, zx, 1), order=1, mode="nearest", grid_mode=True)
-    return out[:height, :width]
+        sig = (0.0, max(0.0, 0.5 / zy - 0.5) if zy < 1 else 0.0, max(0.0, 0.5 / zx - 0.5) if zx < 1 else 0.0)
+        chans = ndimage.gaussian_filter(chans, sigma=sig, mode="nearest")
+    y0i, y1i, wy = _linear_axis(h, height)
+    x0i, x1i, wx = _linear_axis(w, width)
+    rows = chans[:, y0i] * (1 - wy)[None, :, None] + chans[:, y1i] * wy[None, :, None]  # (C, H, w)
+    out = np.empty((chans.shape[0], height, width), dtype=np.float32)
+    for c in range(chans.shape[0]):
+        r = rows[c]
+        np.multiply(r[:, x0i], 1 - wx, out=out[c])
+        out[c] += r[:, x1i] * wx
+    return out
 
 
 def rgb_to_reflectance_basis(wavelengths: np.ndarray) -> np.ndarray:
@@ -293,10 +313,12 @@ def rgb_image_scene(path: str | os.PathLike, height: int, width: int, wavelength
     """An RGB image up-sampled to spectral reflectance (see module notes)."""
     path = Path(path)
     s = oversample
-    lin = _resize(_read_rgb(path), height * s, width * s)
-    maps = np.concatenate([np.moveaxis(lin, 2, 0), np.ones((1, height * s, width * s), np.float32)])
-    return Scene(name or _stem_name(path), np.ascontiguousarray(maps, dtype=np.float32),
-                 rgb_to_reflectance_basis(wavelengths), source=str(path), oversample=s)
+    rgb = _resize(_read_rgb(path), height * s, width * s)  # (3, H, W)
+    maps = np.empty((4, height * s, width * s), dtype=np.float32)
+    maps[:3] = rgb
+    maps[3] = 1.0
+    return Scene(name or _stem_name(path), maps, rgb_to_reflectance_basis(wavelengths),
+                 source=str(path), oversample=s)
 
 
 def spectral_cube_scene(path: str | os.PathLike, height: int, width: int,
@@ -324,13 +346,13 @@ def spectral_cube_scene(path: str | os.PathLike, height: int, width: int,
     s = spectral.Spectra(wl, np.eye(wl.size), tuple(str(w) for w in wl), str(path))
     # Interpolation matrix from the cube's wavelengths onto the grid.
     interp = s.resample(wavelengths, what=f"spectral cube {kind}")  # (Ngrid, Ncube)
-    small = _resize(cube, height * oversample, width * oversample)  # (H, W, Ncube)
+    small = _resize(cube, height * oversample, width * oversample)  # (Ncube, H, W)
     if wl.size > interp.shape[0]:
         # More bands than simulation wavelengths: resample the maps instead.
-        maps = np.ascontiguousarray(np.moveaxis(small @ interp.T.astype(np.float32), 2, 0))
+        maps = np.tensordot(interp.astype(np.float32), small, axes=(1, 0))
         spectra = np.eye(interp.shape[0])
     else:
-        maps = np.ascontiguousarray(np.moveaxis(small, 2, 0))
+        maps = small
         spectra = interp.T.copy()
     return Scene(_stem_name(path), maps, spectra, kind=kind, source=str(path), oversample=oversample)
 
