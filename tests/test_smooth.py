@@ -1,0 +1,415 @@
+"""Priors on transform tables (``l3 smooth``): symmetry, smoothness over levels, uniformity.
+
+Independent facts used: D4 symmetries of the Bayer layout worked out by hand;
+the group average is an orthogonal projection (idempotent, residual orthogonal
+to the invariant subspace); the Whittaker smoother leaves straight lines alone,
+interpolates at λ = 0 and tends to the weighted least-squares line (numpy
+``polyfit``) as λ grows; the uniformity correction equals the minimum-norm
+solution of the constrained least-squares problem solved generically (KKT via
+``numpy.linalg.pinv``); a flat field renders flat.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from l3cli.cfa import CFA
+from l3cli.classify import ClassDefinition
+from l3cli.errors import ConfigError
+from l3cli.smooth import filled_classes, smooth_table
+from l3cli.smooth.spline import level_abscissa, smooth_levels, whittaker
+from l3cli.smooth.symmetry import symmetrize_kernels, symmetry_map, tap_permutation
+from l3cli.smooth.uniformity import channel_sums, make_uniform, uniformity_error
+from l3cli.table import TransformTable, load_table, save_table
+
+RGBW = "WGWR/BWGW/WRWG/GWBW"  # sample_configs/rgbw.toml
+CFAS = ["RGGB", "GRBG", RGBW, "RGBW/GWRB/BRWG/WBGR", "R G/NIR B", "RGB/GBR/BRG"]
+
+
+def plausible_table(spec="RGGB", *, patch=5, n_levels=10, seed=0, empty_fraction=0.3,
+                    noise=0.05) -> TransformTable:
+    """A table whose kernels look trained: per-channel averages mapped by a positive
+    3xC matrix, plus noise; some classes empty (holding their fallback's kernel)."""
+    from l3cli.train.fit import fallback_sources
+
+    d = ClassDefinition.build(spec, patch=patch,
+                              level_cuts=np.geomspace(0.003, 0.8, n_levels - 1),
+                              contrast_cuts=0.3)
+    rng = np.random.default_rng(seed)
+    nch = d.cfa.n_channels
+    mix = 0.2 + rng.random((3, nch))
+    nc, q = d.n_classes, d.n_coeffs
+    k = np.zeros((nc, q, 3))
+    g = np.asarray(d.class_tuple(np.arange(nc))[0])
+    for grp in range(d.n_groups):
+        p = int(np.flatnonzero(d.position_group == grp)[0])
+        lay = d.cfa.neighbourhood(p, patch).ravel()
+        n_c = np.bincount(lay, minlength=nch)
+        base = (mix[:, lay] / n_c[lay]).T  # (P, 3)
+        sel = g == grp
+        k[sel, :-1] = base
+    k[:, :-1] += noise * rng.normal(size=(nc, q - 1, 3)) / q
+    k[:, -1] = 0.01 * rng.normal(size=(nc, 3))
+    counts = rng.integers(200, 5000, nc)
+    empty = rng.random(nc) < empty_fraction
+    empty[0] = False
+    # every position group needs a trained class
+    for grp in range(d.n_groups):
+        empty[np.flatnonzero(g == grp)[0]] = False
+    counts[empty] = rng.integers(0, 20, int(empty.sum()))
+    src = fallback_sources(d, ~empty)
+    lam = np.where(empty[:, None], np.nan, 1e-3)
+    return TransformTable(definition=d, kernels=k[src].astype(np.float32), counts=counts,
+                          lambdas=np.broadcast_to(lam, (nc, 3)).copy(), empty=empty,
+                          source_class=src, output_space="xyz",
+                          provenance={"inputs": ["synthetic"], "seed": seed})
+
+
+def flat_field(cfa: CFA, values: dict[str, float], h=40, w=44) -> np.ndarray:
+    """Mosaic of a uniform scene: every channel at its own value."""
+    v = np.array([values[c] for c in cfa.channels], dtype=np.float32)
+    return v[cfa.channel_map(h, w)]
+
+
+def _rel_spread(img: np.ndarray, border: int) -> np.ndarray:
+    core = img[border:-border, border:-border].reshape(-1, img.shape[-1]).astype(np.float64)
+    return core.std(axis=0) / np.abs(core.mean(axis=0))
+
+
+# --------------------------------------------------------------------- symmetry
+def test_bayer_symmetries_are_the_ones_worked_out_by_hand():
+    d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.1])
+    smap = symmetry_map(d)
+    names = smap.names
+    # groups: 0 = R, 1 = G on R rows, 2 = G on B rows, 3 = B
+    for g in (0, 3):  # R and B sites see a layout with the full symmetry of the square
+        assert all(smap.target[g, e] == g for e in range(8))
+    for g, other in ((1, 2), (2, 1)):
+        for e, n in enumerate(names):
+            expect = g if n in ("identity", "flip-lr", "flip-ud", "rot180") else other
+            assert smap.target[g, e] == expect, (g, n)
+    assert smap.orbits == ((0,), (1, 2), (3,))
+
+
+def test_tap_permutation_is_the_array_transform():
+    a = np.arange(25).reshape(5, 5)
+    for name, ref in [("flip-lr", a[:, ::-1]), ("flip-ud", a[::-1]), ("rot180", a[::-1, ::-1]),
+                      ("transpose", a.T), ("anti-transpose", a[::-1, ::-1].T)]:
+        moved = np.empty(25, dtype=int)
+        moved[tap_permutation(name, 5)] = a.ravel()  # (g A)[g u] = A[u]
+        np.testing.assert_array_equal(moved.reshape(5, 5), ref, err_msg=name)
+
+
+@pytest.mark.parametrize("spec", CFAS)
+def test_after_symmetry_kernels_of_symmetric_positions_are_exactly_symmetric(spec):
+    t = plausible_table(spec, seed=3)
+    for kw in ({"spline": False, "uniformity": False}, {}):
+        s = smooth_table(t, **kw)
+        d = s.definition
+        smap = symmetry_map(d)
+        k = s.kernels.reshape(d.n_groups, -1, d.n_coeffs, 3)
+        checked = 0
+        for a in range(d.n_groups):
+            for e in range(8):
+                b = smap.target[a, e]
+                if b < 0:
+                    continue
+                # K_b[g u] == K_a[u] exactly, offsets equal
+                np.testing.assert_array_equal(k[b][:, smap.perms[e]], k[a][:, :-1])
+                np.testing.assert_array_equal(k[b][:, -1], k[a][:, -1])
+                checked += 1
+        assert checked >= d.n_groups  # at least the identity everywhere
+
+
+def test_symmetry_is_an_orthogonal_projection():
+    t = plausible_table("RGGB", seed=4)
+    d = t.definition
+    smap = symmetry_map(d)
+    ones = np.ones(d.n_classes)
+    k = t.kernels.astype(np.float64)
+    pk = symmetrize_kernels(k, ones, d, smap)
+    np.testing.assert_allclose(symmetrize_kernels(pk, ones, d, smap), pk, atol=1e-14)
+    other = symmetrize_kernels(np.random.default_rng(1).normal(size=k.shape), ones, d, smap)
+    assert abs(np.sum((k - pk) * other)) < 1e-9 * np.abs(k).sum()
+    assert np.abs(k - pk).max() > 1e-3  # it did change the kernels
+
+
+def test_symmetric_table_renders_a_transposed_scene_transposed():
+    from l3cli.render import render_mosaic
+
+    t = plausible_table("RGGB", seed=5, empty_fraction=0.0)
+    pat = np.array(CFA.from_spec("RGGB").pattern)
+    assert (pat == pat.T).all()  # RGGB is its own transpose
+    rng = np.random.default_rng(0)
+    m = (0.05 + 0.5 * rng.random((36, 36)) ** 2).astype(np.float32)
+    mt = np.ascontiguousarray(m.T)
+
+    def mismatch(table):
+        a = render_mosaic(table, m).transpose(1, 0, 2)
+        b = render_mosaic(table, mt)
+        return np.mean(np.abs(a - b).max(axis=2) > 1e-4)
+
+    s = smooth_table(t, spline=False, uniformity=False)
+    assert mismatch(s) < 2e-3  # only rounding at class boundaries may differ
+    assert mismatch(t) > 0.2  # the unsymmetrised table does not have the property
+
+
+def test_symmetry_fills_a_class_whose_mirror_partner_is_trained():
+    t = plausible_table("RGGB", seed=6, empty_fraction=0.0)
+    d = t.definition
+    e = int(d.class_index(1, 0, 3, 0))  # G on R rows
+    partner = int(d.class_index(2, 0, 3, 0))  # its transpose
+    t.empty[e] = True
+    t.counts[e] = 0
+    t.source_class[e] = partner
+    t.kernels[e] = t.kernels[partner]
+    s = smooth_table(t, spline=False, uniformity=False)
+    assert not s.empty[e] and s.source_class[e] == e
+    assert e in filled_classes(s)["symmetry"]
+    perm = tap_permutation("transpose", 5)
+    np.testing.assert_array_equal(s.kernels[partner][perm], s.kernels[e][:-1])
+    # only the trained partner contributed (made invariant under its own stabiliser:
+    # both flips and the 180° turn)
+    kp = t.kernels[partner][:-1].astype(np.float64)
+    stab = np.mean([kp[tap_permutation(n, 5)] for n in ("identity", "flip-lr", "flip-ud",
+                                                         "rot180")], axis=0)
+    np.testing.assert_allclose(s.kernels[e][:-1], stab[perm], atol=1e-6)
+
+
+# ---------------------------------------------------------------------- spline
+def test_whittaker_facts():
+    rng = np.random.default_rng(0)
+    x = np.linspace(0, 5, 12) + 0.1 * rng.random(12)  # uneven grid
+    w = rng.random(12) + 0.1
+    line = np.stack([2.0 - 0.7 * x, 0.3 * x], axis=1)
+    for lam in (0.0, 0.1, 100.0):  # a straight line has no roughness
+        np.testing.assert_allclose(whittaker(x, line, w, strength=lam)[0], line, atol=1e-10)
+    y = rng.normal(size=(12, 2))
+    np.testing.assert_allclose(whittaker(x, y, w, strength=0.0)[0], y, atol=1e-10)
+    z = whittaker(x, y, w, strength=1e7)[0]  # distance to the limit falls as 1/λ
+    for j in range(2):
+        fit = np.polyval(np.polyfit(x, y[:, j], 1, w=np.sqrt(w)), x)
+        np.testing.assert_allclose(z[:, j], fit, atol=1e-6)
+
+
+def test_whittaker_gcv_reduces_noise_on_a_smooth_curve():
+    rng = np.random.default_rng(1)
+    x = np.linspace(0, 4, 30)
+    truth = np.sin(x)[:, None] * np.array([1.0, 0.5])
+    y = truth + 0.1 * rng.normal(size=truth.shape)
+    z, lam = whittaker(x, y, np.ones(30), strength=None)
+    assert np.all(lam == lam[0]) and 0 < lam[0] < np.inf
+    assert np.sqrt(np.mean((z - truth) ** 2)) < 0.6 * np.sqrt(np.mean((y - truth) ** 2))
+
+
+def test_spline_fills_between_and_extrapolates_as_constants():
+    d = ClassDefinition.build("RGGB", patch=3, level_cuts=np.geomspace(0.01, 0.5, 9))
+    x = level_abscissa(d)
+    np.testing.assert_allclose(np.diff(x), np.diff(x)[0])  # log spacing: even abscissa
+    nl = d.n_levels
+    q = d.n_coeffs
+    # true coefficients linear in ln level
+    truth = (0.5 + 0.2 * x)[:, None, None] * np.linspace(1, 2, q * 3).reshape(1, q, 3)
+    k = np.zeros((d.n_classes, q, 3))
+    w = np.zeros(d.n_classes)
+    idx = [int(d.class_index(0, 0, lv, 0)) for lv in range(nl)]
+    have = [2, 3, 7, 8]
+    for lv in have:
+        k[idx[lv]] = truth[lv]
+        w[idx[lv]] = 1000.0
+    out, filled, _ = smooth_levels(k, w, d, strength=0.3)
+    for lv in range(2, 9):  # between trained levels: the line
+        np.testing.assert_allclose(out[idx[lv]], truth[lv], atol=1e-9)
+    for lv in (0, 1):
+        np.testing.assert_allclose(out[idx[lv]], truth[2], atol=1e-9)
+    np.testing.assert_allclose(out[idx[9]], truth[8], atol=1e-9)
+    assert filled[idx].tolist() == [lv not in have for lv in range(nl)]
+    # series without data are left alone and not reported as filled
+    assert not filled[int(d.class_index(1, 0, 0, 0))]
+
+
+# ------------------------------------------------------------------ uniformity
+def test_uniformity_is_the_minimum_norm_constrained_least_squares_change():
+    t = plausible_table("RGGB", patch=3, seed=7, empty_fraction=0.0)
+    d = t.definition
+    k = t.kernels.astype(np.float64)
+    w = t.counts.astype(np.float64)
+    u = make_uniform(k, w, d)
+    # generic solution for one slot and one output: min sum_g w_g |x'_g - x_g|^2
+    # s.t. S_{g,c} = S_{0,c} and b_g = b_0 for every g
+    slot = (0, 4, 1)
+    cls = [int(d.class_index(g, *slot)) for g in range(d.n_groups)]
+    q = d.n_coeffs
+    x = np.concatenate([k[c][:, 0] for c in cls])
+    dw = np.repeat(w[cls], q)
+    rows = []
+    lay = [d.cfa.neighbourhood(int(np.flatnonzero(d.position_group == g)[0]), 3).ravel()
+           for g in range(d.n_groups)]
+    for g in range(1, d.n_groups):
+        for c in range(d.cfa.n_channels):
+            r = np.zeros(x.size)
+            r[g * q: g * q + q - 1][lay[g] == c] = 1
+            r[0: q - 1][lay[0] == c] -= 1
+            rows.append(r)
+        r = np.zeros(x.size)
+        r[g * q + q - 1] = 1
+        r[q - 1] = -1
+        rows.append(r)
+    a = np.array(rows)
+    dinv = np.diag(1 / dw)
+    ref = x - dinv @ a.T @ np.linalg.pinv(a @ dinv @ a.T) @ (a @ x)
+    got = np.concatenate([u[c][:, 0] for c in cls])
+    np.testing.assert_allclose(got, ref, atol=1e-10)
+    assert uniformity_error(u, d) < 1e-12 < 1e-3 < uniformity_error(k, d)
+    # per-channel sums agree across groups in every slot
+    s = channel_sums(u, d).reshape(d.n_groups, -1, d.cfa.n_channels, 3)
+    np.testing.assert_allclose(s, np.broadcast_to(s[:1], s.shape), atol=1e-12)
+
+
+@pytest.mark.parametrize("spec", ["RGGB", RGBW, "R G/NIR B"])
+def test_flat_field_renders_uniform_after_smoothing(spec):
+    from l3cli.render import render_mosaic
+
+    t = plausible_table(spec, seed=8)
+    s = smooth_table(t)
+    cfa = t.cfa
+    rng = np.random.default_rng(2)
+    worst_raw = 0.0
+    for scale in (0.004, 0.02, 0.1, 0.5):
+        vals = {c: scale * (0.5 + rng.random()) for c in cfa.channels}
+        m = flat_field(cfa, vals)
+        for table, bound in ((s, 1e-3), (t, None)):
+            spread = _rel_spread(render_mosaic(table, m), border=t.patch)
+            if bound is None:
+                worst_raw = max(worst_raw, float(spread.max()))
+            else:
+                assert spread.max() < bound, (scale, spread)
+        # the smoothed table is uniform right up to the border too (phase-keeping mirror)
+        full = render_mosaic(s, m).reshape(-1, 3)
+        assert (full.std(axis=0) / np.abs(full.mean(axis=0))).max() < 1e-3
+    assert worst_raw > 1e-2  # without the prior the flat field is not flat
+
+
+def test_flat_field_with_a_saturated_channel_renders_uniform():
+    from l3cli.render import render_mosaic
+
+    t = plausible_table("RGGB", seed=9, empty_fraction=0.0)
+    s = smooth_table(t)
+    m = flat_field(t.cfa, {"R": 0.99, "G": 0.4, "B": 0.2})
+    assert _rel_spread(render_mosaic(s, m), border=5).max() < 1e-3
+
+
+# ------------------------------------------------------------ smooth_table API
+def test_provenance_records_priors_settings_and_filled_classes(tmp_path):
+    t = plausible_table("RGGB", seed=10)
+    s = smooth_table(t, spline_strength=0.5)
+    rec = s.provenance["smoothing"]
+    assert rec["priors"] == ["symmetry", "spline", "uniformity"]
+    assert rec["spline"]["strength"] == 0.5
+    assert rec["symmetry"]["orbits"] == [[0], [1, 2], [3]]
+    assert rec["uniformity"]["spread_after"] < 1e-5 < rec["uniformity"]["spread_before"]
+    filled = rec["filled_classes"]
+    assert filled and filled == np.flatnonzero(t.empty & ~s.empty).tolist()
+    assert np.all(s.source_class[filled] == filled)
+    # counts, λ and the class definition are kept; the original table is untouched
+    np.testing.assert_array_equal(s.counts, t.counts)
+    np.testing.assert_array_equal(s.lambdas, t.lambdas)
+    assert "smoothing" not in t.provenance
+    u = load_table(save_table(tmp_path / "s.npz", s))
+    assert u.provenance["smoothing"] == json.loads(json.dumps(rec))
+    np.testing.assert_array_equal(u.kernels, s.kernels)
+    # smoothing twice keeps the first record in a history
+    s2 = smooth_table(s, symmetry=False)
+    assert s2.provenance["smoothing"]["priors"] == ["spline", "uniformity"]
+    assert s2.provenance["smoothing_history"][0]["priors"] == rec["priors"]
+
+
+def test_each_prior_can_be_switched_off():
+    t = plausible_table("RGGB", seed=11)
+    none = smooth_table(t, symmetry=False, spline=False, uniformity=False)
+    np.testing.assert_array_equal(none.kernels, t.kernels)
+    assert none.provenance["smoothing"]["priors"] == []
+    only_u = smooth_table(t, symmetry=False, spline=False)
+    assert only_u.provenance["smoothing"]["priors"] == ["uniformity"]
+    np.testing.assert_array_equal(only_u.empty, t.empty)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), "smooth"])
+def test_bad_spline_strength(bad):
+    with pytest.raises(ConfigError, match="spline strength"):
+        smooth_table(plausible_table(), spline_strength=bad)
+
+
+def test_auto_strength_runs_and_is_recorded():
+    s = smooth_table(plausible_table(seed=12), spline_strength="auto")
+    assert s.provenance["smoothing"]["spline"]["strength"].startswith("auto")
+    assert s.provenance["smoothing"]["spline"]["lambda_median"] > 0
+
+
+def test_empty_middle_levels_are_filled_and_render_like_the_truth():
+    """A table trained only at low and high levels: smoothing interpolates the middle."""
+    from l3cli.render import render_mosaic
+    from l3cli.train.fit import fallback_sources
+
+    t = plausible_table("RGGB", seed=13, empty_fraction=0.0, noise=0.0)
+    d = t.definition
+    x = level_abscissa(d)
+    ng, ns, nl, nc = d.shape
+    k = t.kernels.reshape(ng, ns, nl, nc, d.n_coeffs, 3).astype(np.float64)
+    k = k * (1.0 + 0.1 * (x - x[0]))[None, None, :, None, None, None]  # linear in ln level
+    k[..., -1, :] = 0.01 * (x - x[0])[None, None, :, None, None]
+    truth = TransformTable(definition=d, kernels=k.reshape(t.kernels.shape),
+                           counts=t.counts, lambdas=t.lambdas, empty=t.empty,
+                           source_class=t.source_class)
+    lev = np.asarray(d.class_tuple(np.arange(d.n_classes))[2])
+    empty = (lev >= 3) & (lev <= 6)
+    src = fallback_sources(d, ~empty)
+    holey = TransformTable(definition=d, kernels=truth.kernels[src], counts=np.where(
+        empty, 0, t.counts), lambdas=t.lambdas, empty=empty, source_class=src)
+    s = smooth_table(holey, symmetry=False, uniformity=False)
+    assert not s.empty.any()
+    assert set(filled_classes(s)["spline"]) == set(np.flatnonzero(empty).tolist())
+    np.testing.assert_allclose(s.kernels, truth.kernels, atol=2e-6)
+    m = flat_field(d.cfa, {"R": 0.05, "G": 0.07, "B": 0.04})
+    m = m * (1 + 0.2 * np.random.default_rng(0).random(m.shape)).astype(np.float32)
+    np.testing.assert_allclose(render_mosaic(s, m), render_mosaic(truth, m), atol=1e-5)
+    assert np.abs(render_mosaic(holey, m) - render_mosaic(truth, m)).max() > 1e-3
+
+
+# ------------------------------------------------------------------------ CLI
+def test_cli_smooth(tmp_path, runner):
+    from l3cli.cli.main import cli
+
+    src = save_table(tmp_path / "t.npz", plausible_table(seed=14))
+    r = runner.invoke(cli, ["smooth", str(src), "-o", str(tmp_path / "s.npz")])
+    assert r.exit_code == 0, r.output
+    s = load_table(tmp_path / "s.npz")
+    assert s.provenance["smoothing"]["priors"] == ["symmetry", "spline", "uniformity"]
+    assert s.provenance["smoothing"]["input"] == str(src)
+    r = runner.invoke(cli, ["smooth", str(src), "-o", str(tmp_path / "n.npz"), "--no-symmetry",
+                            "--no-uniformity", "--spline-strength", "2"])
+    assert r.exit_code == 0, r.output
+    rec = load_table(tmp_path / "n.npz").provenance["smoothing"]
+    assert rec["priors"] == ["spline"] and rec["spline"]["strength"] == 2.0
+    r = runner.invoke(cli, ["smooth", str(src), "-o", str(tmp_path / "a.npz"),
+                            "--spline-strength", "auto"])
+    assert r.exit_code == 0, r.output
+
+
+def test_cli_smooth_errors(tmp_path, runner):
+    from l3cli.cli.main import cli
+
+    src = save_table(tmp_path / "t.npz", plausible_table(seed=15))
+    r = runner.invoke(cli, ["smooth", str(src), "-o", str(tmp_path / "s.npz"),
+                            "--spline-strength", "-3"])
+    assert r.exit_code == 2 and "--spline-strength" in r.output
+    r = runner.invoke(cli, ["smooth", str(tmp_path / "missing.npz"), "-o",
+                            str(tmp_path / "s.npz")])
+    assert r.exit_code == 1 and "missing.npz" in r.output and "Error" in r.output
+    (tmp_path / "junk.npz").write_text("not a table")
+    r = runner.invoke(cli, ["smooth", str(tmp_path / "junk.npz"), "-o", str(tmp_path / "s.npz")])
+    assert r.exit_code == 1 and "junk.npz" in r.output
+    assert not (tmp_path / "s.npz").exists()
