@@ -324,3 +324,38 @@ def test_macbeth_target_matches_colour_science() -> None:
     des = np.array(des)
     print(f"Macbeth target vs colour-science: mean ΔE*ab {des.mean():.3f}, max {des.max():.3f}")
     assert des.max() < 0.5, f"max ΔE*ab {des.max():.3f} at patch {des.argmax()}"
+
+
+def test_cos4_falloff(tmp_path: Path) -> None:
+    data_cam = flat_qe_camera(tmp_path)
+    import dataclasses
+
+    cam = dataclasses.replace(data_cam, optics=dataclasses.replace(data_cam.optics, cos4=True,
+                                                                     focal_length_mm=0.2))
+    model = prepare_camera(cam)
+    h, w = 40, 60
+    cap = simulate_capture(model, uniform_scene(h, w, model.wavelengths), illuminant="E", lux=100,
+                           seed=0, noise=False, blur=False)
+    p = cam.pixel.pitch_um * 1e-3
+    # Corner pixel centre vs the image centre.
+    r = math.hypot((w - 1) / 2 * p, (h - 1) / 2 * p)
+    theta = math.atan(r / 0.2)
+    centre = cap.noise_free[h // 2 - 1:h // 2 + 1, w // 2 - 1:w // 2 + 1].mean()
+    assert cap.noise_free[0, 0] / centre == pytest.approx(math.cos(theta) ** 4, rel=2e-3)
+
+
+@pytest.mark.parametrize("rgb", [(0.6, 0.3, 0.2), (0.1, 0.5, 0.8), (0.18, 0.18, 0.18)])
+def test_natural_upsampling_round_trips_srgb_under_d65(rgb) -> None:
+    """Mallett 2019 reflectances lit by D65 give back the linear sRGB they came from."""
+    from l3cli.colourspace import convert
+    from l3cli.simulate.scenes import rgb_to_reflectance_basis
+
+    cam = load_camera(REPO / "sample_configs" / "bayer.toml")
+    model = prepare_camera(cam)
+    maps = np.ones((4, 8, 8), np.float32)
+    maps[:3] *= np.array(rgb, np.float32)[:, None, None]
+    scene = Scene("t", maps, rgb_to_reflectance_basis(model.wavelengths))
+    cap = simulate_capture(model, scene, illuminant="D65", lux=100, seed=0, noise=False, blur=False)
+    xyz = cap.target[4, 4] / cap.extra["white_xyz"][1]
+    back = convert(xyz[None, None].astype(np.float32), "xyz", "linear-srgb")[0, 0]
+    np.testing.assert_allclose(back, rgb, atol=3e-3)

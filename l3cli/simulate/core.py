@@ -414,7 +414,6 @@ def simulate_capture(model: CameraModel, scene: Scene, *, illuminant: str, lux: 
     cap = Capture(stem=stem, scene=scene.name, illuminant=illuminant if scene.kind == "reflectance" else "",
                   lux=float(lux), exposure_s=float(t), dn=dn.astype(np.uint16), noise_free=noise_free,
                   target=target, seed=int(seed), chart=None, edge=scene.edge)
-    cap.extra["seed_entropy"] = [int(x) for x in ss.entropy] if isinstance(ss.entropy, list) else ss.entropy
     if scene.kind == "reflectance":
         # Perfect white diffuser (reflectance 1) on the target scale, on axis, this capture.
         es = illuminant_irradiance(illuminant, lux, model.wavelengths) * irradiance_factor(
