@@ -1,0 +1,109 @@
+"""``l3 inspect``: the table summary, the class list, the figures."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from l3cli.cli.main import cli
+from l3cli.errors import ConfigError
+from l3cli.inspect import (
+    class_rows,
+    compress_ranges,
+    format_summary,
+    saturation_name,
+    table_summary,
+)
+from l3cli.smooth import smooth_table
+from l3cli.table import save_table
+from tests.test_smooth import plausible_table
+
+
+def test_compress_ranges_and_saturation_names():
+    assert compress_ranges([7, 1, 2, 3, 9, 10]) == "1-3, 7, 9-10"
+    assert compress_ranges([]) == "none"
+    assert saturation_name(0, ("R", "G", "B")) == "-"
+    assert saturation_name(0b101, ("R", "G", "B")) == "R+B"
+
+
+def test_summary_facts():
+    t = plausible_table("RGGB", n_levels=6, seed=1)
+    s = table_summary(t, name="t.npz")
+    d = t.definition
+    assert s["cfa"] == {"spec": "RG/GB", "period": [2, 2], "channels": ["R", "G", "B"]}
+    assert s["layout"]["classes"] == d.n_classes == 4 * 8 * 6 * 2
+    assert s["layout"]["groups"] == [[0], [1], [2], [3]]
+    assert [lv["from"] for lv in s["levels"]][1:] == pytest.approx(d.level_cuts.tolist())
+    assert s["levels"][-1]["to"] is None
+    assert sum(lv["samples"] for lv in s["levels"]) == s["samples"] == int(t.counts.sum())
+    assert s["classes"]["empty"] == int(t.empty.sum())
+    assert sorted(i for v in s["empty"].values() for i in v) == np.flatnonzero(t.empty).tolist()
+    assert s["filled"] == {} and s["smoothing"] is None
+    assert s["output_space"] == "xyz"
+    json.dumps(s)  # JSON-serialisable
+    text = format_summary(s)
+    assert "CFA RG/GB" in text and "smoothing: not smoothed" in text
+    assert "inputs" in text  # provenance
+
+
+def test_summary_lists_classes_filled_by_smoothing():
+    t = plausible_table("RGGB", seed=2)
+    sm = smooth_table(t)
+    s = table_summary(sm, name="s.npz")
+    filled = sorted(i for v in s["filled"].values() for i in v)
+    assert filled == np.flatnonzero(t.empty & ~sm.empty).tolist() and filled
+    assert s["classes"]["filled"] == len(filled)
+    text = format_summary(s, table=sm, classes=True)
+    assert "filled classes (by prior):" in text and "spline:" in text
+    rows = class_rows(sm)
+    assert [r["class"] for r in rows if r["status"].startswith("filled")] == filled
+    assert all(r["lambda"] == [None] * 3 for r in rows if r["status"] != "trained")
+
+
+def test_cli_inspect_text_json_and_plots(tmp_path, runner):
+    raw = plausible_table("RGGB", n_levels=6, seed=3)
+    a = save_table(tmp_path / "raw.npz", raw)
+    b = save_table(tmp_path / "smooth.npz", smooth_table(raw))
+    r = runner.invoke(cli, ["inspect", str(b)])
+    assert r.exit_code == 0, r.output
+    assert "position groups" in r.output and "filled classes (by prior):" in r.output
+    r = runner.invoke(cli, ["inspect", str(b), "--json", "--classes"])
+    assert r.exit_code == 0, r.output
+    js = json.loads(r.output)
+    assert len(js["class_list"]) == raw.definition.n_classes
+    assert js["smoothing"]["priors"] == ["symmetry", "spline", "uniformity"]
+    out = tmp_path / "plots"
+    r = runner.invoke(cli, ["inspect", str(b), "--plots", str(out), "--compare", str(a),
+                            "--levels", "0,3"])
+    assert r.exit_code == 0, r.output
+    names = sorted(p.name for p in out.glob("*.png"))
+    assert names == ["smooth_curves_group0.png", "smooth_curves_group1.png",
+                     "smooth_curves_group2.png", "smooth_curves_group3.png",
+                     "smooth_kernels_level00.png", "smooth_kernels_level03.png"]
+    assert all(p.stat().st_size > 5000 for p in out.glob("*.png"))
+    r = runner.invoke(cli, ["inspect", str(a), "--plots", str(tmp_path / "p2")])
+    assert r.exit_code == 0, r.output
+    assert {p.name.split("_", 1)[1] for p in (tmp_path / "p2").glob("*kernels*")} >= {
+        "kernels_low.png", "kernels_mid.png", "kernels_high.png"}
+
+
+def test_cli_inspect_errors(tmp_path, runner):
+    a = save_table(tmp_path / "a.npz", plausible_table("RGGB", n_levels=6))
+    b = save_table(tmp_path / "b.npz", plausible_table("GRBG", n_levels=6))
+    r = runner.invoke(cli, ["inspect", str(a), "--compare", str(b)])
+    assert r.exit_code == 2 and "different class definition" in r.output
+    r = runner.invoke(cli, ["inspect", str(a), "--plots", str(tmp_path / "p"), "--levels", "9"])
+    assert r.exit_code == 1 and "level 9 is not in 0..5" in r.output
+    r = runner.invoke(cli, ["inspect", str(a), "--levels", "x"])
+    assert r.exit_code == 2
+    r = runner.invoke(cli, ["inspect", str(tmp_path / "none.npz")])
+    assert r.exit_code == 1 and "none.npz" in r.output
+
+
+def test_plot_kernels_rejects_bad_contrast(tmp_path):
+    from l3cli.plots_table import plot_kernels
+
+    with pytest.raises(ConfigError, match="contrast bin 5"):
+        plot_kernels(plausible_table(n_levels=4), tmp_path, contrast=5)
