@@ -442,7 +442,21 @@ def _exposure(sec: _Section) -> Exposure:
     if ill not in spectral.ILLUMINANTS:
         raise sec.err("illuminant", f"= {ill!r} is not an illuminant; valid: {', '.join(spectral.ILLUMINANTS)}")
     levels = sec.raw("light_levels_lux")
-    if levels is None:
+    rng = sec.raw("light_level_range_lux")
+    count = sec.number("light_level_count", None, lo=1, hi=100, integer=True)
+    if (rng is None) != (count is None):
+        raise sec.err("light_level_range_lux" if rng is None else "light_level_count",
+                      "is missing: give light_level_range_lux = [low, high] together with "
+                      "light_level_count (log-spaced levels)")
+    if rng is not None and levels is not None:
+        raise sec.err("light_levels_lux", "cannot be combined with light_level_range_lux; give one")
+    if rng is not None:
+        if (not isinstance(rng, list) or len(rng) != 2
+                or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in rng)
+                or not (0 < rng[0] <= rng[1] <= 1e6)):
+            raise sec.err("light_level_range_lux", f"= {rng!r}: need [low, high] with 0 < low <= high <= 1e6")
+        levels_t = tuple(float(x) for x in np.geomspace(rng[0], rng[1], count))
+    elif levels is None:
         levels_t = Exposure.light_levels_lux
     else:
         if (not isinstance(levels, list) or not levels

@@ -181,3 +181,13 @@ def test_qe_csv_non_numeric(tmp_path: Path) -> None:
     (tmp_path / "qe.csv").write_text("wavelength_nm,R,G,B\n400,0.1,x,0.1\n500,0.1,0.1,0.1\n")
     with pytest.raises(ConfigError, match="non-numeric"):
         load_camera(write(tmp_path, MINIMAL.replace('"bayer-rgb"', '"qe.csv"')))
+
+
+def test_light_level_range(tmp_path: Path) -> None:
+    cam = load_camera(write(tmp_path, MINIMAL + "[exposure]\nlight_level_range_lux = [1, 1000]\nlight_level_count = 4\n"))
+    np.testing.assert_allclose(cam.exposure.light_levels_lux, [1, 10, 100, 1000])
+    with pytest.raises(ConfigError, match="exposure.light_level_count.*missing"):
+        load_camera(write(tmp_path, MINIMAL + "[exposure]\nlight_level_range_lux = [1, 1000]\n"))
+    with pytest.raises(ConfigError, match="exposure.light_levels_lux.*cannot be combined"):
+        load_camera(write(tmp_path, MINIMAL + "[exposure]\nlight_level_range_lux = [1, 10]\n"
+                          "light_level_count = 2\nlight_levels_lux = [5]\n"))

@@ -359,3 +359,19 @@ def test_natural_upsampling_round_trips_srgb_under_d65(rgb) -> None:
     xyz = cap.target[4, 4] / cap.extra["white_xyz"][1]
     back = convert(xyz[None, None].astype(np.float32), "xyz", "linear-srgb")[0, 0]
     np.testing.assert_allclose(back, rgb, atol=3e-3)
+
+
+def test_radiance_cube_scaled_to_18_percent_grey(tmp_path: Path) -> None:
+    from l3cli.simulate.scenes import spectral_cube_scene
+
+    cam = load_camera(REPO / "sample_configs" / "bayer.toml")
+    model = prepare_camera(cam)
+    wl = np.arange(380.0, 781.0, 10.0)
+    cube = np.tile((wl / 500.0).astype(np.float32), (20, 30, 1))  # any spectrum
+    np.savez(tmp_path / "rad.npz", wavelength=wl, radiance=cube)
+    scene = spectral_cube_scene(tmp_path / "rad.npz", 20, 30, model.wavelengths)
+    cap = simulate_capture(model, scene, illuminant="D65", lux=300.0, seed=0, noise=False,
+                           exposure_s=0.01)
+    # Mean luminance 0.18 * lux / π → sensor illuminance π L / (1 + 4N²) → Y = H_v / H_ref.
+    h_v = 0.18 * 300.0 / (1 + 4 * cam.optics.f_number**2) * 0.01
+    assert float(cap.target[..., 1].mean()) == pytest.approx(h_v / model.h_ref, rel=5e-3)
