@@ -214,12 +214,13 @@ def render_planes(model: CameraModel, scene: Scene, weights: np.ndarray, *,
     blur
         Apply the Airy OTF (False: a perfect lens, for tests).
     workers
-        FFT threads (default: all cores).
+        FFT threads (default: all cores, as scipy.fft workers=-1).
     outputs
         Which of the O outputs to compute (default all).
     """
     from scipy import fft
 
+    workers = -1 if workers is None else workers
     cam = model.camera
     maps = scene.maps
     spectra_w = np.asarray(weights, dtype=np.float64)
