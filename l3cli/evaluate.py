@@ -37,7 +37,9 @@ The reference decides the white point used for CIELAB and S-CIELAB:
   white has Y = 1).
 
 A display-encoded render compared with a linear reference is taken as relative
-to the reference's white (its XYZ is scaled by white Y / 100). XYZ is clipped to
+to the reference's white (its XYZ is scaled by white Y / 100); a linear render
+compared with a display-encoded reference is taken on l3's linear scale (display
+white Y = 1, so its XYZ is scaled by 100). XYZ is clipped to
 [0, white] before the S-CIELAB filtering, as ISETCam does.
 
 PSNR is computed on the encoded values (data range 1) when both images are
@@ -460,6 +462,8 @@ def evaluate_item(
     white = white_point_for(ref, ref_space, item.capture)
     if rend_space == "srgb" and ref_space != "srgb":
         rend = rend * (white[1] / 100.0)
+    elif ref_space == "srgb" and rend_space != "srgb":
+        rend = rend * 100.0  # linear l3 images: a display white has Y = 1
 
     values: dict[str, float | None] = {}
     sc = scielab(

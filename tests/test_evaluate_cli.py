@@ -283,3 +283,17 @@ def test_load_xyz_scales(tmp_path):
     xyz, space = load_xyz(tmp_path / "lin.exr")
     assert space == "linear-srgb"
     np.testing.assert_allclose(xyz[0, 0], 0.5 * np.array([0.95047, 1.0, 1.08883]), rtol=2e-3)
+
+
+def test_linear_render_against_display_reference(runner, pngs, tmp_path):
+    """An EXR in linear sRGB equal to the decoded PNG scores ~0 against the PNG."""
+    from l3cli.colourspace import srgb_decode
+    from l3cli.io.image import read_image
+
+    enc = read_image(pngs / "ref.png")[0]
+    write_image(tmp_path / "lin.exr", srgb_decode(enc), space="linear-srgb")
+    rep = tmp_path / "r.json"
+    res = runner.invoke(cli, ["evaluate", str(tmp_path / "lin.exr"), "--reference", str(pngs / "ref.png"),
+                              "--json", str(rep)])
+    assert res.exit_code == 0, res.output
+    assert json.loads(rep.read_text())["images"][0]["scielab_mean"] < 0.01
