@@ -221,5 +221,5 @@ def test_bad_camera_file(runner, tmp_path: Path) -> None:
 
 
 def test_list(runner) -> None:
-    r = runner.invoke(cli, ["simulate", BAYER, "-o", "unused", "--list"])
+    r = runner.invoke(cli, ["simulate", "--list"])
     assert r.exit_code == 0 and "visir-A" in r.output and "interleaved-rgbw" in r.output

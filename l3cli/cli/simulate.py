@@ -19,6 +19,19 @@ def _size(ctx: click.Context, param: click.Parameter, value: str | None) -> tupl
     return w, h
 
 
+def _print_list(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    if not value or ctx.resilient_parsing:
+        return
+    from l3cli import spectral
+    from l3cli.simulate.scenes import SCENES
+
+    click.echo("scenes:      " + ", ".join(SCENES) + ", or a path")
+    click.echo("illuminants: " + ", ".join(spectral.ILLUMINANTS))
+    click.echo("QE presets:  " + ", ".join(spectral.QE_PRESETS))
+    click.echo("IR filters:  " + ", ".join(spectral.IR_FILTERS))
+    ctx.exit(0)
+
+
 @click.command(short_help="Simulate raw captures and ideal XYZ targets of a camera.")
 @click.argument("camera", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "output", required=True, type=click.Path(file_okay=False),
@@ -28,25 +41,27 @@ def _size(ctx: click.Context, param: click.Parameter, value: str | None) -> tupl
                    "natural:NAME, or a path to an RGB image or a spectral cube .npz. "
                    "Repeatable. Default: macbeth and natural.")
 @click.option("--illuminant", default=None, metavar="NAME",
-              help="Illuminant (default: the camera's exposure.illuminant). "
-                   "Run with --list to see the names.")
+              help="Illuminant (default: the camera's exposure.illuminant); "
+                   "`l3 simulate --list` shows the names.")
 @click.option("--lux", "lux", multiple=True, type=float, metavar="LUX",
               help="Scene illuminance in lux, repeatable (default: the camera's "
                    "exposure.light_levels_lux).")
 @click.option("--size", callback=_size, default=None, metavar="WxH",
               help="Image size in pixels  [default: 480x320]")
 @click.option("--exposure", "exposure_s", type=click.FloatRange(min=0, min_open=True), default=None,
+              metavar="SECONDS",
               help="Fixed exposure time in seconds (overrides the camera's exposure mode).")
-@click.option("--oversample", type=click.IntRange(1, 8), default=1, show_default=True,
+@click.option("--oversample", type=click.IntRange(1, 8), default=1, show_default=True, metavar="N",
               help="Scene samples per pixel and axis for the optics (2-4: more accurate "
                    "MTF near Nyquist, slower).")
 @click.option("--no-blur", is_flag=True, help="Perfect lens (no diffraction blur).")
 @click.option("--no-noise", is_flag=True, help="No sensor noise (raw = quantised noise-free signal).")
-@click.option("--list", "list_", is_flag=True, help="List scenes, illuminants and QE presets, then exit.")
+@click.option("--list", is_flag=True, is_eager=True, expose_value=False, callback=_print_list,
+              help="List scenes, illuminants, QE presets and IR filters, then exit.")
 @seed_opt
 def simulate(camera: str, output: str, scenes: tuple[str, ...], illuminant: str | None,
              lux: tuple[float, ...], size: tuple[int, int] | None, exposure_s: float | None,
-             oversample: int, no_blur: bool, no_noise: bool, list_: bool, seed: int) -> None:
+             oversample: int, no_blur: bool, no_noise: bool, seed: int) -> None:
     """Simulate captures of CAMERA.toml into SIM_DIR (-o).
 
     For each scene and light level it writes STEM.dng (or STEM.tif +
@@ -55,17 +70,9 @@ def simulate(camera: str, output: str, scenes: tuple[str, ...], illuminant: str 
     """
     import logging
 
-    from l3cli import spectral
     from l3cli.camera import load_camera
     from l3cli.simulate.run import run_simulation
-    from l3cli.simulate.scenes import SCENES
 
-    if list_:
-        click.echo("scenes:      " + ", ".join(SCENES) + ", or a path")
-        click.echo("illuminants: " + ", ".join(spectral.ILLUMINANTS))
-        click.echo("QE presets:  " + ", ".join(spectral.QE_PRESETS))
-        click.echo("IR filters:  " + ", ".join(spectral.IR_FILTERS))
-        return
     for x in lux:
         if not x > 0:
             raise click.BadParameter(f"{x:g} lux: light levels must be > 0", param_hint="--lux")
