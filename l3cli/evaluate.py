@@ -599,6 +599,9 @@ def report_dict(
 ) -> dict:
     """The JSON report: ``images`` (contract keys first, then extras) and ``summary``.
 
+    Each image also carries ``macbeth_patches`` (per-patch ΔE*ab and CIEDE2000 in
+    reading order, and the white scale) where a chart is known, and ``mtf_curve``
+    (frequencies in cycles/pixel, MTF, edge angle and region) where an edge is.
     Non-finite values (PSNR of identical images) are written as null.
     """
     images = []
@@ -610,6 +613,19 @@ def report_dict(
         for k, v in r.values.items():
             if k not in d:
                 d[k] = _json_value(v)
+        if r.macbeth is not None:
+            d["macbeth_patches"] = {
+                "de_ab": [round(float(v), 4) for v in r.macbeth.delta_e_ab],
+                "de2000": [round(float(v), 4) for v in r.macbeth.delta_e_2000],
+                "white_scale": float(r.macbeth.white_scale),
+            }
+        if r.mtf is not None:
+            d["mtf_curve"] = {
+                "cy_per_px": [round(float(v), 5) for v in r.mtf.frequencies],
+                "mtf": [round(float(v), 5) for v in r.mtf.mtf],
+                "angle_deg": float(r.mtf.angle_deg),
+                "roi": list(r.edge_roi) if r.edge_roi is not None else None,
+            }
         images.append(d)
     out: dict[str, Any] = {"images": images, "summary": {k: _json_value(v) for k, v in summary.items()}}
     if settings:

@@ -297,3 +297,22 @@ def test_linear_render_against_display_reference(runner, pngs, tmp_path):
                               "--json", str(rep)])
     assert res.exit_code == 0, res.output
     assert json.loads(rep.read_text())["images"][0]["scielab_mean"] < 0.01
+
+
+def test_json_has_patch_errors_and_mtf_curve(runner, sim_dir, tmp_path):
+    renders = tmp_path / "renders"
+    renders.mkdir()
+    man = json.loads((sim_dir / "manifest.json").read_text())
+    for cap in man["captures"]:
+        shutil.copy(sim_dir / cap["target"], renders / f"{cap['stem']}.exr")
+    rep = tmp_path / "r.json"
+    res = runner.invoke(cli, ["evaluate", str(renders), "--reference", str(sim_dir), "--json", str(rep)])
+    assert res.exit_code == 0, res.output
+    imgs = json.loads(rep.read_text())["images"]
+    mac = next(i for i in imgs if "macbeth_patches" in i)
+    assert len(mac["macbeth_patches"]["de_ab"]) == 24
+    assert np.mean(mac["macbeth_patches"]["de_ab"]) == pytest.approx(mac["macbeth_de_mean"], abs=1e-3)
+    edge = next(i for i in imgs if "mtf_curve" in i)
+    f, m = np.array(edge["mtf_curve"]["cy_per_px"]), np.array(edge["mtf_curve"]["mtf"])
+    assert f[0] == 0 and m[0] == pytest.approx(1.0)
+    assert np.interp(edge["mtf50_cy_per_px"], f, m) == pytest.approx(0.5, abs=0.01)
