@@ -383,7 +383,7 @@ def align(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
             " - the render looks scaled, distorted (lens correction) or of a different shot;"
             " l3 trains only on renders of the full raw, a crop of it, or a mirrored one"
         )
-    log.info("%s aligned with %s: %s", iname, rname, a.describe())
+    log.debug("%s aligned with %s: %s", iname, rname, a.describe())
     return a
 
 

@@ -1,0 +1,95 @@
+#!/usr/bin/env python3
+"""Helpers of scripts/real_camera.sh (approximating real pipelines, issue 7).
+
+``blackmagic DNG OUTDIR``
+    Renders the Blackmagic Pocket 4K DNG with LibRaw (rawpy ``postprocess``:
+    AHD demosaic, camera white balance, sRGB primaries, sRGB transfer curve,
+    16-bit, no auto-brightening) and splits raw and render at the middle
+    column (even, so both halves keep the RGGB phase):
+    ``OUTDIR/train/bmpcc_left.{raw,raw.toml,tif}`` (a pairs folder),
+    ``OUTDIR/test/bmpcc_right.{raw,raw.toml}`` and ``OUTDIR/ref/bmpcc_right.tif``.
+``chart STEM``
+    Prints the ``l3 evaluate --chart`` value of an Infinite-ISP frame from the
+    bundled ``l3cli/data/charts/infinite_isp_charts.json``.
+``summary JSON...``
+    Prints one Markdown table row per report (S-CIELAB mean, PSNR, Macbeth ΔE).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+#: LibRaw settings of the reference rendering (documented in docs/results.md).
+LIBRAW_SETTINGS = dict(demosaic="AHD", use_camera_wb=True, output_color="sRGB",
+                       gamma="(2.4, 12.92) = sRGB curve", output_bps=16, no_auto_bright=True)
+
+
+def blackmagic(dng: str, outdir: str) -> None:
+    import rawpy
+
+    from l3cli.io.image import write_image
+    from l3cli.io.raw import read_raw
+
+    out = Path(outdir)
+    for sub in ("train", "test", "ref"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    raw = read_raw(dng)
+    with rawpy.imread(dng) as rp:
+        dn = np.array(rp.raw_image_visible, dtype=np.uint16)
+        rgb = rp.postprocess(demosaic_algorithm=rawpy.DemosaicAlgorithm.AHD,
+                             use_camera_wb=True, output_color=rawpy.ColorSpace.sRGB,
+                             gamma=(2.4, 12.92), output_bps=16, no_auto_bright=True)
+    if rgb.shape[:2] != dn.shape:
+        raise SystemExit(f"LibRaw output {rgb.shape} differs from the raw {dn.shape}")
+    h, w = dn.shape
+    split = (w // 2) & ~1  # even: the right half keeps the RGGB phase
+    black = float(raw.black_level[0])
+    if np.ptp(raw.black_level):
+        raise SystemExit("per-position black levels are not handled here")
+    enc = rgb.astype(np.float32) / 65535.0
+    for name, sl, folder in (("bmpcc_left", np.s_[:, :split], "train"),
+                             ("bmpcc_right", np.s_[:, split:], "test")):
+        part = np.ascontiguousarray(dn[sl])
+        part.astype("<u2").tofile(out / folder / f"{name}.raw")
+        (out / folder / f"{name}.raw.toml").write_text(
+            f"width = {part.shape[1]}\nheight = {part.shape[0]}\ndtype = \"uint16\"\n"
+            f"cfa = \"{raw.cfa.spec.replace('/', '')}\"\nblack_level = {black:g}\n"
+            f"white_level = {raw.white_level:g}\n"
+            "description = \"Blackmagic Pocket Cinema Camera 4K DNG (linearised by LibRaw), "
+            f"columns {'0' if folder == 'train' else split}-{split - 1 if folder == 'train' else w - 1}\"\n"
+        )
+        write_image(out / ("train" if folder == "train" else "ref") / f"{name}.tif",
+                    enc[sl], space="srgb")
+    print(f"split {w}x{h} at column {split}; LibRaw settings: {LIBRAW_SETTINGS}")
+
+
+def chart(stem: str) -> None:
+    from importlib.resources import files
+
+    data = json.loads((files("l3cli") / "data/charts/infinite_isp_charts.json").read_text())
+    print(data["frames"][stem]["chart_option"])
+
+
+def summary(paths: list[str]) -> None:
+    for p in paths:
+        rep = json.loads(Path(p).read_text())
+        for im in rep["images"]:
+            mac = im.get("macbeth_de_mean")
+            print(f"| {im['name']} | {im['scielab_mean']:.3f} | {im['psnr_db']:.2f} | "
+                  f"{'-' if mac is None else f'{mac:.2f}'} |")
+
+
+if __name__ == "__main__":
+    cmd, *args = sys.argv[1:] or ["help"]
+    if cmd == "blackmagic" and len(args) == 2:
+        blackmagic(*args)
+    elif cmd == "chart" and len(args) == 1:
+        chart(*args)
+    elif cmd == "summary" and args:
+        summary(args)
+    else:
+        raise SystemExit(__doc__)
