@@ -19,19 +19,25 @@ Every pixel of a raw mosaic is assigned a *class* from the patch of
   default, linear optionally). Bin 0 is below the first cut (at the noise
   floor), the last bin above the last cut (near saturation).
 * **contrast** -- the relative within-channel spread
-  ``K = [(1/C') sum_c mean{|x_k - m_c| : channel(k) = c}] / (max(L, 0) + eps)``
-  (mean absolute deviation from each channel's own mean, so colour differences
-  between channels do not count as texture, and divided by the level, so the
-  rule is the same at every exposure). ``K`` is binned per level by
-  ``n_contrast - 1`` thresholds; by default the thresholds are quantiles of
-  the training data's contrast at that level (the median for two bins, flat
-  vs textured), so both bins of every level are populated.
+  ``K = [(1/C') sum_c sd_c] / (max(L, 0) + eps)`` where ``sd_c`` is the
+  standard deviation of the channel-``c`` pixels of the patch about their own
+  mean (so colour differences between channels never count as texture), and
+  the division by the level makes the rule the same at every exposure. ``K``
+  is binned per level by ``n_contrast - 1`` thresholds; by default the
+  thresholds are quantiles of the training data's contrast at that level (the
+  median for two bins, flat vs textured), so both bins of every level are
+  populated whatever the noise. The standard deviation (not a median-based
+  spread) is used because it follows from separable box sums of ``x`` and
+  ``x²``, which keeps classification a few operations per pixel; clipped
+  outliers are taken out by the saturation classes.
 
 The class index is ``((group * n_sat + sat) * n_levels + level) * n_contrast +
 contrast`` with ``n_sat = 2 ** n_channels``.
 
 The numba kernels here are the only implementation of the rule; render and
-train both call them.
+train both call them. Per band of rows they compute S-tap horizontal then
+vertical sums of each channel's ``x`` and ``x²`` (float64) and an OR of the
+saturated-channel bits, then level, contrast and class per pixel.
 
 References
 ----------
@@ -44,6 +50,7 @@ References
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numba as nb
@@ -65,7 +72,7 @@ __all__ = [
 ]
 
 #: Name of the contrast rule implemented here (stored in tables).
-CONTRAST_RULE = "relative-mad-v1"
+CONTRAST_RULE = "relative-std-v1"
 #: Name of the saturation rule implemented here (stored in tables).
 SATURATION_RULE = "any-pixel-per-channel-v1"
 #: ``eps`` in the contrast denominator (normalised raw units).
@@ -274,26 +281,21 @@ class ClassDefinition:
 
     # -------------------------------------------------------- numba tables
     def kernel_args(self) -> tuple:
-        """Arrays the numba kernels need (cached)."""
+        """Arrays the numba kernels need (cached): channel index pattern, per
+        position 1/count of each channel in the patch and 1/channels present."""
         if "args" not in self._tables:
             cfa, s = self.cfa, self.patch
             npos, nch = cfa.n_positions, cfa.n_channels
-            chan = np.zeros((npos, s * s), dtype=np.int64)
-            wk = np.zeros((npos, s * s), dtype=np.float64)
             cnt_inv = np.zeros((npos, nch), dtype=np.float64)
             wc = np.zeros((npos, nch), dtype=np.float64)
             for p in range(npos):
-                lay = cfa.neighbourhood(p, s).ravel()
-                chan[p] = lay
-                counts = np.bincount(lay, minlength=nch).astype(np.float64)
+                counts = np.bincount(cfa.neighbourhood(p, s).ravel(), minlength=nch)
                 present = counts > 0
-                npres = present.sum()
                 cnt_inv[p, present] = 1.0 / counts[present]
-                wc[p, present] = 1.0 / npres
-                wk[p] = 1.0 / (counts[lay] * npres)
+                wc[p, present] = 1.0 / present.sum()
             self._tables["args"] = (
-                chan, wk, cnt_inv, wc, self.position_group.astype(np.int64),
-                self.level_cuts, self.contrast_cuts,
+                cfa.index_pattern.astype(np.int64), cnt_inv, wc,
+                self.position_group.astype(np.int64), self.level_cuts, self.contrast_cuts,
                 float(self.saturation_threshold), float(self.contrast_eps),
                 int(self.n_saturation), int(cfa.period[0]), int(cfa.period[1]), int(s),
             )
@@ -359,114 +361,193 @@ def mirror_indices(n: int, r: int, period: int) -> np.ndarray:
 
 
 def pad_mosaic(mosaic: np.ndarray, r: int, period: tuple[int, int],
-               rows: tuple[int, int] | None = None) -> np.ndarray:
+               rows: tuple[int, int] | None = None, extra: int = 0) -> np.ndarray:
     """CFA-phase-preserving mirror padding of ``mosaic`` by ``r`` pixels.
 
     ``rows=(y0, y1)`` returns only the padded band needed for output rows
-    ``y0:y1`` (shape ``(y1 - y0 + 2r, W + 2r)``).
+    ``y0:y1`` (shape ``(y1 - y0 + 2r, W + 2r)``). ``extra`` zero columns are
+    appended on the right (room for the kernels' fixed-width row loads).
     """
     h, w = mosaic.shape
     yi = mirror_indices(h, r, period[0])
     xi = mirror_indices(w, r, period[1])
     if rows is not None:
         yi = yi[rows[0] : rows[1] + 2 * r]
+    if extra:
+        out = np.zeros((yi.size, xi.size + extra), dtype=np.float32)
+        out[:, : xi.size] = mosaic[yi][:, xi]
+        return out
     return np.ascontiguousarray(mosaic[yi][:, xi], dtype=np.float32)
 
 
+def padded_width(s: int) -> int:
+    """Row width of kernels padded to a multiple of 8 (vectorisable inner loops)."""
+    return 8 * ((s + 7) // 8)
+
+
 # ------------------------------------------------------------ numba kernels
+_FM = {"reassoc", "contract"}  # allow vectorised reductions; keep NaN/Inf semantics
+
+
 @nb.njit(cache=True, inline="always")
 def _bin(cuts, v):
-    """Number of cuts <= v (binary search)."""
-    lo = 0
-    hi = cuts.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if cuts[mid] <= v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+    """Number of cuts <= v (branch-free binary search over increasing cuts)."""
+    n = cuts.shape[0]
+    base = 0
+    while n > 1:
+        half = n >> 1
+        base = base + half if cuts[base + half] <= v else base
+        n -= half
+    return base + 1 if cuts[base] <= v else base
 
 
-@nb.njit(cache=True, inline="always")
-def _features(vals, pos, chan, wk, cnt_inv, wc, sat_thr, eps, csum):
-    """(level, contrast, saturation bits) of one gathered patch ``vals``."""
-    nch = csum.shape[0]
-    P = vals.shape[0]
-    for c in range(nch):
-        csum[c] = 0.0
-    for k in range(P):
-        csum[chan[pos, k]] += vals[k]
-    level = 0.0
-    for c in range(nch):
-        csum[c] *= cnt_inv[pos, c]  # now channel means
-        level += csum[c] * wc[pos, c]
-    mad = 0.0
-    sat = 0
-    for k in range(P):
-        c = chan[pos, k]
-        v = vals[k]
-        mad += abs(v - csum[c]) * wk[pos, k]
-        if v >= sat_thr:
-            sat |= 1 << c
-    denom = level if level > 0.0 else 0.0
-    return level, mad / (denom + eps), sat
+_ROWS = 16  # output rows per parallel task
 
 
-@nb.njit(cache=True, inline="always")
-def _class_of(level, contrast, sat, g, level_cuts, contrast_cuts, n_sat):
-    nl = level_cuts.shape[0] + 1
-    ncc = contrast_cuts.shape[1]
-    lev = _bin(level_cuts, level)
-    con = 0
-    for j in range(ncc):
-        if contrast >= contrast_cuts[lev, j]:
-            con = j + 1
-    return ((g * n_sat + sat) * nl + lev) * (ncc + 1) + con
+@functools.cache
+def _kernels(S: int):
+    """The feature kernel compiled for patch size ``S`` (a compile-time constant, so
+    the S-tap loops unroll and the loops along a row vectorise). Cached on disk.
+
+    Per task of ``_ROWS`` output rows, each padded band row is reduced once to
+    horizontal S-tap sums of ``x`` and ``x²`` per channel (channel masks along
+    the row) and an OR of saturated-channel bits, kept in a ring of S rows;
+    each output row then sums its S ring rows (in a fixed order, so results do
+    not depend on how the image is split) and finishes level, contrast,
+    saturation and class per pixel.
+    """
+    r = S // 2
+
+    @nb.njit(cache=True, parallel=True, fastmath=_FM)
+    def features(band, y0, idx_pattern, cnt_inv, wc, sat_thr, eps, level, contrast, sat,
+                 do_class, group, level_cuts, contrast_cuts, n_sat, out_cls):
+        H, W = level.shape
+        Wp = W + S - 1
+        ph, pw = idx_pattern.shape
+        nch = cnt_inv.shape[1]
+        nl = level_cuts.shape[0] + 1
+        ncc = contrast_cuts.shape[1]
+        # along-row tables per row phase (band column xx is image column xx - r)
+        mask = np.zeros((ph, nch, Wp), dtype=np.float64)
+        bitv = np.zeros((ph, Wp), dtype=np.int32)
+        for py in range(ph):
+            for xx in range(Wp):
+                c = idx_pattern[py, (xx - r) % pw]
+                mask[py, c, xx] = 1.0
+                bitv[py, xx] = 1 << c
+        ci_row = np.zeros((ph, nch, W), dtype=np.float64)
+        wc_row = np.zeros((ph, nch, W), dtype=np.float64)
+        g_row = np.zeros((ph, W), dtype=np.int64)
+        for py in range(ph):
+            for x in range(W):
+                pos = py * pw + x % pw
+                g_row[py, x] = group[pos]
+                for c in range(nch):
+                    ci_row[py, c, x] = cnt_inv[pos, c]
+                    wc_row[py, c, x] = wc[pos, c]
+        ntask = (H + _ROWS - 1) // _ROWS
+        for task in nb.prange(ntask):
+            i0 = task * _ROWS
+            i1 = min(H, i0 + _ROWS)
+            ring_s = np.empty((S, nch, W), dtype=np.float64)
+            ring_q = np.empty((S, nch, W), dtype=np.float64)
+            ring_b = np.empty((S, W), dtype=np.int32)
+            mv = np.empty(Wp, dtype=np.float64)
+            mq = np.empty(Wp, dtype=np.float64)
+            bits = np.empty(Wp, dtype=np.int32)
+            lev = np.empty(W, dtype=np.float64)
+            spr = np.empty(W, dtype=np.float64)
+            for yy in range(i0, i1 + S - 1):
+                slot = yy % S
+                py = (y0 - r + yy) % ph
+                for c in range(nch):
+                    for xx in range(Wp):
+                        t = np.float64(band[yy, xx])
+                        u = t * mask[py, c, xx]
+                        mv[xx] = u
+                        mq[xx] = u * t
+                    for x in range(W):
+                        a = 0.0
+                        q = 0.0
+                        for dx in range(S):
+                            a += mv[x + dx]
+                            q += mq[x + dx]
+                        ring_s[slot, c, x] = a
+                        ring_q[slot, c, x] = q
+                for xx in range(Wp):
+                    bits[xx] = bitv[py, xx] if band[yy, xx] >= sat_thr else 0
+                for x in range(W):
+                    b = 0
+                    for dx in range(S):
+                        b |= bits[x + dx]
+                    ring_b[slot, x] = b
+                i = yy - (S - 1)
+                if i < i0:
+                    continue
+                po = (y0 + i) % ph
+                for x in range(W):
+                    lev[x] = 0.0
+                    spr[x] = 0.0
+                for c in range(nch):
+                    for x in range(W):
+                        a = 0.0
+                        q = 0.0
+                        for dy in range(S):
+                            sl = (i + dy) % S
+                            a += ring_s[sl, c, x]
+                            q += ring_q[sl, c, x]
+                        ci = ci_row[po, c, x]
+                        m = a * ci
+                        var = q * ci - m * m
+                        lev[x] += m * wc_row[po, c, x]
+                        spr[x] += np.sqrt(max(var, 0.0)) * wc_row[po, c, x]
+                for x in range(W):
+                    b = 0
+                    for dy in range(S):
+                        b |= ring_b[(i + dy) % S, x]
+                    sat[i, x] = b
+                    level[i, x] = lev[x]
+                    contrast[i, x] = spr[x] / (max(lev[x], 0.0) + eps)
+                if do_class:
+                    for x in range(W):
+                        lb = _bin(level_cuts, lev[x])
+                        con = 0
+                        cv = contrast[i, x]
+                        for j in range(ncc):
+                            con += cv >= contrast_cuts[lb, j]
+                        out_cls[i, x] = ((g_row[po, x] * n_sat + sat[i, x]) * nl + lb) * (ncc + 1) + con
+
+    return features
 
 
-@nb.njit(cache=True, parallel=True)
-def _classify_band(band, y0, chan, wk, cnt_inv, wc, group, level_cuts, contrast_cuts,
-                   sat_thr, eps, n_sat, ph, pw, S, out_cls):
-    """Classes of output rows ``y0 .. y0 + out_cls.shape[0]`` from a padded band."""
-    H, W = out_cls.shape
-    nch = cnt_inv.shape[1]
-    for i in nb.prange(H):
-        vals = np.empty(S * S, dtype=np.float64)
-        csum = np.empty(nch, dtype=np.float64)
-        prow = ((y0 + i) % ph) * pw
-        for x in range(W):
-            pos = prow + x % pw
-            k = 0
-            for dy in range(S):
-                for dx in range(S):
-                    vals[k] = band[i + dy, x + dx]
-                    k += 1
-            level, contrast, sat = _features(vals, pos, chan, wk, cnt_inv, wc, sat_thr, eps, csum)
-            out_cls[i, x] = _class_of(level, contrast, sat, group[pos], level_cuts,
-                                      contrast_cuts, n_sat)
+def band_features(band: np.ndarray, y0: int, rows: int, width: int, args: tuple,
+                  out_cls: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Level, contrast and saturation bits of output rows ``y0 : y0 + rows``.
+
+    ``band`` is the padded band (:func:`pad_mosaic` with ``rows``), ``args``
+    :meth:`ClassDefinition.kernel_args`. When ``out_cls`` (int32 (rows, width))
+    is given, the class indices are written into it too.
+    """
+    (idx, cnt_inv, wc, group, lc, cc, thr, eps, n_sat, ph, pw, S) = args
+    level = np.empty((rows, width))
+    contrast = np.empty((rows, width))
+    sat = np.empty((rows, width), dtype=np.int32)
+    do_class = out_cls is not None
+    if out_cls is None:
+        out_cls = np.empty((1, 1), dtype=np.int32)
+    _kernels(S)(band, y0, idx, cnt_inv, wc, thr, eps, level, contrast, sat,
+                do_class, group, lc, cc, n_sat, out_cls)
+    return level, contrast, sat
 
 
-@nb.njit(cache=True, parallel=True)
-def _features_band(band, y0, chan, wk, cnt_inv, wc, sat_thr, eps, ph, pw, S,
-                   out_level, out_contrast, out_sat):
-    H, W = out_level.shape
-    nch = cnt_inv.shape[1]
-    for i in nb.prange(H):
-        vals = np.empty(S * S, dtype=np.float64)
-        csum = np.empty(nch, dtype=np.float64)
-        prow = ((y0 + i) % ph) * pw
-        for x in range(W):
-            pos = prow + x % pw
-            k = 0
-            for dy in range(S):
-                for dx in range(S):
-                    vals[k] = band[i + dy, x + dx]
-                    k += 1
-            level, contrast, sat = _features(vals, pos, chan, wk, cnt_inv, wc, sat_thr, eps, csum)
-            out_level[i, x] = level
-            out_contrast[i, x] = contrast
-            out_sat[i, x] = sat
+def band_classes(band: np.ndarray, y0: int, rows: int, width: int, args: tuple,
+                 out: np.ndarray | None = None) -> np.ndarray:
+    """int32 class indices of output rows ``y0 : y0 + rows`` (see :func:`band_features`)."""
+    if out is None:
+        out = np.empty((rows, width), dtype=np.int32)
+    band_features(band, y0, rows, width, args, out_cls=out)
+    return out
 
 
 def _check_mosaic(mosaic: np.ndarray, cfa: CFA, patch: int) -> np.ndarray:
@@ -504,14 +585,14 @@ def classify(mosaic: np.ndarray, definition: ClassDefinition) -> np.ndarray:
         int32 (H, W) flat class indices (see :class:`ClassDefinition`).
     """
     mosaic = _check_mosaic(mosaic, definition.cfa, definition.patch)
-    (chan, wk, cnt_inv, wc, group, lc, cc, thr, eps, n_sat, ph, pw, S) = definition.kernel_args()
+    args = definition.kernel_args()
+    S = definition.patch
+    ph, pw = definition.cfa.period
     h, w = mosaic.shape
-    r = S // 2
     out = np.empty((h, w), dtype=np.int32)
     for y0, y1 in band_rows(h, w):
-        band = pad_mosaic(mosaic, r, (ph, pw), rows=(y0, y1))
-        _classify_band(band, y0, chan, wk, cnt_inv, wc, group, lc, cc, thr, eps, n_sat,
-                       ph, pw, S, out[y0:y1])
+        band = pad_mosaic(mosaic, S // 2, (ph, pw), rows=(y0, y1))
+        band_classes(band, y0, y1 - y0, w, args, out=out[y0:y1])
     return out
 
 
@@ -532,15 +613,14 @@ def patch_features(mosaic: np.ndarray, cfa: CFA | str, *, patch: int = 5,
                               saturation_threshold=saturation_threshold,
                               contrast_eps=contrast_eps, merge_positions=False)
     mosaic = _check_mosaic(mosaic, cfa, patch)
-    (chan, wk, cnt_inv, wc, group, lc, cc, thr, eps, n_sat, ph, pw, S) = d.kernel_args()
+    args = d.kernel_args()
     h, w = mosaic.shape
     lev = np.empty((h, w))
     con = np.empty((h, w))
     sat = np.empty((h, w), dtype=np.int32)
     for y0, y1 in band_rows(h, w):
-        band = pad_mosaic(mosaic, S // 2, (ph, pw), rows=(y0, y1))
-        _features_band(band, y0, chan, wk, cnt_inv, wc, thr, eps, ph, pw, S,
-                       lev[y0:y1], con[y0:y1], sat[y0:y1])
+        band = pad_mosaic(mosaic, patch // 2, cfa.period, rows=(y0, y1))
+        lev[y0:y1], con[y0:y1], sat[y0:y1] = band_features(band, y0, y1 - y0, w, args)
     return lev, con, sat
 
 

@@ -14,47 +14,54 @@ output, so memory stays bounded for any frame size.
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
 import numba as nb
 import numpy as np
 
-from l3cli.classify import _class_of, _features, band_rows, pad_mosaic
+from l3cli.classify import band_classes, band_rows, pad_mosaic, padded_width
 from l3cli.errors import TableError
 from l3cli.table import TransformTable
 
 __all__ = ["check_fits", "render_mosaic", "render_raw", "render_file"]
 
 
-@nb.njit(cache=True, parallel=True, fastmath=False)
-def _render_band(band, y0, chan, wk, cnt_inv, wc, group, level_cuts, contrast_cuts,
-                 sat_thr, eps, n_sat, ph, pw, S, kernels, out):
-    H, W, n_out = out.shape
-    nch = cnt_inv.shape[1]
-    P = S * S
-    for i in nb.prange(H):
-        vals = np.empty(P, dtype=np.float64)
-        csum = np.empty(nch, dtype=np.float64)
-        acc = np.empty(n_out, dtype=np.float32)
-        prow = ((y0 + i) % ph) * pw
-        for x in range(W):
-            pos = prow + x % pw
-            k = 0
-            for dy in range(S):
-                for dx in range(S):
-                    vals[k] = band[i + dy, x + dx]
-                    k += 1
-            level, contrast, sat = _features(vals, pos, chan, wk, cnt_inv, wc, sat_thr, eps, csum)
-            c = _class_of(level, contrast, sat, group[pos], level_cuts, contrast_cuts, n_sat)
-            for o in range(n_out):
-                acc[o] = kernels[c, P, o]
-            for k in range(P):
-                v = np.float32(vals[k])
+@functools.cache
+def _apply_kernel(S: int, SP: int, n_out: int):
+    """Per-pixel affine kernel, compiled for patch size S, padded row width SP and
+    n_out outputs (compile-time constants: the tap loops unroll and vectorise)."""
+
+    @nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
+    def apply(band, cls, K, B, out):
+        H, W = cls.shape
+        for i in nb.prange(H):
+            for x in range(W):
+                c = cls[i, x]
                 for o in range(n_out):
-                    acc[o] += v * kernels[c, k, o]
-            for o in range(n_out):
-                out[i, x, o] = acc[o]
+                    acc = B[c, o]
+                    for dy in range(S):
+                        for dx in range(SP):
+                            acc += band[i + dy, x + dx] * K[c, o, dy, dx]
+                    out[i, x, o] = acc
+
+    return apply
+
+
+def _padded_kernels(table: TransformTable) -> tuple[np.ndarray, np.ndarray]:
+    """Kernels as float32 (n_classes, n_out, S, SP) with zero padding, and biases."""
+    cached = getattr(table, "_render_kernels", None)
+    if cached is not None:
+        return cached
+    S = table.patch
+    SP = padded_width(S)
+    nc, q, n_out = table.kernels.shape
+    K = np.zeros((nc, n_out, S, SP), dtype=np.float32)
+    K[:, :, :, :S] = table.kernels[:, : S * S, :].transpose(0, 2, 1).reshape(nc, n_out, S, S)
+    B = np.ascontiguousarray(table.kernels[:, S * S, :], dtype=np.float32)
+    table._render_kernels = (K, B)
+    return K, B
 
 
 def check_fits(table: TransformTable, raw, *, table_name: str = "table") -> None:
@@ -97,12 +104,18 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
     h, w = mosaic.shape
     if out is None:
         out = np.empty((h, w, table.n_out), dtype=np.float32)
-    (chan, wk, cnt_inv, wc, group, lc, cc, thr, eps, n_sat, ph, pw, S) = d.kernel_args()
-    r = S // 2
+    args = d.kernel_args()
+    S = d.patch
+    SP = padded_width(S)
+    K, B = _padded_kernels(table)
+    apply = _apply_kernel(S, SP, table.n_out)
+    cls = None
     for y0, y1 in band_rows(h, w, max_pixels=band_pixels):
-        band = pad_mosaic(mosaic, r, (ph, pw), rows=(y0, y1))
-        _render_band(band, y0, chan, wk, cnt_inv, wc, group, lc, cc, thr, eps, n_sat, ph, pw, S,
-                     table.kernels, out[y0:y1])
+        band = pad_mosaic(mosaic, S // 2, d.cfa.period, rows=(y0, y1), extra=SP - S)
+        if cls is None or cls.shape[0] != y1 - y0:
+            cls = np.empty((y1 - y0, w), dtype=np.int32)
+        band_classes(band, y0, y1 - y0, w, args, out=cls)
+        apply(band, cls, K, B, out[y0:y1])
     return out
 
 

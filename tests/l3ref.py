@@ -48,9 +48,8 @@ def features_reference(mosaic, cfa: CFA, patch: int, sat_thr: float, eps: float)
         chans = [c for c in range(cfa.n_channels) if np.any(lay == c)]
         means = {c: pw_[:, lay == c].mean(axis=1) for c in chans}
         lev = np.mean([means[c] for c in chans], axis=0)
-        mad = np.mean([np.abs(pw_[:, lay == c] - means[c][:, None]).mean(axis=1) for c in chans],
-                      axis=0)
-        con = mad / (np.maximum(lev, 0) + eps)
+        spread = np.mean([pw_[:, lay == c].std(axis=1) for c in chans], axis=0)
+        con = spread / (np.maximum(lev, 0) + eps)
         s = np.zeros(pw_.shape[0], dtype=np.int64)
         for c in chans:
             s |= (np.any(pw_[:, lay == c] >= sat_thr, axis=1).astype(np.int64) << c)

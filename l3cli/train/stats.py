@@ -14,8 +14,10 @@ generalised cross-validation exactly from them.
 
 Accumulation: the classes of the selected pixels are computed by the shared
 classifier (:mod:`l3cli.classify`); the patches are gathered in class order
-into a float64 design matrix by a numba kernel (a counting sort) and each
-class block is reduced with BLAS (``XᵀX`` via ``syrk``/``gemm``).
+into a float64 design matrix (one column per sample) by a numba kernel (a
+counting sort) and each class block is reduced by a numba kernel of
+contiguous dot products (parallel over classes; BLAS's own threads would
+fight numba's on these many small products).
 """
 
 from __future__ import annotations
@@ -154,8 +156,8 @@ def _sorted_slots(cls_sel, starts):
 
 
 @nb.njit(cache=True, parallel=True)
-def _gather(band, ys, xs, dest, S, target, X, Y):
-    """Row ``dest[i]`` of X = patch of pixel (ys[i], xs[i]) of the band, then 1."""
+def _gather(band, ys, xs, dest, S, target, Xt, Yt):
+    """Column ``dest[i]`` of Xt = patch of pixel (ys[i], xs[i]) of the band, then 1."""
     P = S * S
     n_out = target.shape[2]
     for i in nb.prange(ys.shape[0]):
@@ -165,11 +167,60 @@ def _gather(band, ys, xs, dest, S, target, X, Y):
         k = 0
         for dy in range(S):
             for dx in range(S):
-                X[j, k] = band[y + dy, x + dx]
+                Xt[k, j] = band[y + dy, x + dx]
                 k += 1
-        X[j, P] = 1.0
+        Xt[P, j] = 1.0
         for o in range(n_out):
-            Y[j, o] = target[y, x, o]
+            Yt[o, j] = target[y, x, o]
+
+
+_CHUNK = 128  # samples per block of the Gram products (columns stay in L1)
+
+
+@nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
+def _gram(Xt, Yt, starts, classes, xtx, xty, yy):
+    """Add XᵀX, XᵀY and Σy² of each class's block of columns (float64).
+
+    Own kernel rather than BLAS: OpenBLAS threads fight numba's on small
+    per-class products. Parallel over classes; each dot product is a
+    contiguous, vectorised reduction.
+    """
+    q = Xt.shape[0]
+    n_out = Yt.shape[0]
+    for t in nb.prange(classes.shape[0]):
+        c = classes[t]
+        a = starts[c]
+        b = starts[c + 1]
+        G = np.zeros((q, q))
+        R = np.zeros((q, n_out))
+        Q = np.zeros(n_out)
+        for n0 in range(a, b, _CHUNK):
+            n1 = min(b, n0 + _CHUNK)
+            for i in range(q):
+                for j in range(i, q):
+                    s = 0.0
+                    for n in range(n0, n1):
+                        s += Xt[i, n] * Xt[j, n]
+                    G[i, j] += s
+                for o in range(n_out):
+                    s = 0.0
+                    for n in range(n0, n1):
+                        s += Xt[i, n] * Yt[o, n]
+                    R[i, o] += s
+            for o in range(n_out):
+                s = 0.0
+                for n in range(n0, n1):
+                    s += Yt[o, n] * Yt[o, n]
+                Q[o] += s
+        for i in range(q):
+            for j in range(i, q):
+                xtx[c, i, j] += G[i, j]
+                if j != i:
+                    xtx[c, j, i] += G[i, j]
+            for o in range(n_out):
+                xty[c, i, o] += R[i, o]
+        for o in range(n_out):
+            yy[c, o] += Q[o]
 
 
 def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
@@ -225,14 +276,11 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
         np.cumsum(counts, out=starts[1:])
         dest = _sorted_slots(cls_sel, starts[:-1])
         band = pad_mosaic(mosaic, r, (ph, pw), rows=(y0, y1))
-        X = np.empty((yy.size, q), dtype=np.float64)
-        Y = np.empty((yy.size, stats.n_out), dtype=np.float64)
-        _gather(band, yy, xx, dest, S, target[y0:y1], X, Y)
-        Y2 = Y * Y
-        for c in np.flatnonzero(counts):
-            a, b = starts[c], starts[c + 1]
-            Xc = X[a:b]
-            stats.xtx[c] += Xc.T @ Xc
-            stats.xty[c] += Xc.T @ Y[a:b]
-            stats.yy[c] += Y2[a:b].sum(axis=0)
+        Xt = np.empty((q, yy.size), dtype=np.float64)
+        Yt = np.empty((stats.n_out, yy.size), dtype=np.float64)
+        _gather(band, yy, xx, dest, S, target[y0:y1], Xt, Yt)
+        # largest classes first: better balance across threads
+        nz = np.flatnonzero(counts)
+        order = nz[np.argsort(-counts[nz], kind="stable")]
+        _gram(Xt, Yt, starts, order, stats.xtx, stats.xty, stats.yy)
         stats.n += counts
