@@ -152,3 +152,43 @@ def test_odd_crop_keeps_the_raw_cfa_phase(pairs_dir: Path):
     assert c.raw.metadata["crop"] == [4, 6, H - 8, W - 8]
     expect = np.round(srgb_encode(lin)[4:-4, 6:-2] * 255) / 255
     np.testing.assert_allclose(c.target, expect, atol=1e-6)
+
+
+@pytest.fixture
+def dng_pairs(tmp_path: Path) -> Path:
+    """Two RGGB DNG pairs: a full-frame PNG render and a 4-pixel crop as JPEG."""
+    d = tmp_path / "dng_pairs"
+    d.mkdir()
+    for stem, seed, crop, suffix in (("x", 31, 0, ".png"), ("y", 32, 4, ".jpg")):
+        lin = scene(H, W, seed=seed)
+        write_raw(d / f"{stem}.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
+        enc = srgb_encode(lin)
+        write_image(d / f"{stem}{suffix}", enc[crop:H - crop, crop:W - crop], space="srgb")
+    return d
+
+
+def test_cli_train_on_pairs_folder(dng_pairs: Path, tmp_path: Path, runner):
+    from l3cli.cli.main import cli
+    from l3cli.table import load_table
+
+    out = tmp_path / "cam.npz"
+    res = runner.invoke(cli, ["-v", "train", str(dng_pairs), "-o", str(out), "--levels", "3",
+                              "--patch", "3"])
+    assert res.exit_code == 0, res.output
+    assert "offset (dy=4, dx=4)" in res.output  # -v reports the alignment of y
+    assert load_table(out).output_space == "srgb"  # the renders' own encoding by default
+    res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(out), "--levels", "3",
+                              "--patch", "3", "--target", "linear-srgb"])
+    assert res.exit_code == 0, res.output
+    assert load_table(out).output_space == "linear-srgb"
+
+
+def test_cli_train_refuses_misaligned_pair(dng_pairs: Path, tmp_path: Path, runner):
+    from l3cli.cli.main import cli
+
+    write_image(dng_pairs / "x.png", srgb_encode(scene(H, W, seed=5)), space="srgb")
+    res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(tmp_path / "z.npz"),
+                              "--levels", "3", "--patch", "3"])
+    assert res.exit_code == 1
+    assert "x.png does not align with" in res.output
+    assert not (tmp_path / "z.npz").exists()
