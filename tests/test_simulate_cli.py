@@ -135,7 +135,7 @@ def test_user_rgb_image_and_spectral_cube(runner, tmp_path: Path) -> None:
     img[:, :30] = [0.8, 0.2, 0.1]
     img[:, 30:] = [0.1, 0.3, 0.9]
     write_image(tmp_path / "two.png", img, space="srgb")
-    wl = np.arange(380, 741, 20.0)
+    wl = np.arange(380, 1081, 20.0)
     cube = np.tile(np.linspace(0.2, 0.6, wl.size, dtype=np.float32), (30, 40, 1))
     np.savez(tmp_path / "cube.npz", wavelength=wl, reflectance=cube)
     out = tmp_path / "sim"
@@ -149,7 +149,7 @@ def test_user_rgb_image_and_spectral_cube(runner, tmp_path: Path) -> None:
     np.savez(tmp_path / "short.npz", wavelength=wl[1:-2], reflectance=cube[..., 1:-2])
     r2 = runner.invoke(cli, ["simulate", BAYER, "-o", str(tmp_path / "sim2"), "--scene",
                              str(tmp_path / "short.npz"), "--lux", "100", "--size", "60x40"])
-    assert r2.exit_code == 1 and "400-700 nm" in r2.output and "380-730 nm" in r2.output
+    assert r2.exit_code == 1 and "covers 400-1040 nm" in r2.output and "needs 380-" in r2.output
     from l3cli.io.image import read_image
 
     tgt = read_image(out / m["captures"][0]["target"])[0]

@@ -345,12 +345,12 @@ def test_cos4_falloff(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("rgb", [(0.6, 0.3, 0.2), (0.1, 0.5, 0.8), (0.18, 0.18, 0.18)])
-def test_natural_upsampling_round_trips_srgb_under_d65(rgb) -> None:
+def test_natural_upsampling_round_trips_srgb_under_d65(tmp_path: Path, rgb) -> None:
     """Mallett 2019 reflectances lit by D65 give back the linear sRGB they came from."""
     from l3cli.colourspace import convert
     from l3cli.simulate.scenes import rgb_to_reflectance_basis
 
-    cam = load_camera(REPO / "sample_configs" / "bayer.toml")
+    cam = flat_qe_camera(tmp_path, grid=(380, 780, 5))
     model = prepare_camera(cam)
     maps = np.ones((4, 8, 8), np.float32)
     maps[:3] *= np.array(rgb, np.float32)[:, None, None]

@@ -21,8 +21,8 @@ Scenes:
   reflectances 0.8 (left) and 0.2 (right) (4:1 contrast).
 * ``natural`` (and any RGB image path) — an sRGB photo, decoded to linear
   sRGB, up-sampled to reflectance with the Mallett & Yuksel (2019) basis in the
-  visible and, from 680 nm, a linear NIR model fitted to 137 measured ISETCam
-  reflectances (blended over 680-720 nm).
+  visible (exact up to 720 nm, so colorimetry is unaffected) and a linear NIR
+  model fitted to 137 measured ISETCam reflectances beyond (blended over 720-780 nm).
 * a spectral cube ``.npz`` with ``wavelength`` (N,) nm and ``reflectance`` or
   ``radiance`` (H, W, N).
 
@@ -259,8 +259,9 @@ def _resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
 def rgb_to_reflectance_basis(wavelengths: np.ndarray) -> np.ndarray:
     """Spectra (4, N) for maps (r, g, b, 1) of linear sRGB.
 
-    Visible: Mallett & Yuksel (2019) basis for r, g, b; from 680 nm: the
-    fitted NIR model ``c0 + cr r + cg g + cb b``; linear blend over 680-720 nm.
+    Visible: Mallett & Yuksel (2019) basis for r, g, b up to 720 nm; beyond 780 nm the
+    fitted NIR model ``c0 + cr r + cg g + cb b``; linear blend over 720-780 nm (where the
+    CIE colour-matching functions are below 0.1 % of their peak).
     """
     wl = np.asarray(wavelengths, dtype=np.float64)
     vis = spectral.mallett2019_basis(wl)  # (N, 3); defined 380-780
@@ -270,7 +271,7 @@ def rgb_to_reflectance_basis(wavelengths: np.ndarray) -> np.ndarray:
     if wl.max() > nir.wavelengths[-1] + 1e-6:
         raise ConfigError(f"natural scenes are defined up to {nir.wavelengths[-1]:g} nm, the camera "
                           f"reaches {wl.max():g} nm")
-    beta = np.clip((wl - 680.0) / 40.0, 0.0, 1.0)
+    beta = np.clip((wl - 720.0) / 60.0, 0.0, 1.0)
     ext = np.zeros((len(wl), 4))
     m = wl >= nir.wavelengths[0]
     ext[m] = nir.resample(wl[m])
