@@ -237,7 +237,7 @@ def test_uniformity_is_the_minimum_norm_constrained_least_squares_change():
     d = t.definition
     k = t.kernels.astype(np.float64)
     w = t.counts.astype(np.float64)
-    u = make_uniform(k, w, d)
+    u = make_uniform(k, w, d, target="least-squares")
     # generic solution for one slot and one output: min sum_g w_g |x'_g - x_g|^2
     # s.t. S_{g,c} = S_{0,c} and b_g = b_0 for every g
     slot = (0, 4, 1)
@@ -267,6 +267,34 @@ def test_uniformity_is_the_minimum_norm_constrained_least_squares_change():
     # per-channel sums agree across groups in every slot
     s = channel_sums(u, d).reshape(d.n_groups, -1, d.cfa.n_channels, 3)
     np.testing.assert_allclose(s, np.broadcast_to(s[:1], s.shape), atol=1e-12)
+
+
+@pytest.mark.parametrize("spec", ["RGGB", RGBW])
+def test_uniformity_period_mean_keeps_the_flat_field_average(spec):
+    t = plausible_table(spec, patch=5, seed=16, empty_fraction=0.0)
+    d = t.definition
+    k = t.kernels.astype(np.float64)
+    u = make_uniform(k, t.counts, d)  # default target: period mean
+    m = np.bincount(d.position_group, minlength=d.n_groups).astype(float)
+    nch = d.cfa.n_channels
+    s0 = channel_sums(k, d).reshape(d.n_groups, -1, nch, 3)
+    s1 = channel_sums(u, d).reshape(d.n_groups, -1, nch, 3)
+    np.testing.assert_allclose(np.einsum("g,gjco->jco", m, s1), np.einsum("g,gjco->jco", m, s0),
+                               atol=1e-12)
+    np.testing.assert_allclose(s1, np.broadcast_to(s1[:1], s1.shape), atol=1e-12)
+    b0 = k.reshape(d.n_groups, -1, d.n_coeffs, 3)[:, :, -1]
+    b1 = u.reshape(d.n_groups, -1, d.n_coeffs, 3)[:, :, -1]
+    np.testing.assert_allclose(m @ b1.reshape(d.n_groups, -1), m @ b0.reshape(d.n_groups, -1),
+                               atol=1e-12)
+    # the change of each kernel is constant over the taps of one channel (minimum norm)
+    delta = (u - k).reshape(d.n_groups, -1, d.n_coeffs, 3)
+    for g in range(d.n_groups):
+        lay = d.cfa.neighbourhood(int(np.flatnonzero(d.position_group == g)[0]), 5).ravel()
+        for c in range(nch):
+            dc = delta[g][:, :-1][:, lay == c]
+            np.testing.assert_allclose(dc, dc[:, :1].repeat(dc.shape[1], axis=1), atol=1e-12)
+    with pytest.raises(ConfigError, match="uniformity target"):
+        make_uniform(k, t.counts, d, target="median")
 
 
 @pytest.mark.parametrize("spec", ["RGGB", RGBW, "R G/NIR B"])
@@ -311,6 +339,7 @@ def test_provenance_records_priors_settings_and_filled_classes(tmp_path):
     assert rec["spline"]["strength"] == 0.5
     assert rec["symmetry"]["orbits"] == [[0], [1, 2], [3]]
     assert rec["uniformity"]["spread_after"] < 1e-5 < rec["uniformity"]["spread_before"]
+    assert rec["uniformity"]["target"] == "period-mean"
     filled = rec["filled_classes"]
     assert filled and filled == np.flatnonzero(t.empty & ~s.empty).tolist()
     assert np.all(s.source_class[filled] == filled)
@@ -394,6 +423,11 @@ def test_cli_smooth(tmp_path, runner):
     assert r.exit_code == 0, r.output
     rec = load_table(tmp_path / "n.npz").provenance["smoothing"]
     assert rec["priors"] == ["spline"] and rec["spline"]["strength"] == 2.0
+    r = runner.invoke(cli, ["smooth", str(src), "-o", str(tmp_path / "l.npz"),
+                            "--uniformity-target", "least-squares"])
+    assert r.exit_code == 0, r.output
+    rec = load_table(tmp_path / "l.npz").provenance["smoothing"]
+    assert rec["uniformity"]["target"] == "least-squares" and rec["spline"]["strength"] == 0.02
     r = runner.invoke(cli, ["smooth", str(src), "-o", str(tmp_path / "a.npz"),
                             "--spline-strength", "auto"])
     assert r.exit_code == 0, r.output

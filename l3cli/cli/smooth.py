@@ -8,7 +8,7 @@ from l3cli.cli.options import output_opt
 
 #: Default spline λ (kept equal to l3cli.smooth.spline.DEFAULT_STRENGTH; not imported so
 #: that `l3 --help` stays fast).
-DEFAULT_STRENGTH = 0.1
+DEFAULT_STRENGTH = 0.02
 
 
 def _strength(ctx, param, value):
@@ -39,8 +39,12 @@ def _strength(ctx, param, value):
               help="Spline penalty λ (data weight = samples per coefficient, abscissa ln "
                    "level; larger = smoother); 'auto' picks λ per series by generalised "
                    "cross-validation.")
+@click.option("--uniformity-target", type=click.Choice(["period-mean", "least-squares"]),
+              default="period-mean", show_default=True,
+              help="Common per-channel sums: the mean over CFA positions (keeps flat-area "
+                   "colours) or the sample-weighted least-squares values.")
 def smooth(table_path: str, output: str, symmetry: bool, spline: bool, uniformity: bool,
-           spline_strength) -> None:
+           spline_strength, uniformity_target: str) -> None:
     """Apply priors to TABLE.npz and write the smoothed table to OUT.npz (-o).
 
     Each prior is on by default and can be switched off; the output table
@@ -52,7 +56,7 @@ def smooth(table_path: str, output: str, symmetry: bool, spline: bool, uniformit
 
     table = load_table(table_path)
     out = smooth_table(table, symmetry=symmetry, spline=spline, uniformity=uniformity,
-                       spline_strength=spline_strength)
+                       spline_strength=spline_strength, uniformity_target=uniformity_target)
     out.provenance["smoothing"]["input"] = str(table_path)
     save_table(output, out)
     rec = out.provenance["smoothing"]

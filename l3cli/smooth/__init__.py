@@ -51,7 +51,8 @@ def _fallback_sources(definition, trained):
 
 def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool = True,
                  uniformity: bool = True, spline_strength: float | str | None = DEFAULT_STRENGTH,
-                 symmetry_elements: tuple[str, ...] | None = None) -> TransformTable:
+                 symmetry_elements: tuple[str, ...] | None = None,
+                 uniformity_target: str = "period-mean") -> TransformTable:
     """Apply the priors to a table and return a new table.
 
     Parameters
@@ -66,6 +67,11 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
         ``None``): one λ per series by generalised cross-validation.
     symmetry_elements
         D4 element names to use (default: all; the set is closed into a group).
+    uniformity_target
+        ``"period-mean"`` (common channel sums = mean over the CFA positions, so
+        flat-area colours keep their period average) or ``"least-squares"``
+        (sample-count weighted least-squares targets); see
+        :func:`l3cli.smooth.uniformity.make_uniform`.
 
     Returns
     -------
@@ -128,12 +134,14 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
         }
     if uniformity:
         before = uniformity_error(kernels, d, mask=~empty)
-        kernels = make_uniform(kernels, weights, d, active=~empty)
+        kernels = make_uniform(kernels, weights, d, active=~empty, target=uniformity_target)
         record["priors"].append("uniformity")
         record["uniformity"] = {
-            "method": "least-squares: per-channel weight sums and offsets set to their "
-                      "weighted mean over position groups, change spread over the channel's taps",
-            "weights": "sample counts",
+            "method": "per-channel weight sums and offsets made equal across position groups, "
+                      "minimum-norm change spread over each channel's taps",
+            "target": uniformity_target,
+            "weights": "positions per group" if uniformity_target == "period-mean"
+            else "sample counts / taps per channel",
             "spread_before": before,
         }
     if symmetry and smap is not None:

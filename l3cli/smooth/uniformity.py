@@ -28,8 +28,19 @@ For fixed targets, the minimum-norm change of group ``p`` spreads
 .. math:: S^*_c = \\frac{\\sum_p (w_p / n_{p,c}) S_{p,c}}{\\sum_p w_p / n_{p,c}},
           \\qquad b^* = \\frac{\\sum_p w_p b_p}{\\sum_p w_p}.
 
-A channel missing from some group's patch (``n_{p,c} = 0``) forces
-``S^*_c = 0``. Groups with no data weigh 0 (equal weights when none has data).
+This *least-squares* choice (``target="least-squares"``) moves the flat-field
+colour towards the best-sampled positions. The default, ``target="period-mean"``,
+takes instead the mean over the CFA positions (each group counted by how
+many positions it holds, ``m_p``),
+
+.. math:: S^*_c = \\frac{\\sum_p m_p S_{p,c}}{\\sum_p m_p}, \\qquad
+          b^* = \\frac{\\sum_p m_p b_p}{\\sum_p m_p},
+
+which leaves the *average* rendering of every flat area over one CFA period
+unchanged (so chart colours do not move) and removes only the fixed
+pattern; for these targets the change of each kernel is still the
+minimum-norm one. A channel missing from some group's patch (``n_{p,c} = 0``)
+forces ``S^*_c = 0``. Groups with no data weigh 0 (equal weights when none has data).
 The correction is spread equally over taps of a channel, so symmetric
 kernels stay symmetric.
 
@@ -47,7 +58,7 @@ import numpy as np
 
 from l3cli.classify import ClassDefinition
 
-__all__ = ["channel_sums", "make_uniform", "uniformity_error"]
+__all__ = ["channel_sums", "make_uniform", "uniformity_error", "TARGETS"]
 
 
 def _layouts(definition: ClassDefinition) -> np.ndarray:
@@ -102,8 +113,12 @@ def uniformity_error(kernels: np.ndarray, definition: ClassDefinition,
     return worst
 
 
+#: How the common values ``S*_c``, ``b*`` are chosen (see the module docstring).
+TARGETS = ("period-mean", "least-squares")
+
+
 def make_uniform(kernels: np.ndarray, weights: np.ndarray, definition: ClassDefinition, *,
-                 active: np.ndarray | None = None) -> np.ndarray:
+                 active: np.ndarray | None = None, target: str = "period-mean") -> np.ndarray:
     """Least-squares change making channel sums and offsets equal across groups.
 
     Parameters
@@ -117,6 +132,11 @@ def make_uniform(kernels: np.ndarray, weights: np.ndarray, definition: ClassDefi
     active
         bool (n_classes,) classes taking part (default all). Inactive classes
         are neither changed nor counted (empty classes holding a fallback copy).
+    target
+        ``"period-mean"``: the common values are the means over the CFA
+        positions (each group counted by its number of positions), so the mean
+        rendering of a flat area over one CFA period is unchanged;
+        ``"least-squares"``: the values minimising the total weighted change.
 
     Returns
     -------
@@ -140,24 +160,30 @@ def make_uniform(kernels: np.ndarray, weights: np.ndarray, definition: ClassDefi
     for g in range(ng):
         for c in range(nch):
             sums[g, :, c] = k[g][:, :-1][:, lay[g] == c].sum(axis=1)
+    if target not in TARGETS:
+        from l3cli.errors import ConfigError
+
+        raise ConfigError(f"uniformity target {target!r} is not known; use {', '.join(TARGETS)}")
     for j in range(rest):
         sel = np.flatnonzero(act[:, j])
         if sel.size < 2:
             continue
         wj = w[sel, j]
-        if wj.sum() <= 0:
+        if target == "period-mean" or wj.sum() <= 0:
             wj = mult[sel]
         for c in range(nch):
             n = ntap[sel, c]
             if np.any(n == 0):
-                target = np.zeros(n_out)
+                goal = np.zeros(n_out)
+            elif target == "period-mean":
+                goal = (wj[:, None] * sums[sel, j, c]).sum(axis=0) / wj.sum()
             else:
                 a = wj / n
-                target = (a[:, None] * sums[sel, j, c]).sum(axis=0) / a.sum()
+                goal = (a[:, None] * sums[sel, j, c]).sum(axis=0) / a.sum()
             for i, g in enumerate(sel):
                 if n[i] == 0:
                     continue
-                delta = (target - sums[g, j, c]) / n[i]
+                delta = (goal - sums[g, j, c]) / n[i]
                 taps = lay[g] == c
                 k[g, j, :-1][taps] += delta[None, :]
         bstar = (wj[:, None] * k[sel, j, -1]).sum(axis=0) / wj.sum()
