@@ -141,3 +141,21 @@ def test_uniform_invariance_for_every_opponent_matrix(opponent):
 def test_unknown_opponent_matrix():
     with pytest.raises(ConfigError, match="hpe, isetcam-2deg, isetcam-10deg"):
         scielab(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), opponent="smith-pokorny")
+
+
+def test_fft_and_direct_filtering_agree():
+    from l3cli.metrics.scielab import _convolve_fft, _convolve_separable
+
+    rng = np.random.default_rng(7)
+    plane = rng.uniform(0, 50, size=(70, 90))
+    for spd in (23, 66):
+        for parts in scielab_filter_1d(spd, version="distribution"):
+            np.testing.assert_allclose(_convolve_fft(plane, parts), _convolve_separable(plane, parts), atol=1e-10)
+
+
+def test_large_uniform_image_stays_uniform():
+    # above the FFT threshold: the padded FFT path keeps a uniform field uniform
+    a = np.full((300, 260, 3), [30.0, 25.0, 20.0])
+    b = np.full((300, 260, 3), [28.0, 27.0, 30.0])
+    res = scielab(a, b)
+    np.testing.assert_allclose(res.delta_e_ab, plain_cielab_de(a[0, 0], b[0, 0]), rtol=1e-5)

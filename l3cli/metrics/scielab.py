@@ -239,6 +239,7 @@ def xyz_to_opponent_matrix(opponent: str = "hpe") -> NDArray:
 
 
 def _convolve_separable(plane: NDArray, parts: list[tuple[float, NDArray]]) -> NDArray:
+    """Direct convolution by the separable parts (symmetric padding); for small images."""
     from scipy.ndimage import convolve1d
 
     out = np.zeros_like(plane)
@@ -247,6 +248,20 @@ def _convolve_separable(plane: NDArray, parts: list[tuple[float, NDArray]]) -> N
         tmp = convolve1d(plane, g, axis=0, mode="reflect")
         out += w * convolve1d(tmp, g, axis=1, mode="reflect")
     return out
+
+
+def _convolve_fft(plane: NDArray, parts: list[tuple[float, NDArray]]) -> NDArray:
+    """The same convolution by FFT on a symmetrically padded image (large images)."""
+    from scipy.signal import fftconvolve
+
+    kernel = sum(w * np.outer(g, g) for w, g in parts)
+    r = kernel.shape[0] // 2
+    padded = np.pad(plane, r, mode="symmetric")
+    return fftconvolve(padded, kernel, mode="valid")
+
+
+#: Images with more pixels than this are filtered by FFT (same result to ~1e-12).
+_FFT_MIN_PIXELS = 256 * 256
 
 
 def spatial_filter_xyz(
@@ -274,7 +289,10 @@ def spatial_filter_xyz(
     m = xyz_to_opponent_matrix(opponent)
     opp = img @ m.T
     parts = scielab_filter_1d(samples_per_deg, version=version)
-    filtered = np.stack([_convolve_separable(opp[..., c], parts[c]) for c in range(3)], axis=-1)
+    h, w = opp.shape[:2]
+    use_fft = h * w >= _FFT_MIN_PIXELS
+    conv = _convolve_fft if use_fft else _convolve_separable
+    filtered = np.stack([conv(opp[..., c], parts[c]) for c in range(3)], axis=-1)
     return filtered @ np.linalg.inv(m).T
 
 
