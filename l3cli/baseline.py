@@ -29,10 +29,15 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from l3cli.errors import ConfigError, InputError
+
+if TYPE_CHECKING:
+    from l3cli.cfa import CFA
+    from l3cli.io.raw import RawImage
 
 __all__ = [
     "DEMOSAIC_METHODS",
@@ -70,7 +75,7 @@ def _check_method(name: str) -> str:
     return key
 
 
-def bayer_pattern(cfa, *, name: str = "raw") -> str:
+def bayer_pattern(cfa: CFA, *, name: str = "raw") -> str:
     """The colour-demosaicing pattern name (``RGGB``, ``BGGR``, ``GRBG``, ``GBRG``) of a CFA.
 
     Raises
@@ -88,7 +93,7 @@ def bayer_pattern(cfa, *, name: str = "raw") -> str:
     return flat
 
 
-def demosaic(raw, *, method: str = "menon2007") -> np.ndarray:
+def demosaic(raw: RawImage, *, method: str = "menon2007") -> np.ndarray:
     """Demosaic a :class:`l3cli.io.raw.RawImage` into camera RGB, float32 (H, W, 3).
 
     Parameters
@@ -236,7 +241,7 @@ def fit_baseline(
     })
 
 
-def render_baseline(model: BaselineModel, raw) -> np.ndarray:
+def render_baseline(model: BaselineModel, raw: RawImage) -> np.ndarray:
     """Render a raw with the baseline: float32 (H, W, 3) in ``model.target_space``."""
     from l3cli.colourspace import convert
 

@@ -17,10 +17,14 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from l3cli.io.atomic import atomic_path, check_writable_dir
+
+if TYPE_CHECKING:
+    from l3cli.evaluate import ImageReport
 
 __all__ = ["plot_report", "xyz_to_display"]
 
@@ -56,7 +60,7 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def plot_report(report, out_dir: str | os.PathLike) -> list[Path]:
+def plot_report(report: ImageReport, out_dir: str | os.PathLike) -> list[Path]:
     """Write the figures of one :class:`l3cli.evaluate.ImageReport` into ``out_dir``.
 
     Returns
