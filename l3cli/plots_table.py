@@ -123,34 +123,35 @@ def plot_kernels(table: TransformTable, out_dir: str | os.PathLike, *,
     chans = d.cfa.channels
     lvals = level_values(table)
     paths = []
+    from l3cli.inspect import saturation_name
+
     for label, (sat, lev) in chosen.items():
-        fig, axes = plt.subplots(ng, table.n_out, figsize=(2.2 * table.n_out + 0.6, 2.2 * ng),
+        fig, axes = plt.subplots(ng, table.n_out, figsize=(2.0 * table.n_out + 1.0, 2.0 * ng + 0.6),
                                  squeeze=False)
-        for g in range(ng):
-            cls = int(d.class_index(g, sat, lev, contrast))
-            p = int(np.flatnonzero(d.position_group == g)[0])
-            lay = d.cfa.neighbourhood(p, s_)
-            k = table.kernels[cls]
-            for o in range(table.n_out):
+        fig.subplots_adjust(left=0.03, right=0.90, top=1 - 0.5 / (2.0 * ng + 0.6) - 0.03,
+                            bottom=0.02, wspace=0.35, hspace=0.45)
+        cls = [int(d.class_index(g, sat, lev, contrast)) for g in range(ng)]
+        for o in range(table.n_out):
+            vmax = float(np.abs(table.kernels[cls, :-1, o]).max()) or 1.0
+            for g in range(ng):
+                p = int(np.flatnonzero(d.position_group == g)[0])
+                lay = d.cfa.neighbourhood(p, s_)
+                k = table.kernels[cls[g]]
                 ax = axes[g, o]
-                img = k[:-1, o].reshape(s_, s_)
-                vmax = float(np.abs(img).max()) or 1.0
-                im = ax.imshow(img, cmap="RdBu_r", vmin=-vmax, vmax=vmax)
-                for yy in range(s_):
-                    for xx in range(s_):
-                        ax.text(xx, yy, chans[lay[yy, xx]], ha="center", va="center",
-                                fontsize=6, color="0.2")
+                im = ax.imshow(k[:-1, o].reshape(s_, s_), cmap="RdBu_r", vmin=-vmax, vmax=vmax)
+                if s_ <= 7:
+                    for yy in range(s_):
+                        for xx in range(s_):
+                            ax.text(xx, yy, chans[lay[yy, xx]], ha="center", va="center",
+                                    fontsize=6, color="0.2")
                 ax.set_xticks([])
                 ax.set_yticks([])
-                status = "empty" if table.empty[cls] else f"n={table.counts[cls]}"
+                status = "empty" if table.empty[cls[g]] else f"n={table.counts[cls[g]]}"
                 ax.set_title(f"grp {g} -> {onames[o] if o < len(onames) else o}\n"
                              f"{status}, b={k[-1, o]:.3g}", fontsize=7)
-                fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-        from l3cli.inspect import saturation_name
-
+            fig.colorbar(im, ax=list(axes[:, o]), fraction=0.05, pad=0.02, shrink=0.9)
         fig.suptitle(f"{name}: level {lev} (~{lvals[lev]:.3g}), saturated "
                      f"{saturation_name(sat, chans)}, contrast {contrast}", fontsize=9)
-        fig.tight_layout()
         paths.append(_save(fig, out_dir / f"{name}_kernels_{label}.png"))
     return paths
 
@@ -173,7 +174,7 @@ def _curves(table: TransformTable, g: int, sat: int, contrast: int):
 def plot_coefficient_curves(table: TransformTable, out_dir: str | os.PathLike, *,
                             before: TransformTable | None = None, saturation: int = 0,
                             contrast: int = 0, name: str = "table") -> list[Path]:
-    """Coefficients against response level, one PNG per position group.
+    """Coefficients against response level: one PNG, a row per position group.
 
     Per output channel: the summed weight of each CFA channel, the centre tap
     and the offset against the level (log axis). With ``before`` (the table
@@ -183,7 +184,7 @@ def plot_coefficient_curves(table: TransformTable, out_dir: str | os.PathLike, *
     Returns
     -------
     list of Path
-        ``{name}_curves_group{g}.png`` files written.
+        ``[{name}_curves.png]``.
     """
     out_dir = check_writable_dir(out_dir)
     d = table.definition
@@ -199,15 +200,18 @@ def plot_coefficient_curves(table: TransformTable, out_dir: str | os.PathLike, *
     plt = _pyplot()
     x = level_values(table)
     onames = _OUT_NAMES.get(table.output_space, tuple(f"out{i}" for i in range(table.n_out)))
-    paths = []
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, axes = plt.subplots(ng, table.n_out, figsize=(4.0 * table.n_out, 2.8 * ng + 0.6),
+                             squeeze=False)
+    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.6 / (2.8 * ng + 0.6), bottom=0.06,
+                        wspace=0.25, hspace=0.55)
     for g in range(ng):
         labels, vals, trained = _curves(table, g, saturation, contrast)
-        fig, axes = plt.subplots(1, table.n_out, figsize=(4.2 * table.n_out, 3.6), squeeze=False)
-        colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
         if before is not None:
             _, bvals, btrained = _curves(before, g, saturation, contrast)
+        members = np.flatnonzero(d.position_group == g).tolist()
         for o in range(table.n_out):
-            ax = axes[0, o]
+            ax = axes[g, o]
             for i, lab in enumerate(labels):
                 col = colours[i % len(colours)]
                 ax.plot(x, vals[i, :, o], "-", color=col, label=lab, lw=1.2)
@@ -216,15 +220,16 @@ def plot_coefficient_curves(table: TransformTable, out_dir: str | os.PathLike, *
                     ax.plot(x[~btrained], bvals[i, ~btrained, o], "o", mfc="none", color=col,
                             ms=3)
             ax.set_xscale("log")
-            ax.set_xlabel("response level (normalised raw)")
-            ax.set_title(f"output {onames[o] if o < len(onames) else o}", fontsize=9)
+            ax.set_title(f"group {g} {members} -> {onames[o] if o < len(onames) else o}",
+                         fontsize=8)
+            ax.tick_params(labelsize=7)
             ax.grid(alpha=0.3)
-            if o == 0:
-                ax.legend(fontsize=7)
-        members = np.flatnonzero(d.position_group == g).tolist()
-        what = "after (lines) vs before (markers)" if before is not None else "coefficients"
-        fig.suptitle(f"{name}: group {g} (positions {members}), {what}; sat {saturation}, "
-                     f"contrast {contrast}", fontsize=9)
-        fig.tight_layout()
-        paths.append(_save(fig, out_dir / f"{name}_curves_group{g}.png"))
-    return paths
+            if g == ng - 1:
+                ax.set_xlabel("response level (normalised raw)", fontsize=8)
+            if g == 0 and o == 0:
+                ax.legend(fontsize=6)
+    what = "after (lines) vs before (markers, hollow = empty)" if before is not None \
+        else "coefficients"
+    fig.suptitle(f"{name}: {what}; saturation pattern {saturation}, contrast {contrast}",
+                 fontsize=9)
+    return [_save(fig, out_dir / f"{name}_curves.png")]

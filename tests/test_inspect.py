@@ -79,14 +79,28 @@ def test_cli_inspect_text_json_and_plots(tmp_path, runner):
                             "--levels", "0,3"])
     assert r.exit_code == 0, r.output
     names = sorted(p.name for p in out.glob("*.png"))
-    assert names == ["smooth_curves_group0.png", "smooth_curves_group1.png",
-                     "smooth_curves_group2.png", "smooth_curves_group3.png",
-                     "smooth_kernels_level00.png", "smooth_kernels_level03.png"]
+    assert names == ["smooth_curves.png", "smooth_kernels_level00.png",
+                     "smooth_kernels_level03.png"]
     assert all(p.stat().st_size > 5000 for p in out.glob("*.png"))
-    r = runner.invoke(cli, ["inspect", str(a), "--plots", str(tmp_path / "p2")])
-    assert r.exit_code == 0, r.output
-    assert {p.name.split("_", 1)[1] for p in (tmp_path / "p2").glob("*kernels*")} >= {
-        "kernels_low.png", "kernels_mid.png", "kernels_high.png"}
+
+
+
+def test_default_kernel_levels_are_low_mid_high_and_saturated(tmp_path):
+    from l3cli.plots_table import default_levels, plot_kernels
+
+    t = plausible_table("RGGB", n_levels=6, seed=4, empty_fraction=0.0)
+    chosen = default_levels(t)
+    assert chosen["low"] == (0, 0) and chosen["mid"] == (0, 3) and chosen["high"] == (0, 5)
+    assert chosen["saturated"][0] > 0
+    t.empty[:] = True  # only two levels of the unsaturated pattern trained
+    d = t.definition
+    for g in range(d.n_groups):
+        for lv in (1, 4):
+            for c in range(d.n_contrast):
+                t.empty[d.class_index(g, 0, lv, c)] = False
+    assert default_levels(t) == {"low": (0, 1), "mid": (0, 4), "high": (0, 4)}
+    paths = plot_kernels(t, tmp_path, levels=[2], name="t")
+    assert [p.name for p in paths] == ["t_kernels_level02.png"]
 
 
 def test_cli_inspect_errors(tmp_path, runner):
