@@ -44,6 +44,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import zlib
 from dataclasses import dataclass, field
 from typing import Any
@@ -255,6 +256,18 @@ def render_planes(model: CameraModel, scene: Scene, weights: np.ndarray, *,
     otf = airy_otf(grid[None, :], model.wavelengths[:, None], cam.optics.f_number)  # (N, bins)
     tables = np.einsum("okn,nb->okb", spectra_w[outs], otf).astype(np.float32)  # (O', K, bins)
 
+    if k <= _FUSED_MAX_MAPS:
+        specs = np.empty((k, hp, wp // 2 + 1), dtype=np.complex64)
+        for j in range(k):
+            a = maps[j] if falloff is None else maps[j] * falloff
+            specs[j] = fft.rfft2(np.pad(a, ((pt, pb), (pl, pr)), mode="symmetric"), workers=workers)
+        acc_arr = _combine_spectra(specs, tables, idx)
+        del specs
+        planes = np.empty((len(outs), h, w), dtype=np.float32)
+        for i in range(len(outs)):
+            planes[i] = fft.irfft2(acc_arr[i], s=(hp, wp), workers=workers)[pt:pt + h, pl:pl + w]
+        return _bin(planes, s)
+
     acc = [np.zeros((hp, wp // 2 + 1), dtype=np.complex64) for _ in outs]
     for j in range(k):
         if not np.any(tables[:, j, 0]) and not np.any(tables[:, j]):
@@ -276,6 +289,37 @@ def render_planes(model: CameraModel, scene: Scene, weights: np.ndarray, *,
         acc[i] = None  # free
         del full
     return _bin(planes, s)
+
+
+_FUSED_MAX_MAPS = 16
+
+
+def _combine_spectra(specs: np.ndarray, tables: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``out[o] = Σ_k specs[k] · tables[o, k, idx]`` in one parallel pass (numba)."""
+    return _combine_kernel()(specs, tables, idx)
+
+
+@functools.cache
+def _combine_kernel():
+    import numba as nb
+
+    @nb.njit(cache=True, parallel=True)
+    def kernel(specs, tables, idx):  # pragma: no cover - compiled
+        k, hp, wf = specs.shape
+        o = tables.shape[0]
+        out = np.zeros((o, hp, wf), dtype=np.complex64)
+        for y in nb.prange(hp):
+            row = idx[y]
+            for j in range(k):
+                sp = specs[j, y]
+                for i in range(o):
+                    t = tables[i, j]
+                    dst = out[i, y]
+                    for x in range(wf):
+                        dst[x] += sp[x] * t[row[x]]
+        return out
+
+    return kernel
 
 
 def _bin(planes: np.ndarray, s: int) -> np.ndarray:
