@@ -156,12 +156,14 @@ def _sorted_slots(cls_sel, starts):
 
 
 @nb.njit(cache=True, parallel=True)
-def _gather(band, ys, xs, dest, S, target, Xt, Yt):
-    """Column ``dest[i]`` of Xt = patch of pixel (ys[i], xs[i]) of the band, then 1."""
+def _gather(band, ys, xs, order, S, target, Xt, Yt):
+    """Column ``j`` of Xt = patch of pixel ``order[j]`` (ys, xs) of the band, then 1.
+
+    Columns are written in order (class-sorted), so the writes stream."""
     P = S * S
     n_out = target.shape[2]
-    for i in nb.prange(ys.shape[0]):
-        j = dest[i]
+    for j in nb.prange(order.shape[0]):
+        i = order[j]
         y = ys[i]
         x = xs[i]
         k = 0
@@ -197,20 +199,24 @@ def _gram(Xt, Yt, starts, classes, xtx, xty, yy):
         for n0 in range(a, b, _CHUNK):
             n1 = min(b, n0 + _CHUNK)
             for i in range(q):
+                xi = Xt[i, n0:n1]
                 for j in range(i, q):
+                    xj = Xt[j, n0:n1]
                     s = 0.0
-                    for n in range(n0, n1):
-                        s += Xt[i, n] * Xt[j, n]
+                    for n in range(xi.shape[0]):
+                        s += xi[n] * xj[n]
                     G[i, j] += s
                 for o in range(n_out):
+                    yo = Yt[o, n0:n1]
                     s = 0.0
-                    for n in range(n0, n1):
-                        s += Xt[i, n] * Yt[o, n]
+                    for n in range(xi.shape[0]):
+                        s += xi[n] * yo[n]
                     R[i, o] += s
             for o in range(n_out):
+                yo = Yt[o, n0:n1]
                 s = 0.0
-                for n in range(n0, n1):
-                    s += Yt[o, n] * Yt[o, n]
+                for n in range(yo.shape[0]):
+                    s += yo[n] * yo[n]
                 Q[o] += s
         for i in range(q):
             for j in range(i, q):
@@ -224,7 +230,7 @@ def _gram(Xt, Yt, starts, classes, xtx, xty, yy):
 
 
 def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
-               mask: np.ndarray | None = None, max_pixels: int = 1 << 19) -> None:
+               mask: np.ndarray | None = None, max_pixels: int = 1 << 16) -> None:
     """Add the patches of one (mosaic, target) pair to ``stats`` in place.
 
     Parameters
@@ -278,7 +284,9 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
         band = pad_mosaic(mosaic, r, (ph, pw), rows=(y0, y1))
         Xt = np.empty((q, yy.size), dtype=np.float64)
         Yt = np.empty((stats.n_out, yy.size), dtype=np.float64)
-        _gather(band, yy, xx, dest, S, target[y0:y1], Xt, Yt)
+        order = np.empty_like(dest)
+        order[dest] = np.arange(dest.size)
+        _gather(band, yy, xx, order, S, target[y0:y1], Xt, Yt)
         # largest classes first: better balance across threads
         nz = np.flatnonzero(counts)
         order = nz[np.argsort(-counts[nz], kind="stable")]
