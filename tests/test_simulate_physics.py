@@ -398,3 +398,16 @@ def test_slanted_edge_with_l3_metrics_mtf(tmp_path: Path, n_f: float, pitch: flo
     below = (res.frequencies > 0) & (res.frequencies <= 0.5)
     err = np.abs(res.mtf[below] - np.interp(res.frequencies[below], f, expected))
     assert err.max() < 0.03
+
+
+def test_fused_and_streaming_optics_paths_agree(monkeypatch) -> None:
+    import l3cli.simulate.core as core
+
+    cam = load_camera(REPO / "sample_configs" / "bayer.toml")
+    model = prepare_camera(cam)
+    scene = make_scene("natural:coffee", 48, 64, model.wavelengths)
+    w = core.spectral_weights(model, scene, "D65", 100.0)
+    fused = core.render_planes(model, scene, w)
+    monkeypatch.setattr(core, "_FUSED_MAX_MAPS", 0)
+    streamed = core.render_planes(model, scene, w)
+    np.testing.assert_allclose(fused, streamed, rtol=1e-4, atol=1e-6 * float(np.abs(fused).max()))
