@@ -146,3 +146,25 @@ def test_featureless_render(pair):
     assert (a.dy, a.dx, a.flip) == (0, 0, "none") and np.isnan(a.score)
     with pytest.raises(InputError, match="featureless and smaller"):
         align(raw, flat[4:-4, 4:-4])
+
+
+@pytest.mark.slow
+def test_real_dng_default_crop_and_mirror(shared_data):
+    """Blackmagic DNG rendered by LibRaw, cut to its DNG DefaultCrop and mirrored."""
+    import rawpy
+
+    from l3cli.io.raw import read_raw
+
+    path = shared_data / "raw" / "misc" / "blackmagic_pocket4k_rggb.dng"
+    raw = read_raw(path)
+    s = raw.metadata["sizes"]
+    y0, x0 = s["crop_top_margin"], s["crop_left_margin"]
+    hh, ww = s["crop_height"], s["crop_width"]
+    assert (y0, x0, hh, ww) == (8, 16, 2160, 4096)
+    with rawpy.imread(str(path)) as rp:
+        rgb = rp.postprocess(half_size=False, use_camera_wb=True, output_bps=8,
+                             demosaic_algorithm=rawpy.DemosaicAlgorithm.LINEAR)
+    render = rgb[y0 : y0 + hh, x0 : x0 + ww].astype(np.float32) / 255
+    a = align(raw, render[::-1], raw_name=path.name, render_name="darktable-like.jpg")
+    assert (a.dy, a.dx, a.flip) == (8, 16, "vertical")
+    assert a.score > 0.9
