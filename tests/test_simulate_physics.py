@@ -411,3 +411,10 @@ def test_fused_and_streaming_optics_paths_agree(monkeypatch) -> None:
     monkeypatch.setattr(core, "_FUSED_MAX_MAPS", 0)
     streamed = core.render_planes(model, scene, w)
     np.testing.assert_allclose(fused, streamed, rtol=1e-4, atol=1e-6 * float(np.abs(fused).max()))
+
+
+def test_capture_stems_are_distinct() -> None:
+    from l3cli.simulate import capture_stem
+
+    assert capture_stem("macbeth", "D65", 100) == "macbeth_D65_0100lux"
+    assert capture_stem("macbeth", "D65", 12.5) != capture_stem("macbeth", "D65", 12.4)

@@ -480,6 +480,6 @@ def simulate_capture(model: CameraModel, scene: Scene, *, illuminant: str, lux: 
 
 def capture_stem(scene: str, illuminant: str, lux: float) -> str:
     """Capture file stem, e.g. ``macbeth_D65_0100lux``."""
-    lx = f"{lux:04.0f}" if float(lux).is_integer() or lux >= 10 else f"{lux:g}".replace(".", "p")
+    lx = f"{int(lux):04d}" if float(lux).is_integer() else f"{lux:g}".replace(".", "p")
     ill = illuminant.replace("/", "-") or "radiance"
     return f"{scene}_{ill}_{lx}lux"
