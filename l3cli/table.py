@@ -17,7 +17,7 @@ cfa                str          CFA spec (:attr:`l3cli.cfa.CFA.spec`)
 patch              int64        odd patch size S
 level_cuts         float64      (n_levels - 1,) increasing level cut points
 level_spacing      str          ``"log"`` or ``"linear"``
-contrast_rule      str          ``"relative-mad-v1"``
+contrast_rule      str          ``"relative-std-v1"``
 contrast_cuts      float64      (n_levels, n_contrast - 1) thresholds per level
 contrast_eps       float64      () eps of the contrast rule
 saturation_rule    str          ``"any-pixel-per-channel-v1"``
