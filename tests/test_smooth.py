@@ -330,6 +330,30 @@ def test_flat_field_with_a_saturated_channel_renders_uniform():
     assert _rel_spread(render_mosaic(s, m), border=5).max() < 1e-3
 
 
+def test_a_series_untrained_at_one_position_is_filled_by_uniformity():
+    """Saturated-red classes trained at three positions but never at the fourth: a
+    red-clipped flat field must still render flat."""
+    from l3cli.render import render_mosaic
+    from l3cli.train.fit import fallback_sources
+
+    t = plausible_table("RGGB", seed=17, empty_fraction=0.0)
+    d = t.definition
+    g, sat, _, _ = (np.asarray(a) for a in d.class_tuple(np.arange(d.n_classes)))
+    hole = (g == 3) & (sat == 0b001)  # B sites, red saturated
+    empty = hole.copy()
+    src = fallback_sources(d, ~empty)
+    t = TransformTable(definition=d, kernels=t.kernels[src], counts=np.where(empty, 0, t.counts),
+                       lambdas=t.lambdas, empty=empty, source_class=src)
+    m = flat_field(d.cfa, {"R": 0.99, "G": 0.3, "B": 0.2})
+    for kw in ({}, {"symmetry": False, "spline": False}):
+        s = smooth_table(t, **kw)
+        assert not s.empty.any()
+        assert filled_classes(s)["uniformity"] == np.flatnonzero(hole).tolist()
+        assert _rel_spread(render_mosaic(s, m), border=5).max() < 1e-3
+    s = smooth_table(t, uniformity=False)
+    assert _rel_spread(render_mosaic(s, m), border=5).max() > 1e-3
+
+
 # ------------------------------------------------------------ smooth_table API
 def test_provenance_records_priors_settings_and_filled_classes(tmp_path):
     t = plausible_table("RGGB", seed=10)
@@ -363,7 +387,8 @@ def test_each_prior_can_be_switched_off():
     assert none.provenance["smoothing"]["priors"] == []
     only_u = smooth_table(t, symmetry=False, spline=False)
     assert only_u.provenance["smoothing"]["priors"] == ["uniformity"]
-    np.testing.assert_array_equal(only_u.empty, t.empty)
+    assert set(filled_classes(only_u)) == {"uniformity"}
+    assert filled_classes(only_u)["uniformity"] == np.flatnonzero(t.empty & ~only_u.empty).tolist()
 
 
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), "smooth"])

@@ -35,7 +35,7 @@ from l3cli import __version__
 from l3cli.errors import ConfigError
 from l3cli.smooth.spline import DEFAULT_STRENGTH, DEFAULT_STRENGTH_GRID, smooth_levels
 from l3cli.smooth.symmetry import orbit_weights, symmetrize_kernels, symmetry_map
-from l3cli.smooth.uniformity import make_uniform, uniformity_error
+from l3cli.smooth.uniformity import fillable, make_uniform, uniformity_error
 from l3cli.table import TransformTable
 
 __all__ = ["smooth_table", "filled_classes", "DEFAULT_STRENGTH"]
@@ -134,7 +134,15 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
         }
     if uniformity:
         before = uniformity_error(kernels, d, mask=~empty)
-        kernels = make_uniform(kernels, weights, d, active=~empty, target=uniformity_target)
+        trained = ~empty
+        # an empty class whose slot is trained at other positions starts from its
+        # fallback kernel and follows the common values
+        newly = fillable(trained, d)
+        kernels = np.where(newly[:, None, None], kernels[_fallback_sources(d, trained)], kernels)
+        kernels = make_uniform(kernels, weights, d, active=trained, target=uniformity_target,
+                               fill=newly)
+        filled_by["uniformity"] = np.flatnonzero(newly).tolist()
+        empty = empty & ~newly
         record["priors"].append("uniformity")
         record["uniformity"] = {
             "method": "per-channel weight sums and offsets made equal across position groups, "

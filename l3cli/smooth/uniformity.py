@@ -44,6 +44,12 @@ forces ``S^*_c = 0``. Groups with no data weigh 0 (equal weights when none has d
 The correction is spread equally over taps of a channel, so symmetric
 kernels stay symmetric.
 
+A class with no data of its own (still empty after the other priors) whose
+slot has trained classes at other positions would render a flat field with a
+pattern through its fallback kernel; with ``fill`` its fallback kernel gets
+the same minimum-norm change towards the common values (without influencing
+them), and it counts as filled by uniformity.
+
 References
 ----------
 .. [1] G. Strang, *Introduction to Linear Algebra*, 5th ed., Wellesley (2016),
@@ -58,7 +64,7 @@ import numpy as np
 
 from l3cli.classify import ClassDefinition
 
-__all__ = ["channel_sums", "make_uniform", "uniformity_error", "TARGETS"]
+__all__ = ["channel_sums", "make_uniform", "uniformity_error", "fillable", "TARGETS"]
 
 
 def _layouts(definition: ClassDefinition) -> np.ndarray:
@@ -118,7 +124,8 @@ TARGETS = ("period-mean", "least-squares")
 
 
 def make_uniform(kernels: np.ndarray, weights: np.ndarray, definition: ClassDefinition, *,
-                 active: np.ndarray | None = None, target: str = "period-mean") -> np.ndarray:
+                 active: np.ndarray | None = None, target: str = "period-mean",
+                 fill: np.ndarray | None = None) -> np.ndarray:
     """Least-squares change making channel sums and offsets equal across groups.
 
     Parameters
@@ -137,6 +144,11 @@ def make_uniform(kernels: np.ndarray, weights: np.ndarray, definition: ClassDefi
         positions (each group counted by its number of positions), so the mean
         rendering of a flat area over one CFA period is unchanged;
         ``"least-squares"``: the values minimising the total weighted change.
+    fill
+        bool (n_classes,) inactive classes to bring to the common values of the
+        active classes of their slot (their kernel, a fallback copy, gets the
+        minimum-norm change; they do not influence the common values). Use
+        :func:`fillable` to see which of them have an active class to follow.
 
     Returns
     -------
@@ -164,28 +176,39 @@ def make_uniform(kernels: np.ndarray, weights: np.ndarray, definition: ClassDefi
         from l3cli.errors import ConfigError
 
         raise ConfigError(f"uniformity target {target!r} is not known; use {', '.join(TARGETS)}")
+    fil = np.zeros((ng, rest), dtype=bool) if fill is None else \
+        np.asarray(fill).reshape(ng, rest) & ~act
     for j in range(rest):
         sel = np.flatnonzero(act[:, j])
-        if sel.size < 2:
+        extra = np.flatnonzero(fil[:, j])
+        if sel.size == 0 or sel.size + extra.size < 2:
             continue
+        members = np.concatenate([sel, extra])
         wj = w[sel, j]
         if target == "period-mean" or wj.sum() <= 0:
             wj = mult[sel]
         for c in range(nch):
             n = ntap[sel, c]
-            if np.any(n == 0):
+            if np.any(ntap[members, c] == 0):
                 goal = np.zeros(n_out)
             elif target == "period-mean":
                 goal = (wj[:, None] * sums[sel, j, c]).sum(axis=0) / wj.sum()
             else:
                 a = wj / n
                 goal = (a[:, None] * sums[sel, j, c]).sum(axis=0) / a.sum()
-            for i, g in enumerate(sel):
-                if n[i] == 0:
+            for g in members:
+                if ntap[g, c] == 0:
                     continue
-                delta = (goal - sums[g, j, c]) / n[i]
+                delta = (goal - sums[g, j, c]) / ntap[g, c]
                 taps = lay[g] == c
                 k[g, j, :-1][taps] += delta[None, :]
         bstar = (wj[:, None] * k[sel, j, -1]).sum(axis=0) / wj.sum()
-        k[sel, j, -1] = bstar[None, :]
+        k[members, j, -1] = bstar[None, :]
     return k.reshape(kernels.shape)
+
+
+def fillable(active: np.ndarray, definition: ClassDefinition) -> np.ndarray:
+    """Inactive classes whose (saturation, level, contrast) slot has an active class."""
+    ng = definition.n_groups
+    act = np.asarray(active, dtype=bool).reshape(ng, -1)
+    return (~act & act.any(axis=0, keepdims=True)).ravel()
