@@ -112,6 +112,9 @@ def test_cli_inspect_errors(tmp_path, runner):
     assert r.exit_code == 1 and "level 9 is not in 0..5" in r.output
     r = runner.invoke(cli, ["inspect", str(a), "--levels", "x"])
     assert r.exit_code == 2
+    (tmp_path / "file").write_text("x")
+    r = runner.invoke(cli, ["inspect", str(a), "--plots", str(tmp_path / "file" / "sub")])
+    assert r.exit_code == 1 and "cannot create the plots folder" in r.output
     r = runner.invoke(cli, ["inspect", str(tmp_path / "none.npz")])
     assert r.exit_code == 1 and "none.npz" in r.output
 

@@ -61,10 +61,15 @@ def inspect(table_path: str, plots: str | None, compare: str | None, levels: lis
     else:
         click.echo(format_summary(summary, table=table, classes=classes))
     if plots:
+        from l3cli.errors import OutputError
         from l3cli.plots_table import plot_coefficient_curves, plot_kernels
 
         folder = Path(plots)
-        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"{folder}: cannot create the plots folder "
+                              f"({exc.strerror or exc})") from exc
         stem = Path(table_path).stem
         written = plot_kernels(table, folder, levels=levels, name=stem)
         written += plot_coefficient_curves(table, folder, before=other, name=stem)

@@ -33,7 +33,7 @@ def _strength(ctx, param, value):
               help="Smooth every coefficient over log level (weighted smoothing spline); "
                    "fills empty classes.")
 @click.option("--uniformity/--no-uniformity", default=True, show_default=True,
-              help="Make a uniform scene render uniform (least-squares change).")
+              help="Make a uniform scene render uniform (minimum-norm change of the kernels).")
 @click.option("--spline-strength", default=str(DEFAULT_STRENGTH), show_default=True,
               callback=_strength, metavar="auto|LAMBDA",
               help="Spline penalty λ (data weight = samples per coefficient, abscissa ln "
