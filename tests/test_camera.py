@@ -191,3 +191,15 @@ def test_light_level_range(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="exposure.light_levels_lux.*cannot be combined"):
         load_camera(write(tmp_path, MINIMAL + "[exposure]\nlight_level_range_lux = [1, 10]\n"
                           "light_level_count = 2\nlight_levels_lux = [5]\n"))
+
+
+def test_channel_mapping(tmp_path: Path) -> None:
+    text = MINIMAL.replace('pattern = "RGGB"\nqe = "bayer-rgb"',
+                           'pattern = [["R", "C"], ["C", "B"]]\nqe = "mt9v024-rgbw"\nchannels = { C = "W" }')
+    cam = load_camera(write(tmp_path, text + "[spectrum]\nwavelength_nm = [400, 1000, 10]\n"))
+    assert dict(cam.cfa.channel_columns) == {"R": "R", "C": "W", "B": "B"}
+    qe = cam.qe_curves()
+    assert qe.shape == (61, 3)
+    bad = text.replace('{ C = "W" }', '{ G = "W" }')
+    with pytest.raises(ConfigError, match="cfa.channels.G.*not a channel"):
+        load_camera(write(tmp_path, bad))
