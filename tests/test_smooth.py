@@ -623,3 +623,30 @@ def test_plentiful_data_smoothing_costs_at_most_two_percent(tmp_path):
     de_sm = _macbeth_de(runner, tmp_path, tmp_path / "smooth.npz", tmp_path / "held", "smooth")
     print(f"plentiful data: mean Macbeth dE*ab raw {de_raw:.3f}, smoothed {de_sm:.3f}")
     assert de_sm <= 1.02 * de_raw
+
+
+def test_rgbw_trained_table_renders_a_flat_field_uniform_after_smoothing(tmp_path):
+    """The same on the 4x4 interleaved RGBW camera (TIFF mosaics, W/R see near IR)."""
+    from click.testing import CliRunner
+
+    from l3cli.render import render_mosaic
+    from l3cli.table import load_table
+    from tests.conftest import REPO
+
+    runner = CliRunner()
+    cam = str(REPO / "sample_configs/rgbw.toml")
+    _run(runner, ["simulate", cam, "-o", str(tmp_path / "train"), "--scene", "natural:astronaut",
+                  "--size", "96x72", "--seed", "1", "--lux", "10", "--lux", "100"])
+    _run(runner, ["simulate", cam, "-o", str(tmp_path / "held"), "--scene", "macbeth",
+                  "--size", "240x160", "--seed", "2", "--lux", "50"])
+    _run(runner, ["train", str(tmp_path / "train"), "-o", str(tmp_path / "raw.npz")])
+    _run(runner, ["smooth", str(tmp_path / "raw.npz"), "-o", str(tmp_path / "smooth.npz")])
+    sm = load_table(tmp_path / "smooth.npz")
+    cfa, greys = _flat_values(tmp_path / "held")
+    assert cfa.spec == sm.cfa.spec and cfa.n_positions == 16
+    assert any(len(o) > 1 for o in sm.provenance["smoothing"]["symmetry"]["orbits"])
+    for vals in greys:
+        if max(vals.values()) >= 0.9 * sm.definition.saturation_threshold:
+            continue
+        m = flat_field(cfa, vals, h=48, w=52)
+        assert _rel_spread(render_mosaic(sm, m), border=sm.patch).max() < 1e-3, vals
