@@ -1,14 +1,43 @@
 #!/usr/bin/env bash
 # The l3 demo on bundled data. Called by `make demo` (which sets up the venv first).
 #   scripts/demo.sh L3_EXECUTABLE OUT_DIR
+# Simulates a Bayer camera, learns its L3 table, smooths it, renders held-out
+# captures and scores them; every file it makes lands in OUT_DIR.
 set -euo pipefail
 L3=${1:-l3}
 OUT=${2:-demo_out}
-mkdir -p "$OUT"
 here=$(cd "$(dirname "$0")/.." && pwd)
+CAM="$here/sample_configs/bayer.toml"
+mkdir -p "$OUT"
+rm -rf "$OUT/train_sim" "$OUT/test_sim" "$OUT/renders"
 
-echo "== 1. Read the bundled real raw crops"
-"$L3" info "$here/tests/data/DSC_1339_768x512_rggb_14bit.raw" "$here/tests/data/halide_bayer_small.png"
+echo "== 1. Read a bundled real raw crop (14-bit RGGB, headerless + sidecar)"
 "$L3" info "$here/tests/data/DSC_1339_768x512_rggb_14bit.raw" \
     --preview "$OUT/rose_preview.png" --planes "$OUT/rose_planes"
-echo "   wrote $OUT/rose_preview.png and the CFA planes in $OUT/rose_planes/"
+
+echo "== 2. Simulate training captures: Macbeth chart + natural scenes at 4 light levels"
+"$L3" simulate "$CAM" -o "$OUT/train_sim" --scene macbeth --scene natural \
+    --lux 15 --lux 60 --lux 250 --lux 1000 --size 320x240 --seed 1
+
+echo "== 3. Simulate held-out test captures at a light level not used in training"
+"$L3" simulate "$CAM" -o "$OUT/test_sim" --scene macbeth --scene slanted-edge \
+    --lux 120 --size 320x240 --seed 2
+
+echo "== 4. Train the L3 table (ridge regression per class, lambda by GCV)"
+"$L3" train "$OUT/train_sim" -o "$OUT/table.npz" --seed 1
+
+echo "== 5. Smooth it with the priors (symmetry, smoothness over levels, uniformity)"
+"$L3" smooth "$OUT/table.npz" -o "$OUT/table_smooth.npz"
+"$L3" inspect "$OUT/table_smooth.npz" --plots "$OUT/kernels" | head -n 25
+
+echo "== 6. Render the held-out raws (linear XYZ EXR, and display sRGB PNG)"
+mkdir -p "$OUT/renders" "$OUT/renders_png"
+"$L3" render "$OUT/table_smooth.npz" "$OUT"/test_sim/*.dng -o "$OUT/renders"
+"$L3" render "$OUT/table_smooth.npz" "$OUT"/test_sim/*.dng -o "$OUT/renders_png" --format png
+
+echo "== 7. Evaluate against the ideal targets (S-CIELAB at 96 dpi / 1 m, Macbeth dE, MTF50)"
+"$L3" evaluate "$OUT/renders" --reference "$OUT/test_sim" --json "$OUT/report.json" \
+    --plots "$OUT/plots"
+
+echo
+echo "Done. Look at $OUT/renders_png/*.png, $OUT/plots/ and $OUT/report.json."
