@@ -19,9 +19,11 @@ from typing import Any
 
 import numpy as np
 
+from l3cli.errors import ConfigError
 from l3cli.table import TransformTable
 
-__all__ = ["table_summary", "format_summary", "saturation_name", "class_rows", "compress_ranges"]
+__all__ = ["table_summary", "format_summary", "saturation_name", "class_rows", "compress_ranges",
+           "CLASS_LISTS"]
 
 
 def saturation_name(bits: int, channels: tuple[str, ...]) -> str:
@@ -165,9 +167,33 @@ def _fmt_level(v: float | None) -> str:
     return "inf" if v is None else f"{v:.4g}"
 
 
+#: What the per-class list of :func:`format_summary` shows.
+CLASS_LISTS = ("none", "trained", "all")
+
+
 def format_summary(summary: dict[str, Any], *, table: TransformTable | None = None,
-                   classes: bool = False, provenance: bool = True) -> str:
-    """Text form of :func:`table_summary` (``classes=True`` lists every class; needs ``table``)."""
+                   classes: str | bool = "none", provenance: bool = True) -> str:
+    """Text form of :func:`table_summary`.
+
+    Parameters
+    ----------
+    summary
+        From :func:`table_summary`.
+    table
+        The table (needed for a class list).
+    classes
+        Per-class list (samples, λ per output, status, fallback source):
+        ``"none"``, ``"trained"`` (classes with a kernel of their own: trained
+        or filled by smoothing) or ``"all"`` (``True`` = ``"all"``).
+    provenance
+        Append the provenance.
+    """
+    if classes is True:
+        classes = "all"
+    elif classes is False:
+        classes = "none"
+    if classes not in CLASS_LISTS:
+        raise ConfigError(f"class list {classes!r} is not known; use {', '.join(CLASS_LISTS)}")
     s = summary
     lay = s["layout"]
     out = [f"{s['name']}: {s['format']} v{s['version']}, output {s['output_space']} "
@@ -218,13 +244,16 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
     else:
         out.append("")
         out.append("smoothing: not smoothed")
-    if classes:
+    if classes != "none":
         if table is None:
-            raise ValueError("classes=True needs the table")
+            raise ConfigError("a class list needs the table")
         out.append("")
+        out.append("classes with their own kernel:" if classes == "trained" else "all classes:")
         out.append(f"  {'class':>5} {'grp':>3} {'sat':>7} {'lev':>3} {'con':>3} {'samples':>9}  "
                    f"{'status':<16} {'src':>5}  lambda")
         for r in class_rows(table):
+            if classes == "trained" and r["status"] == "empty":
+                continue
             lam = " ".join("-" if v is None else f"{v:.3g}" for v in r["lambda"])
             out.append(f"  {r['class']:>5} {r['group']:>3} {r['saturation']:>7} {r['level']:>3} "
                        f"{r['contrast']:>3} {r['samples']:>9}  {r['status']:<16} "

@@ -17,7 +17,7 @@ from l3cli.inspect import (
     table_summary,
 )
 from l3cli.smooth import smooth_table
-from l3cli.table import save_table
+from l3cli.table import load_table, save_table
 from tests.test_smooth import plausible_table
 
 
@@ -69,7 +69,10 @@ def test_cli_inspect_text_json_and_plots(tmp_path, runner):
     r = runner.invoke(cli, ["inspect", str(b)])
     assert r.exit_code == 0, r.output
     assert "position groups" in r.output and "filled classes (by prior):" in r.output
-    r = runner.invoke(cli, ["inspect", str(b), "--json", "--classes"])
+    listed = [ln for ln in r.output.splitlines() if ln.strip().split(" ")[0].isdigit()
+              and ("trained" in ln or "filled:" in ln)]
+    assert len(listed) == int((~raw.empty).sum()) + int((raw.empty & ~load_table(b).empty).sum())
+    r = runner.invoke(cli, ["inspect", str(b), "--json", "--classes", "all"])
     assert r.exit_code == 0, r.output
     js = json.loads(r.output)
     assert len(js["class_list"]) == raw.definition.n_classes
@@ -111,6 +114,8 @@ def test_cli_inspect_errors(tmp_path, runner):
     r = runner.invoke(cli, ["inspect", str(a), "--plots", str(tmp_path / "p"), "--levels", "9"])
     assert r.exit_code == 1 and "level 9 is not in 0..5" in r.output
     r = runner.invoke(cli, ["inspect", str(a), "--levels", "x"])
+    assert r.exit_code == 2
+    r = runner.invoke(cli, ["inspect", str(a), "--classes", "some"])
     assert r.exit_code == 2
     (tmp_path / "file").write_text("x")
     r = runner.invoke(cli, ["inspect", str(a), "--plots", str(tmp_path / "file" / "sub")])

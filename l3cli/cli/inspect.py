@@ -32,11 +32,13 @@ def _levels(ctx, param, value):
 @click.option("--levels", "levels", callback=_levels, default=None, metavar="L1,L2,...",
               help="Level bins for the kernel images (default: low, mid, high and a "
                    "saturated class).")
-@click.option("--classes", "classes", is_flag=True,
-              help="List every class (samples, λ, status, fallback source).")
+@click.option("--classes", "classes", type=click.Choice(["none", "trained", "all"]),
+              default="trained", show_default=True,
+              help="Per-class list (samples, λ per output, status, fallback source): classes "
+                   "with their own kernel (trained or filled), all classes, or none.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def inspect(table_path: str, plots: str | None, compare: str | None, levels: list[int] | None,
-            classes: bool, as_json: bool) -> None:
+            classes: str, as_json: bool) -> None:
     """Print a readable summary of TABLE.npz.
 
     Class layout, levels with their cut points, samples and λ, empty classes,
@@ -55,8 +57,9 @@ def inspect(table_path: str, plots: str | None, compare: str | None, levels: lis
             param_hint="--compare")
     summary = table_summary(table, name=str(table_path))
     if as_json:
-        if classes:
-            summary["class_list"] = class_rows(table)
+        if classes != "none":
+            summary["class_list"] = [r for r in class_rows(table)
+                                     if classes == "all" or r["status"] != "empty"]
         click.echo(json.dumps(summary, indent=2, default=str))
     else:
         click.echo(format_summary(summary, table=table, classes=classes))
