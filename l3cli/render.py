@@ -21,7 +21,7 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
-from l3cli.classify import band_classes, band_rows, pad_mosaic, padded_width
+from l3cli.classify import band_classes, band_rows, pad_mosaic
 from l3cli.errors import TableError
 from l3cli.table import TransformTable
 
@@ -29,39 +29,57 @@ __all__ = ["check_fits", "render_mosaic", "render_raw", "render_file"]
 
 
 @functools.cache
-def _apply_kernel(S: int, SP: int, n_out: int):
-    """Per-pixel affine kernel, compiled for patch size S, padded row width SP and
-    n_out outputs (compile-time constants: the tap loops unroll and vectorise)."""
+def _apply_kernel(S: int, n_out: int):
+    """Per-pixel affine kernel, compiled for patch size S and n_out outputs
+    (compile-time constants: the tap loops unroll; for three outputs the
+    accumulators stay in registers)."""
+    P = S * S
 
-    @nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
-    def apply(band, cls, K, B, out):
+    if n_out == 3:
+
+        @nb.njit(cache=True, parallel=True, fastmath={"contract"})
+        def apply(band, cls, K, out):
+            H, W = cls.shape
+            for i in nb.prange(H):
+                for x in range(W):
+                    Kc = K[cls[i, x]]
+                    a0 = Kc[P, 0]
+                    a1 = Kc[P, 1]
+                    a2 = Kc[P, 2]
+                    k = 0
+                    for dy in range(S):
+                        for dx in range(S):
+                            v = band[i + dy, x + dx]
+                            a0 += v * Kc[k, 0]
+                            a1 += v * Kc[k, 1]
+                            a2 += v * Kc[k, 2]
+                            k += 1
+                    out[i, x, 0] = a0
+                    out[i, x, 1] = a1
+                    out[i, x, 2] = a2
+
+        return apply
+
+    @nb.njit(cache=True, parallel=True, fastmath={"contract"})
+    def apply_any(band, cls, K, out):
         H, W = cls.shape
         for i in nb.prange(H):
+            acc = np.empty(n_out, dtype=np.float32)
             for x in range(W):
-                c = cls[i, x]
+                Kc = K[cls[i, x]]
                 for o in range(n_out):
-                    acc = B[c, o]
-                    for dy in range(S):
-                        for dx in range(SP):
-                            acc += band[i + dy, x + dx] * K[c, o, dy, dx]
-                    out[i, x, o] = acc
+                    acc[o] = Kc[P, o]
+                k = 0
+                for dy in range(S):
+                    for dx in range(S):
+                        v = band[i + dy, x + dx]
+                        for o in range(n_out):
+                            acc[o] += v * Kc[k, o]
+                        k += 1
+                for o in range(n_out):
+                    out[i, x, o] = acc[o]
 
-    return apply
-
-
-def _padded_kernels(table: TransformTable) -> tuple[np.ndarray, np.ndarray]:
-    """Kernels as float32 (n_classes, n_out, S, SP) with zero padding, and biases."""
-    cached = getattr(table, "_render_kernels", None)
-    if cached is not None:
-        return cached
-    S = table.patch
-    SP = padded_width(S)
-    nc, q, n_out = table.kernels.shape
-    K = np.zeros((nc, n_out, S, SP), dtype=np.float32)
-    K[:, :, :, :S] = table.kernels[:, : S * S, :].transpose(0, 2, 1).reshape(nc, n_out, S, S)
-    B = np.ascontiguousarray(table.kernels[:, S * S, :], dtype=np.float32)
-    table._render_kernels = (K, B)
-    return K, B
+    return apply_any
 
 
 def check_fits(table: TransformTable, raw, *, table_name: str = "table") -> None:
@@ -106,16 +124,14 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
         out = np.empty((h, w, table.n_out), dtype=np.float32)
     args = d.kernel_args()
     S = d.patch
-    SP = padded_width(S)
-    K, B = _padded_kernels(table)
-    apply = _apply_kernel(S, SP, table.n_out)
+    apply = _apply_kernel(S, table.n_out)
     cls = None
     for y0, y1 in band_rows(h, w, max_pixels=band_pixels):
-        band = pad_mosaic(mosaic, S // 2, d.cfa.period, rows=(y0, y1), extra=SP - S)
+        band = pad_mosaic(mosaic, S // 2, d.cfa.period, rows=(y0, y1))
         if cls is None or cls.shape[0] != y1 - y0:
             cls = np.empty((y1 - y0, w), dtype=np.int32)
         band_classes(band, y0, y1 - y0, w, args, out=cls)
-        apply(band, cls, K, B, out[y0:y1])
+        apply(band, cls, table.kernels, out[y0:y1])
     return out
 
 
