@@ -650,3 +650,14 @@ def test_rgbw_trained_table_renders_a_flat_field_uniform_after_smoothing(tmp_pat
             continue
         m = flat_field(cfa, vals, h=48, w=52)
         assert _rel_spread(render_mosaic(sm, m), border=sm.patch).max() < 1e-3, vals
+
+
+def test_uniformity_leaves_channels_missing_from_tiny_patches_alone():
+    t = plausible_table("RGGB", patch=1, seed=18, empty_fraction=0.0)
+    s = smooth_table(t, symmetry=False, spline=False)
+    assert s.provenance["smoothing"]["uniformity"]["channels_left_alone"] == ["R", "G", "B"]
+    np.testing.assert_array_equal(s.kernels[:, 0], t.kernels[:, 0])  # weights untouched
+    b = s.kernels[:, -1].reshape(t.definition.n_groups, -1, 3)  # G sites share a group
+    np.testing.assert_allclose(b, np.broadcast_to(b[:1], b.shape), atol=1e-7)  # offsets agree
+    full = plausible_table(RGBW, patch=5, seed=19)
+    assert smooth_table(full).provenance["smoothing"]["uniformity"]["channels_left_alone"] == []

@@ -35,7 +35,7 @@ from l3cli import __version__
 from l3cli.errors import ConfigError
 from l3cli.smooth.spline import DEFAULT_STRENGTH, DEFAULT_STRENGTH_GRID, smooth_levels
 from l3cli.smooth.symmetry import orbit_weights, symmetrize_kernels, symmetry_map
-from l3cli.smooth.uniformity import fillable, make_uniform, uniformity_error
+from l3cli.smooth.uniformity import fillable, make_uniform, missing_channels, uniformity_error
 from l3cli.table import TransformTable
 
 __all__ = ["smooth_table", "filled_classes", "DEFAULT_STRENGTH"]
@@ -151,7 +151,12 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
             "weights": "positions per group" if uniformity_target == "period-mean"
             else "sample counts / taps per channel",
             "spread_before": before,
+            "channels_left_alone": missing_channels(d),
         }
+        if record["uniformity"]["channels_left_alone"]:
+            log.warning("uniformity: channels %s are missing from some %dx%d patch layouts and "
+                        "cannot be made uniform; use a larger patch",
+                        ", ".join(record["uniformity"]["channels_left_alone"]), d.patch, d.patch)
     if symmetry and smap is not None:
         # the later steps keep symmetry up to rounding: make it exact again
         kernels = symmetrize_kernels(kernels, np.ones_like(weights), d, smap)

@@ -39,8 +39,9 @@ many positions it holds, ``m_p``),
 which leaves the *average* rendering of every flat area over one CFA period
 unchanged (so chart colours do not move) and removes only the fixed
 pattern; for these targets the change of each kernel is still the
-minimum-norm one. A channel missing from some group's patch (``n_{p,c} = 0``)
-forces ``S^*_c = 0``. Groups with no data weigh 0 (equal weights when none has data).
+minimum-norm one. A channel missing from some group's patch (``n_{p,c} = 0``, only
+for patches smaller than the CFA repeat) could only agree by having zero
+weight everywhere; it is left alone (:func:`missing_channels`). Groups with no data weigh 0 (equal weights when none has data).
 The correction is spread equally over taps of a channel, so symmetric
 kernels stay symmetric.
 
@@ -64,7 +65,8 @@ import numpy as np
 
 from l3cli.classify import ClassDefinition
 
-__all__ = ["channel_sums", "make_uniform", "uniformity_error", "fillable", "TARGETS"]
+__all__ = ["channel_sums", "make_uniform", "uniformity_error", "fillable", "missing_channels",
+           "TARGETS"]
 
 
 def _layouts(definition: ClassDefinition) -> np.ndarray:
@@ -190,21 +192,30 @@ def make_uniform(kernels: np.ndarray, weights: np.ndarray, definition: ClassDefi
         for c in range(nch):
             n = ntap[sel, c]
             if np.any(ntap[members, c] == 0):
-                goal = np.zeros(n_out)
-            elif target == "period-mean":
+                continue  # see missing_channels: cannot be made uniform without zeroing it
+            if target == "period-mean":
                 goal = (wj[:, None] * sums[sel, j, c]).sum(axis=0) / wj.sum()
             else:
                 a = wj / n
                 goal = (a[:, None] * sums[sel, j, c]).sum(axis=0) / a.sum()
             for g in members:
-                if ntap[g, c] == 0:
-                    continue
                 delta = (goal - sums[g, j, c]) / ntap[g, c]
                 taps = lay[g] == c
                 k[g, j, :-1][taps] += delta[None, :]
         bstar = (wj[:, None] * k[sel, j, -1]).sum(axis=0) / wj.sum()
         k[members, j, -1] = bstar[None, :]
     return k.reshape(kernels.shape)
+
+
+def missing_channels(definition: ClassDefinition) -> list[str]:
+    """Channels absent from the patch of some position group (tiny patches).
+
+    For such a channel the flat-field response cannot agree across positions
+    unless its weight is zero everywhere; :func:`make_uniform` leaves it alone.
+    """
+    lay = _layouts(definition)
+    nch = definition.cfa.n_channels
+    return [definition.cfa.channels[c] for c in range(nch) if np.any(~(lay == c).any(axis=1))]
 
 
 def fillable(active: np.ndarray, definition: ClassDefinition) -> np.ndarray:
