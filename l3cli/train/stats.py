@@ -156,39 +156,41 @@ def _sorted_slots(cls_sel, starts):
 
 
 @nb.njit(cache=True, parallel=True)
-def _gather(band, ys, xs, order, S, target, Xt, Yt):
-    """Column ``j`` of Xt = patch of pixel ``order[j]`` (ys, xs) of the band, then 1.
+def _scatter(band, ys, xs, dest, S, target, XY):
+    """Row ``dest[i]`` of XY = [patch of pixel i (ys[i], xs[i]) of the band, 1, target].
 
-    Columns are written in order (class-sorted), so the writes stream."""
+    Reads stream in pixel order from a small (cache-resident) band; each
+    sample is one contiguous row, appended to its class's run of rows."""
     P = S * S
     n_out = target.shape[2]
-    for j in nb.prange(order.shape[0]):
-        i = order[j]
+    for i in nb.prange(ys.shape[0]):
+        j = dest[i]
         y = ys[i]
         x = xs[i]
         k = 0
         for dy in range(S):
             for dx in range(S):
-                Xt[k, j] = band[y + dy, x + dx]
+                XY[j, k] = band[y + dy, x + dx]
                 k += 1
-        Xt[P, j] = 1.0
+        XY[j, P] = 1.0
         for o in range(n_out):
-            Yt[o, j] = target[y, x, o]
+            XY[j, P + 1 + o] = target[y, x, o]
 
 
-_CHUNK = 128  # samples per block of the Gram products (columns stay in L1)
+_CHUNK = 128  # samples per block of the Gram products (a block stays in L1)
+_SUB_PIXELS = 1 << 14  # pixels per gather sub-band
 
 
 @nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
-def _gram(Xt, Yt, starts, classes, xtx, xty, yy):
-    """Add XᵀX, XᵀY and Σy² of each class's block of columns (float64).
+def _gram(XY, q, starts, classes, xtx, xty, yy):
+    """Add XᵀX, XᵀY and Σy² of each class's run of rows of XY = [X | Y] (float64).
 
-    Own kernel rather than BLAS: OpenBLAS threads fight numba's on small
-    per-class products. Parallel over classes; each dot product is a
-    contiguous, vectorised reduction.
+    Own kernel rather than BLAS: OpenBLAS threads fight numba's on these many
+    small products. Parallel over classes; each block of rows is transposed
+    into an L1 buffer so every product is a contiguous, vectorised dot.
     """
-    q = Xt.shape[0]
-    n_out = Yt.shape[0]
+    m = XY.shape[1]
+    n_out = m - q
     for t in nb.prange(classes.shape[0]):
         c = classes[t]
         a = starts[c]
@@ -196,26 +198,30 @@ def _gram(Xt, Yt, starts, classes, xtx, xty, yy):
         G = np.zeros((q, q))
         R = np.zeros((q, n_out))
         Q = np.zeros(n_out)
+        T = np.empty((m, _CHUNK))
         for n0 in range(a, b, _CHUNK):
-            n1 = min(b, n0 + _CHUNK)
+            nn = min(b, n0 + _CHUNK) - n0
+            for n in range(nn):
+                for k in range(m):
+                    T[k, n] = XY[n0 + n, k]
             for i in range(q):
-                xi = Xt[i, n0:n1]
+                xi = T[i, :nn]
                 for j in range(i, q):
-                    xj = Xt[j, n0:n1]
+                    xj = T[j, :nn]
                     s = 0.0
-                    for n in range(xi.shape[0]):
+                    for n in range(nn):
                         s += xi[n] * xj[n]
                     G[i, j] += s
                 for o in range(n_out):
-                    yo = Yt[o, n0:n1]
+                    yo = T[q + o, :nn]
                     s = 0.0
-                    for n in range(xi.shape[0]):
+                    for n in range(nn):
                         s += xi[n] * yo[n]
                     R[i, o] += s
             for o in range(n_out):
-                yo = Yt[o, n0:n1]
+                yo = T[q + o, :nn]
                 s = 0.0
-                for n in range(yo.shape[0]):
+                for n in range(nn):
                     s += yo[n] * yo[n]
                 Q[o] += s
         for i in range(q):
@@ -230,7 +236,7 @@ def _gram(Xt, Yt, starts, classes, xtx, xty, yy):
 
 
 def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
-               mask: np.ndarray | None = None, max_pixels: int = 1 << 16) -> None:
+               mask: np.ndarray | None = None, max_pixels: int = 1 << 18) -> None:
     """Add the patches of one (mosaic, target) pair to ``stats`` in place.
 
     Parameters
@@ -267,28 +273,33 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
     nc = d.n_classes
     h, w = mosaic.shape
     ph, pw = d.cfa.period
-    for y0, y1 in band_rows(h, w, max_pixels=max_pixels):
+    for Y0, Y1 in band_rows(h, w, max_pixels=max_pixels):
+        # samples of this band in pixel (row-major) order, and their class-sorted slots
         if mask is None:
-            yy, xx = np.divmod(np.arange((y1 - y0) * w, dtype=np.int64), w)
+            yy, xx = np.divmod(np.arange((Y1 - Y0) * w, dtype=np.int64), w)
         else:
-            yy, xx = np.nonzero(mask[y0:y1])
+            yy, xx = np.nonzero(mask[Y0:Y1])
             yy = yy.astype(np.int64)
             xx = xx.astype(np.int64)
         if yy.size == 0:
             continue
-        cls_sel = cls_map[y0:y1][yy, xx].astype(np.int64)
+        cls_sel = cls_map[Y0:Y1][yy, xx].astype(np.int64)
         counts = np.bincount(cls_sel, minlength=nc)
         starts = np.zeros(nc + 1, dtype=np.int64)
         np.cumsum(counts, out=starts[1:])
         dest = _sorted_slots(cls_sel, starts[:-1])
-        band = pad_mosaic(mosaic, r, (ph, pw), rows=(y0, y1))
-        Xt = np.empty((q, yy.size), dtype=np.float64)
-        Yt = np.empty((stats.n_out, yy.size), dtype=np.float64)
-        order = np.empty_like(dest)
-        order[dest] = np.arange(dest.size)
-        _gather(band, yy, xx, order, S, target[y0:y1], Xt, Yt)
+        XY = np.empty((yy.size, q + stats.n_out), dtype=np.float64)
+        # gather from small sub-bands (their padded rows stay in cache)
+        row_start = np.searchsorted(yy, np.arange(Y1 - Y0 + 1))
+        for y0, y1 in band_rows(Y1 - Y0, w, max_pixels=_SUB_PIXELS):
+            s0, s1 = row_start[y0], row_start[y1]
+            if s1 == s0:
+                continue
+            band = pad_mosaic(mosaic, r, (ph, pw), rows=(Y0 + y0, Y0 + y1))
+            _scatter(band, yy[s0:s1] - y0, xx[s0:s1], dest[s0:s1], S,
+                     target[Y0 + y0 : Y0 + y1], XY)
         # largest classes first: better balance across threads
         nz = np.flatnonzero(counts)
         order = nz[np.argsort(-counts[nz], kind="stable")]
-        _gram(Xt, Yt, starts, order, stats.xtx, stats.xty, stats.yy)
+        _gram(XY, q, starts, order, stats.xtx, stats.xty, stats.yy)
         stats.n += counts
