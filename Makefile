@@ -34,3 +34,116 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache .ruff_cache build *.egg-info
+
+# ---------------------------------------------------------------------------
+# `make paper`: re-run the L3 paper's experiments (issue 9) and write
+# docs/results.md + docs/figures/. Also an example batch pipeline: camera
+# TOMLs -> simulation folders -> tables -> renders -> JSON reports -> Markdown.
+# Everything but the committed docs lands in $(PAPER). One target per
+# experiment: paper-real paper-rgbw paper-rgbnir paper-levels paper-patch
+# paper-mtf paper-kernels.
+PAPER          ?= paper_out
+PAPER_SIZE     ?= 320x240
+PAPER_EXPOSURE ?= 0.05
+# the RGB-NIR cameras (2 um pixels, f/2.8) get ~4x the light per pixel of the RGBW one
+PAPER_EXPOSURE_rgbnir       := 0.0125
+PAPER_EXPOSURE_rgbnir-black := 0.0125
+PAPER_EXPOSURE_rgbnir-g     := 0.0125
+PAPER_TRAIN_LUX ?= 10 35 120 450 1600 5000
+PAPER_TEST_LUX  ?= 20 70 250 900 3000
+PAPER_TEST_SCENES_rgbw := macbeth slanted-edge
+PAPER_PY       := $(PY) scripts/paper
+PAPER_COMMON   := scripts/paper/common.py $(STAMP)
+PAPER_SECTIONS := real rgbw rgbnir levels patch mtf kernels
+
+.PHONY: paper paper-real paper-rgbw paper-rgbnir paper-levels paper-patch paper-mtf paper-kernels
+.SECONDARY:
+
+paper: docs/results.md
+
+docs/results.md: scripts/paper/results.py $(PAPER_SECTIONS:%=$(PAPER)/sections/%.md)
+	$(PAPER_PY)/results.py $(PAPER) docs/results.md
+
+paper-real paper-rgbw paper-rgbnir paper-levels paper-patch paper-mtf paper-kernels: paper-%: $(PAPER)/sections/%.md
+
+# The simulation settings, rewritten only when they change (so changing e.g.
+# PAPER_TEST_LUX on the command line re-runs what depends on it).
+$(PAPER)/settings.txt: paper-settings-check
+	@mkdir -p $(@D)
+	@echo "$(PAPER_SIZE) $(PAPER_EXPOSURE) $(PAPER_EXPOSURE_rgbnir) $(PAPER_TRAIN_LUX) / $(PAPER_TEST_LUX) $(PAPER_TEST_SCENES_rgbw)" \
+	    | cmp -s - $@ || echo "$(PAPER_SIZE) $(PAPER_EXPOSURE) $(PAPER_EXPOSURE_rgbnir) $(PAPER_TRAIN_LUX) / $(PAPER_TEST_LUX) $(PAPER_TEST_SCENES_rgbw)" > $@
+.PHONY: paper-settings-check
+
+# Camera variants (W -> G, NIR blacked out, ...) generated from sample_configs/.
+$(PAPER)/cameras/%.toml: scripts/paper/cameras.py sample_configs/rgbw.toml sample_configs/rgbnir.toml
+	$(PAPER_PY)/cameras.py $* $@
+
+# Training captures (Macbeth + the bundled natural photos) and held-out test
+# captures (Macbeth, + slanted edge for RGBW, at light levels not used in training),
+# fixed exposure so the light level sets the response level.
+$(PAPER)/sim/%/train/manifest.json: $(PAPER)/cameras/%.toml $(PAPER)/settings.txt $(STAMP)
+	rm -rf $(@D) && mkdir -p $(dir $(@D))
+	$(L3) -q simulate $(abspath $<) -o $(@D) --scene macbeth --scene natural \
+	    $(addprefix --lux ,$(PAPER_TRAIN_LUX)) --exposure $(or $(PAPER_EXPOSURE_$*),$(PAPER_EXPOSURE)) --size $(PAPER_SIZE) --seed 1
+
+$(PAPER)/sim/%/test/manifest.json: $(PAPER)/cameras/%.toml $(PAPER)/settings.txt $(STAMP)
+	rm -rf $(@D) && mkdir -p $(dir $(@D))
+	$(L3) -q simulate $(abspath $<) -o $(@D) $(addprefix --scene ,$(or $(PAPER_TEST_SCENES_$*),macbeth)) \
+	    $(addprefix --lux ,$(PAPER_TEST_LUX)) --exposure $(or $(PAPER_EXPOSURE_$*),$(PAPER_EXPOSURE)) --size $(PAPER_SIZE) --seed 2
+
+# L3 tables: train (ridge + GCV per class), then smooth (the priors).
+$(PAPER)/tables/%.raw.npz: $(PAPER)/sim/%/train/manifest.json
+	mkdir -p $(@D)
+	$(L3) -q train $(<D) -o $@ --seed 1
+
+$(PAPER)/tables/%.npz: $(PAPER)/tables/%.raw.npz
+	$(L3) -q smooth $< -o $@
+
+# Render the held-out captures and score them against the ideal targets.
+$(PAPER)/eval/%.json: $(PAPER)/tables/%.npz $(PAPER)/sim/%/test/manifest.json
+	rm -rf $(PAPER)/render/$* && mkdir -p $(PAPER)/render/$* $(@D)
+	$(L3) -q render $< $$(ls $(PAPER)/sim/$*/test/*.dng $(PAPER)/sim/$*/test/*.tif 2>/dev/null) -o $(PAPER)/render/$*
+	$(L3) -q evaluate $(PAPER)/render/$* --reference $(PAPER)/sim/$*/test --json $@
+
+# The conventional pipeline (demosaic + 3x3 matrix) on the Bayer camera.
+$(PAPER)/eval/bayer-baseline.json: $(PAPER)/sim/bayer/train/manifest.json $(PAPER)/sim/bayer/test/manifest.json
+	rm -rf $(PAPER)/render/bayer-baseline && mkdir -p $(@D)
+	$(L3) -q baseline $(PAPER)/sim/bayer/test --train $(PAPER)/sim/bayer/train -o $(PAPER)/render/bayer-baseline
+	$(L3) -q evaluate $(PAPER)/render/bayer-baseline --reference $(PAPER)/sim/bayer/test --json $@
+
+# 1. Approximating a real pipeline: the real-camera script (issue 7).
+$(PAPER)/real/summary.json: scripts/real_camera.sh scripts/real_camera_data.py $(STAMP)
+	PYTHON=$(PY) bash scripts/real_camera.sh $(L3) $(PAPER)/real $(SHARED)
+	$(PAPER_PY)/real.py $(PAPER) --collect
+
+$(PAPER)/sections/real.md: scripts/paper/real.py $(PAPER_COMMON) $(PAPER)/real/summary.json
+	$(PAPER_PY)/real.py $(PAPER)
+
+# 2. RGBW vs the same camera with W -> G, and vs the conventional pipeline.
+$(PAPER)/sections/rgbw.md: scripts/paper/rgbw.py $(PAPER_COMMON) $(PAPER)/eval/rgbw.json \
+        $(PAPER)/eval/rgbw-g.json $(PAPER)/eval/bayer.json $(PAPER)/eval/bayer-baseline.json
+	$(PAPER_PY)/rgbw.py $(PAPER)
+
+# 3. RGB-NIR vs NIR blacked out vs NIR -> G; NIR weights over response levels.
+$(PAPER)/sections/rgbnir.md: scripts/paper/rgbnir.py $(PAPER_COMMON) $(PAPER)/eval/rgbnir.json \
+        $(PAPER)/eval/rgbnir-black.json $(PAPER)/eval/rgbnir-g.json $(PAPER)/tables/rgbnir.npz
+	$(PAPER_PY)/rgbnir.py $(PAPER)
+
+# 4. Number of response levels, log vs linear spacing (trains its own tables).
+$(PAPER)/sections/levels.md: scripts/paper/levels.py $(PAPER_COMMON) \
+        $(PAPER)/sim/bayer/train/manifest.json $(PAPER)/sim/bayer/test/manifest.json
+	$(PAPER_PY)/levels.py $(PAPER)
+
+# 5. Patch size 5/7/9: accuracy and cost (trains its own tables).
+$(PAPER)/sections/patch.md: scripts/paper/patch.py $(PAPER_COMMON) \
+        $(PAPER)/sim/rgbw/train/manifest.json $(PAPER)/sim/rgbw/test/manifest.json
+	$(PAPER_PY)/patch.py $(PAPER)
+
+# 6. Resolution: RGBW MTF50 vs the diffraction bound, over f-number x pixel size.
+$(PAPER)/sections/mtf.md: scripts/paper/mtf.py scripts/paper/cameras.py $(PAPER_COMMON) \
+        $(PAPER)/eval/rgbw.json
+	$(PAPER_PY)/mtf.py $(PAPER)
+
+# 7. The transforms: RGBW kernels at low / mid / high / saturated levels.
+$(PAPER)/sections/kernels.md: scripts/paper/kernels.py $(PAPER_COMMON) $(PAPER)/tables/rgbw.npz
+	$(PAPER_PY)/kernels.py $(PAPER)

@@ -1,0 +1,183 @@
+"""Shared helpers of the paper experiments (``make paper``, scripts/paper/).
+
+Every experiment module reads what the Makefile built under the build folder
+(``paper_out/`` by default: simulations, tables, renders, ``l3 evaluate``
+JSON reports), may run ``l3`` itself for grids that are awkward as Makefile
+rules, and writes
+
+* ``BUILD/sections/NAME.md``: its Markdown section of docs/results.md,
+* ``BUILD/NAME.json``: its numbers (machine-readable),
+* ``docs/figures/NAME_*.png``: its figures (small PNGs).
+
+``scripts/paper/results.py`` assembles the sections into docs/results.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+FIGURES = ROOT / "docs" / "figures"
+
+
+def l3_exe() -> str:
+    """The ``l3`` executable: ``$L3``, else the venv's, else the one on PATH."""
+    env = os.environ.get("L3")
+    if env:
+        return env
+    venv = ROOT / ".venv" / "bin" / "l3"
+    if venv.exists():
+        return str(venv)
+    found = shutil.which("l3")
+    if not found:
+        raise SystemExit("l3 not found: run `make setup` or set L3=/path/to/l3")
+    return found
+
+
+def run_l3(*args: Any, quiet: bool = True) -> float:
+    """Run ``l3 ARGS`` (stops on failure); returns the wall-clock seconds."""
+    cmd = [l3_exe()] + (["-q"] if quiet else []) + [str(a) for a in args]
+    print("+ l3 " + " ".join(cmd[1:]), file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True)
+    return time.perf_counter() - t0
+
+
+def raws_of(sim_dir: Path, *, scene: str | None = None) -> list[Path]:
+    """Raw files of a simulation folder (from its manifest), optionally one scene only."""
+    man = json.loads((Path(sim_dir) / "manifest.json").read_text())
+    return [Path(sim_dir) / c["raw"] for c in man["captures"]
+            if scene is None or c["scene"] == scene]
+
+
+def captures(sim_dir: Path) -> dict[str, dict]:
+    """``{stem: capture record}`` of a simulation folder's manifest."""
+    man = json.loads((Path(sim_dir) / "manifest.json").read_text())
+    return {c["stem"]: c for c in man["captures"]}
+
+
+def report(path: Path) -> dict[str, dict]:
+    """``{image name: metrics}`` of an ``l3 evaluate --json`` report."""
+    rep = json.loads(Path(path).read_text())
+    return {im["name"]: im for im in rep["images"]}
+
+
+def by_scene(rep: dict[str, dict], sim_dir: Path, scene: str, key: str) -> dict[float, float]:
+    """``{lux: metric}`` for the captures of ``scene`` in a report of ``sim_dir``."""
+    caps = captures(sim_dir)
+    out = {}
+    for stem, cap in caps.items():
+        if cap["scene"] == scene and stem in rep and rep[stem].get(key) is not None:
+            out[float(cap["lux"])] = float(rep[stem][key])
+    return dict(sorted(out.items()))
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, with small defaults."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update({"font.size": 8, "axes.grid": True, "grid.alpha": 0.3})
+    return plt
+
+
+def save_figure(fig, name: str) -> str:
+    """Save ``fig`` as docs/figures/NAME.png (small, 100 dpi); returns the relative link."""
+    from l3cli.io.atomic import atomic_path
+
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    path = FIGURES / f"{name}.png"
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    pyplot().close(fig)
+    return f"figures/{name}.png"
+
+
+def write_outputs(build: Path, name: str, markdown: str, numbers: dict) -> None:
+    """Write BUILD/sections/NAME.md and BUILD/NAME.json (atomically)."""
+    from l3cli.io.atomic import atomic_path
+
+    (build / "sections").mkdir(parents=True, exist_ok=True)
+    with atomic_path(build / "sections" / f"{name}.md") as tmp:
+        tmp.write_text(markdown.rstrip() + "\n", encoding="utf-8")
+    with atomic_path(build / f"{name}.json") as tmp:
+        tmp.write_text(json.dumps(numbers, indent=1, default=float) + "\n", encoding="utf-8")
+
+
+def md_table(header: list[str], rows: list[list[Any]]) -> str:
+    """A Markdown table; floats with 2 decimals, None as an en dash."""
+    def fmt(v: Any) -> str:
+        if v is None:
+            return "–"
+        if isinstance(v, float):
+            return f"{v:.2f}"
+        return str(v)
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def train_render_eval(build: Path, name: str, camera: str, *, train_opts: tuple = (),
+                      smooth: bool = True, scenes: tuple[str, ...] | None = None,
+                      train_sim: Path | None = None, test_sim: Path | None = None) -> dict:
+    """Train (and smooth) a table on a camera's training captures, render its
+    test captures (``scenes`` only, if given) and evaluate them.
+
+    Files go to ``BUILD/runs/NAME/``. Returns ``{"report": {stem: metrics},
+    "train_s", "smooth_s", "render_s", "pixels"}`` (wall-clock seconds).
+    """
+    train_sim = train_sim or build / "sim" / camera / "train"
+    test_sim = test_sim or build / "sim" / camera / "test"
+    out = build / "runs" / name
+    if out.exists():
+        shutil.rmtree(out)
+    (out / "render").mkdir(parents=True)
+    raw_table = out / "table.raw.npz"
+    t_train = run_l3("train", train_sim, "-o", raw_table, "--seed", 1, *train_opts)
+    table, t_smooth = raw_table, 0.0
+    if smooth:
+        table = out / "table.npz"
+        t_smooth = run_l3("smooth", raw_table, "-o", table)
+    raws = [r for s in (scenes or (None,)) for r in raws_of(test_sim, scene=s)]
+    t_render = run_l3("render", table, *raws, "-o", out / "render")
+    rep = evaluate_robust(out / "render", test_sim, out / "eval.json")
+    caps = captures(test_sim)
+    pixels = sum(caps[r.stem]["width"] * caps[r.stem]["height"] for r in raws)
+    return {"report": rep, "train_s": t_train, "smooth_s": t_smooth,
+            "render_s": t_render, "pixels": pixels, "table": table}
+
+
+def evaluate_robust(render_dir: Path, sim: Path, json_path: Path) -> dict[str, dict]:
+    """``l3 evaluate RENDER_DIR --reference SIM --json JSON``; returns the report.
+
+    If the folder fails as a whole (``l3 evaluate`` stops at the first image
+    whose slanted edge it cannot find), each render is evaluated on its own and
+    the images that still fail are left out of the report (with a warning).
+    """
+    try:
+        run_l3("evaluate", render_dir, "--reference", sim, "--json", json_path)
+        return report(json_path)
+    except subprocess.CalledProcessError:
+        print(f"warning: l3 evaluate failed on {render_dir} as a whole; evaluating image by image",
+              file=sys.stderr)
+    merged = {}
+    for f in sorted(Path(render_dir).glob("*.exr")):
+        one = json_path.with_name(f"{json_path.stem}_{f.stem}.json")
+        try:
+            run_l3("evaluate", f, "--reference", sim, "--json", one)
+        except subprocess.CalledProcessError:
+            print(f"warning: {f.name} left out of the report", file=sys.stderr)
+            continue
+        merged.update(report(one))
+    json_path.write_text(json.dumps({"images": list(merged.values())}, indent=1) + "\n")
+    return merged
