@@ -51,12 +51,18 @@ References
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass, field
 
-import numba as nb
-import numpy as np
+# OpenMP threads that wait passively instead of spinning: on a shared or busy
+# machine spinning workers steal the cores the kernels need (2x slower
+# training measured under load); set OMP_WAIT_POLICY yourself to override.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from l3cli.cfa import CFA
+import numba as nb  # noqa: E402
+import numpy as np  # noqa: E402
+
+from l3cli.cfa import CFA  # noqa: E402
 from l3cli.errors import ConfigError, InputError
 
 __all__ = [
