@@ -119,9 +119,11 @@ $(PAPER)/real/summary.json: scripts/real_camera.sh scripts/real_camera_data.py $
 $(PAPER)/sections/real.md: scripts/paper/real.py $(PAPER_COMMON) $(PAPER)/real/summary.json
 	$(PAPER_PY)/real.py $(PAPER)
 
-# 2. RGBW vs the same camera with W -> G, and vs the conventional pipeline.
+# 2. RGBW vs the same camera with W -> G (and behind an IR-cut filter), and vs
+#    the conventional pipeline.
 $(PAPER)/sections/rgbw.md: scripts/paper/rgbw.py $(PAPER_COMMON) $(PAPER)/eval/rgbw.json \
-        $(PAPER)/eval/rgbw-g.json $(PAPER)/eval/bayer.json $(PAPER)/eval/bayer-baseline.json
+        $(PAPER)/eval/rgbw-g.json $(PAPER)/eval/rgbw-ircut.json $(PAPER)/eval/bayer.json \
+        $(PAPER)/eval/bayer-baseline.json
 	$(PAPER_PY)/rgbw.py $(PAPER)
 
 # 3. RGB-NIR vs NIR blacked out vs NIR -> G; NIR weights over response levels.
@@ -144,6 +146,8 @@ $(PAPER)/sections/mtf.md: scripts/paper/mtf.py scripts/paper/cameras.py $(PAPER_
         $(PAPER)/eval/rgbw.json
 	$(PAPER_PY)/mtf.py $(PAPER)
 
-# 7. The transforms: RGBW kernels at low / mid / high / saturated levels.
-$(PAPER)/sections/kernels.md: scripts/paper/kernels.py $(PAPER_COMMON) $(PAPER)/tables/rgbw.npz
+# 7. The transforms: RGBW kernels at low / mid / high / saturated levels
+#    (without and with an IR-cut filter).
+$(PAPER)/sections/kernels.md: scripts/paper/kernels.py $(PAPER_COMMON) $(PAPER)/tables/rgbw.npz \
+        $(PAPER)/tables/rgbw-ircut.npz
 	$(PAPER_PY)/kernels.py $(PAPER)

@@ -9,6 +9,9 @@
 ``rgbw-g``
     the same camera with every W pixel replaced by a G pixel (the paper's
     comparison camera; 12 of the 16 pixels of the repeat are G).
+``rgbw-ircut``
+    the RGBW camera behind an IR-cut filter (ISETCam ``ircf_public``), so that
+    W sees only the visible.
 ``bayer``
     the same pixel, optics and R, G, B filters in a 2x2 RGGB Bayer mosaic
     (what ``l3 baseline``, a Bayer-only conventional pipeline, can render).
@@ -72,6 +75,10 @@ def camera(name: str, out: Path) -> dict:
         cfg = _load("rgbw")
         cfg["cfa"]["pattern"] = [["G" if c == "W" else c for c in row] for row in cfg["cfa"]["pattern"]]
         cfg["description"] = "L3 RGBW camera with W replaced by G"
+    elif name == "rgbw-ircut":
+        cfg = _load("rgbw")
+        cfg["cfa"]["ir_cut"] = "ircf-public"
+        cfg["description"] = "L3 RGBW camera behind an IR-cut filter"
     elif name == "bayer":
         cfg = _load("rgbw")
         cfg["cfa"]["pattern"] = "RGGB"

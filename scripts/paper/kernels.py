@@ -17,6 +17,7 @@ when W saturates the weights move from W to the R, G, B pixels.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -24,12 +25,13 @@ import numpy as np
 from common import md_table, pyplot, run_l3, save_figure, write_outputs
 
 
-def main(build: Path) -> None:
+def analyse(build: Path, camera: str, title: str) -> tuple:
+    """Figure and channel shares of one RGBW table: (figure link, labels, chosen, shares)."""
     from l3cli.plots_table import default_levels, level_values
     from l3cli.table import load_table
 
-    path = build / "tables" / "rgbw.npz"
-    run_l3("inspect", path, "--plots", build / "kernels_full")
+    path = build / "tables" / f"{camera}.npz"
+    run_l3("inspect", path, "--plots", build / "kernels_full" / camera)
     t = load_table(path)
     d = t.definition
     ng, ns, nl, nc = d.shape
@@ -37,8 +39,17 @@ def main(build: Path) -> None:
     w_bit = 1 << chans.index("W")
     s = d.patch
     lvals = level_values(t)
-    chosen = {k: v for k, v in default_levels(t).items() if k != "saturated"}
     counts = t.counts.reshape(ng, ns, nl, nc)
+    # Low / mid / high: trained unsaturated levels at least 2 DN above black
+    # (the lowest bins hold sub-DN noise), the middle one by index.
+    ro = json.loads((build / "sim" / camera / "train" / "manifest.json").read_text())["camera"]["readout"]
+    two_dn = 2.0 / (ro["white_level_dn"] - ro["black_level_dn"])
+    trained = np.flatnonzero((~t.empty.reshape(ng, ns, nl, nc)[:, 0, :, 0]).any(axis=0) & (lvals >= two_dn))
+    if trained.size:
+        chosen = {"low": (0, int(trained[0])), "mid": (0, int(trained[trained.size // 2])),
+                  "high": (0, int(trained[-1]))}
+    else:
+        chosen = {k: v for k, v in default_levels(t).items() if k != "saturated"}
     sat_lv = int(np.argmax(counts[:, w_bit].sum(axis=(0, 2))))
     if counts[:, w_bit, sat_lv].sum() > 0:
         chosen["saturate (W)"] = (w_bit, sat_lv)
@@ -93,22 +104,32 @@ def main(build: Path) -> None:
         ax.set_xticks(range(len(chans)), chans)
         ax.set_ylim(0, 1)
         ax.set_title("share of Σ|w| per channel (Y)", fontsize=7)
-    fig.suptitle("RGBW L3 kernels for output Y (smoothed table)", fontsize=9)
+    fig.suptitle(f"{title}: L3 kernels for output Y (smoothed table)", fontsize=9)
     fig.tight_layout()
-    fig_link = save_figure(fig, "kernels_rgbw")
+    return save_figure(fig, f"kernels_{camera}"), labels, chosen, sums, lvals, chans
 
-    rows = [[lab, chosen[lab][1], float(lvals[chosen[lab][1]])] + [sums[lab][c] for c in chans] for lab in labels]
+
+def main(build: Path) -> None:
+    fig_link, labels, chosen, sums, lvals, chans = analyse(build, "rgbw", "RGBW")
+    fig2, labels2, chosen2, sums2, lvals2, _ = analyse(build, "rgbw-ircut", "RGBW + IR-cut filter")
+
+    rows = [[lab, chosen[lab][1], f"{lvals[chosen[lab][1]]:.3g}"] + [sums[lab][c] for c in chans] for lab in labels]
     table = md_table(["class", "level bin", "level (norm. raw)"] + [f"{c} share" for c in chans], rows)
     wshare = [sums[lab]["W"] for lab in labels]
+    rows2 = [[lab, chosen2[lab][1], f"{lvals2[chosen2[lab][1]]:.3g}"] + [sums2[lab][c] for c in chans]
+             for lab in labels2]
+    table2 = md_table(["class", "level bin", "level (norm. raw)"] + [f"{c} share" for c in chans], rows2)
+    wshare2 = [sums2[lab]["W"] for lab in labels2]
     md = f"""## 7. The transforms
 
 Kernels of the smoothed RGBW table of experiment 2 for the output Y, at the
-lowest, middle and highest trained unsaturated levels and at the best-sampled
-level whose patches contain saturated W pixels (flat contrast bin). Top rows:
+lowest (at least 2 DN above black), middle and highest trained unsaturated
+levels (flat contrast bin) and at the best-sampled
+level whose patches contain saturated W pixels. Top rows:
 the weight images of a W-centred and a G-centred position (letters: the CFA
 channel of each tap); bottom: each input channel's share of the summed
 absolute weights, over all positions. Every position group and output
-channel: `l3 inspect {path.relative_to(build.parent) if build.is_absolute() is False else path} --plots DIR`.
+channel: `l3 inspect {build.name}/tables/rgbw.npz --plots DIR`.
 
 ![RGBW kernels]({fig_link})
 
@@ -117,12 +138,31 @@ channel: `l3 inspect {path.relative_to(build.parent) if build.is_absolute() is F
 Published: weights spread over the patch at low levels (denoising),
 concentrate at the centre at high levels, and move from W to R, G, B when W
 saturates. Ours: the W share of the weights is
-{', '.join(f'{lab} {v:.2f}' for lab, v in zip(labels, wshare, strict=True))}
-({'W dominates until it saturates, then the weights move to R, G, B, as published' if len(wshare) == 4 and wshare[-1] < min(wshare[:-1]) else 'see the figure; the published shift from W to RGB is not clearly reproduced'}).
+{', '.join(f'{lab} {v:.2f}' for lab, v in zip(labels, wshare, strict=True))}.
+{f'W gets little weight at every usable level (at most {max(wshare):.2f} of the total)' if max(wshare) < 0.3 else 'The weights move from W to R, G, B as the level rises'}:
+our W pixel (clear silicon and no IR-cut filter, as in
+`sample_configs/rgbw.toml`) responds out to 1060 nm, so above the darkest
+levels its IR-contaminated signal predicts the visible XYZ target worse than
+R, G, B do, and the regression leans on it only where its extra photons
+matter most. The published camera's W pixel was evidently more useful at
+mid levels; with ours, the "move away from W at saturation" has little left
+to move.
+
+**The same camera behind an IR-cut filter** (`rgbw-ircut`, ISETCam's
+`ircf_public`; trained and tested like the others, see experiment 2): W
+share {', '.join(f'{lab} {v:.2f}' for lab, v in zip(labels2, wshare2, strict=True))}.
+{'With W limited to the visible, the kernels use it heavily below saturation and drop it when it saturates — the published behaviour' if len(wshare2) == 4 and wshare2[-1] < 0.5 * max(wshare2[:-1]) and max(wshare2[:-1]) > 0.3 else 'Even with the IR-cut filter the published shift from W to R, G, B at saturation is not clearly reproduced'}.
+
+![RGBW + IR-cut kernels]({fig2})
+
+{table2}
 """
-    write_outputs(build, "kernels", md, {"classes": {lab: {"saturation": chosen[lab][0], "level": chosen[lab][1],
-                                                         "level_value": float(lvals[chosen[lab][1]]),
-                                                         "channel_share": sums[lab]} for lab in labels}})
+    write_outputs(build, "kernels", md, {
+        "classes": {lab: {"saturation": chosen[lab][0], "level": chosen[lab][1],
+                          "level_value": float(lvals[chosen[lab][1]]), "channel_share": sums[lab]} for lab in labels},
+        "classes_ircut": {lab: {"saturation": chosen2[lab][0], "level": chosen2[lab][1],
+                                "level_value": float(lvals2[chosen2[lab][1]]), "channel_share": sums2[lab]}
+                          for lab in labels2}})
 
 
 if __name__ == "__main__":

@@ -58,6 +58,8 @@ def summary(build: Path) -> str:
         rows += [("2", "RGBW, Macbeth mean ΔE", "1.70", f"{_f(m['rgbw'])} all levels; {_f(mm['rgbw'])} at {mid}"),
                  ("2", "RGBW with W→G, Macbeth mean ΔE", "1.65",
                   f"{_f(m['rgbw-g'])} all levels; {_f(mm['rgbw-g'])} at {mid}"),
+                 ("2", "RGBW behind an IR-cut filter, Macbeth mean ΔE", "–",
+                  f"{_f(m['rgbw-ircut'])} all levels; {_f(mm['rgbw-ircut'])} at {mid}"),
                  ("2", "Bayer: L3 vs demosaic + matrix, Macbeth mean ΔE", "L3 better",
                   f"{_f(m['bayer'])} vs {_f(m['bayer-baseline'])}")]
     if nir:
@@ -81,6 +83,10 @@ def summary(build: Path) -> str:
         sh = {k: v["channel_share"]["W"] for k, v in ker["classes"].items()}
         rows += [("7", "W share of RGBW kernel weights (Y)", "moves from W to RGB as W saturates",
                   ", ".join(f"{k} {v:.2f}" for k, v in sh.items()))]
+        if "classes_ircut" in ker:
+            sh2 = {k: v["channel_share"]["W"] for k, v in ker["classes_ircut"].items()}
+            rows += [("7", "same, RGBW behind an IR-cut filter", "",
+                      ", ".join(f"{k} {v:.2f}" for k, v in sh2.items()))]
     lines = ["| exp. | quantity | published | l3 |", "|---|---|---|---|"]
     lines += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in rows]
     return "\n".join(lines)
