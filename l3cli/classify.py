@@ -436,11 +436,13 @@ def _kernels(S: int):
         # along-row tables per row phase (band column xx is image column xx - r)
         mask = np.zeros((ph, nch, Wp), dtype=np.float64)
         bitv = np.zeros((ph, Wp), dtype=np.int32)
+        row_has = np.zeros((ph, nch), dtype=np.bool_)  # channel present in a row phase
         for py in range(ph):
             for xx in range(Wp):
                 c = idx_pattern[py, (xx - r) % pw]
                 mask[py, c, xx] = 1.0
                 bitv[py, xx] = 1 << c
+                row_has[py, c] = True
         ci_row = np.zeros((ph, nch, W), dtype=np.float64)
         wc_row = np.zeros((ph, nch, W), dtype=np.float64)
         g_row = np.zeros((ph, W), dtype=np.int64)
@@ -463,10 +465,13 @@ def _kernels(S: int):
             bits = np.empty(Wp, dtype=np.int32)
             lev = np.empty(W, dtype=np.float64)
             spr = np.empty(W, dtype=np.float64)
+            rows_c = np.empty(S, dtype=np.int64)
             for yy in range(i0, i1 + S - 1):
                 slot = yy % S
                 py = (y0 - r + yy) % ph
                 for c in range(nch):
+                    if not row_has[py, c]:
+                        continue  # the ring slot is never read for this channel
                     for xx in range(Wp):
                         t = np.float64(band[yy, xx])
                         u = t * mask[py, c, xx]
@@ -495,13 +500,18 @@ def _kernels(S: int):
                     lev[x] = 0.0
                     spr[x] = 0.0
                 for c in range(nch):
+                    # rows of the window that hold channel c (others are all zero)
+                    nrow = 0
+                    for dy in range(S):
+                        if row_has[(y0 - r + i + dy) % ph, c]:
+                            rows_c[nrow] = (i + dy) % S
+                            nrow += 1
                     for x in range(W):
                         a = 0.0
                         q = 0.0
-                        for dy in range(S):
-                            sl = (i + dy) % S
-                            a += ring_s[sl, c, x]
-                            q += ring_q[sl, c, x]
+                        for k in range(nrow):
+                            a += ring_s[rows_c[k], c, x]
+                            q += ring_q[rows_c[k], c, x]
                         ci = ci_row[po, c, x]
                         m = a * ci
                         var = q * ci - m * m
