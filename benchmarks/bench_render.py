@@ -83,6 +83,12 @@ def memory_child(dng: str, table: str, out: str) -> None:
     from l3cli.table import load_table
 
     render_file(load_table(table), dng, out)
+    # VmHWM (peak RSS of this address space; ru_maxrss would include the
+    # parent's memory inherited through fork + exec)
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            print(int(line.split()[1]))
+            return
     print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 
 
@@ -146,7 +152,7 @@ def main() -> None:
     res = subprocess.run([sys.executable, __file__, "--child", str(big_dng), str(tpath),
                           str(tmp / "big.exr")], capture_output=True, text=True, check=True)
     peak_mb = int(res.stdout.strip().splitlines()[-1]) / 1024
-    print(f"\nPeak memory (max RSS) of read DNG + render + write EXR, {mw}x{mh} "
+    print(f"\nPeak memory (VmHWM) of read DNG + render + write EXR, {mw}x{mh} "
           f"({mw * mh / 1e6:.0f} MP): {peak_mb:.0f} MB")
 
 
