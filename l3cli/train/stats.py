@@ -203,7 +203,7 @@ def _gram(XY, q, starts, classes, xtx, xty, yy):
             nn = min(b, n0 + _CHUNK) - n0
             for n in range(nn):
                 for k in range(m):
-                    T[k, n] = XY[n0 + n, k]
+                    T[k, n] = np.float64(XY[n0 + n, k])
             for i in range(q):
                 xi = T[i, :nn]
                 for j in range(i, q):
@@ -288,7 +288,9 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
         starts = np.zeros(nc + 1, dtype=np.int64)
         np.cumsum(counts, out=starts[1:])
         dest = _sorted_slots(cls_sel, starts[:-1])
-        XY = np.empty((yy.size, q + stats.n_out), dtype=np.float64)
+        # float32 holds the float32 mosaic/target values exactly; products and
+        # sums are formed in float64 by _gram
+        XY = np.empty((yy.size, q + stats.n_out), dtype=np.float32)
         # gather from small sub-bands (their padded rows stay in cache)
         row_start = np.searchsorted(yy, np.arange(Y1 - Y0 + 1))
         for y0, y1 in band_rows(Y1 - Y0, w, max_pixels=_SUB_PIXELS):
