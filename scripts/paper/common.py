@@ -181,3 +181,72 @@ def evaluate_robust(render_dir: Path, sim: Path, json_path: Path) -> dict[str, d
         merged.update(report(one))
     json_path.write_text(json.dumps({"images": list(merged.values())}, indent=1) + "\n")
     return merged
+
+
+def plain_log(ax, *, x: bool = False, y: bool = True) -> None:
+    """Log axes with plain-number tick labels (2, 5, 10 rather than 2×10⁰)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator
+
+    fmt = FuncFormatter(lambda v, _: f"{v:g}")
+    for flag, axis, setter in ((x, ax.xaxis, ax.set_xscale), (y, ax.yaxis, ax.set_yscale)):
+        if flag:
+            setter("log")
+            axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(fmt)
+            axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+
+
+def linear_colour_floor(sim_dir: Path) -> tuple[float, str]:
+    """Mean Macbeth ΔE*ab of the best linear map from the camera's channels to XYZ.
+
+    Takes the brightest test Macbeth capture of ``sim_dir`` whose noise-free
+    response stays below 0.95 (no saturation), averages each channel's
+    noise-free response over the inner half of each of the 24 patches, fits a
+    linear map (channels → XYZ, least squares over the patches) to the
+    patches' ideal XYZ, and scores it like ``l3 evaluate`` (white-normalised
+    ΔE*ab with the ideal white patch as white point). No noise, no
+    demosaicking: a floor for any pipeline that is linear in the pixel values
+    at one response level (Luther-Ives condition).
+
+    Returns (mean ΔE*ab, stem of the capture used).
+
+    References
+    ----------
+    Wandell, B. A. (1995). Foundations of Vision, ch. 4 (colour matching and
+    the Luther condition).
+    """
+    import colour
+    import numpy as np
+
+    from l3cli.cfa import CFA
+    from l3cli.io.image import read_image
+
+    man = json.loads((Path(sim_dir) / "manifest.json").read_text())
+    cfa = CFA.from_spec(man["camera"]["cfa_pattern"])
+    best = None
+    for cap in sorted(man["captures"], key=lambda c: c["lux"]):
+        if cap["scene"] != "macbeth":
+            continue
+        nf, _ = read_image(Path(sim_dir) / cap["noise_free"])
+        nf = nf.reshape(nf.shape[0], nf.shape[1])
+        if nf.max() < 0.95:
+            best = (cap, nf)
+    if best is None:
+        raise SystemExit(f"{sim_dir}: every Macbeth capture saturates")
+    cap, nf = best
+    cmap = cfa.channel_map(*nf.shape)
+    feats = []
+    for x0, y0, x1, y1 in cap["chart"]["patches"]:
+        dx, dy = (x1 - x0) // 4, (y1 - y0) // 4
+        sl = np.s_[y0 + dy:y1 - dy, x0 + dx:x1 - dx]
+        feats.append([nf[sl][cmap[sl] == c].mean() for c in range(cfa.n_channels)])
+    a = np.asarray(feats, dtype=np.float64)
+    ref = np.asarray(cap["chart"]["reference_xyz"], dtype=np.float64)
+    m, *_ = np.linalg.lstsq(a, ref, rcond=None)
+    est = a @ m
+    wi = cap["chart"]["white_index"]
+    est = est * (ref[wi, 1] / est[wi, 1])
+    white = ref[wi] / ref[wi, 1]
+    lab_est = colour.XYZ_to_Lab(est / ref[wi, 1], colour.XYZ_to_xy(white))
+    lab_ref = colour.XYZ_to_Lab(ref / ref[wi, 1], colour.XYZ_to_xy(white))
+    return float(np.mean(colour.delta_E(lab_est, lab_ref, method="CIE 1976"))), cap["stem"]

@@ -34,6 +34,7 @@ from common import (
     ROOT,
     captures,
     md_table,
+    plain_log,
     pyplot,
     report,
     run_l3,
@@ -153,8 +154,7 @@ def main(build: Path) -> None:
         (ln,) = axes[1].plot([g["f_number"] for g in pts], [g["l3"] for g in pts], "o-", label=f"L3, {p:g} µm")
         axes[1].plot([g["f_number"] for g in pts], [g["target"] for g in pts], "--", color=ln.get_color(), lw=0.8)
     axes[1].plot(F_NUMBERS, [diffraction_mtf50(f) for f in F_NUMBERS], "k:", label="diffraction")
-    axes[1].set_xscale("log")
-    axes[1].set_yscale("log")
+    plain_log(axes[1], x=True)
     axes[1].set_xticks(F_NUMBERS, [f"{f:g}" for f in F_NUMBERS])
     axes[1].set_xlabel("f-number")
     axes[1].set_title("MTF50 (cy/mm); dashed: ideal target")

@@ -18,7 +18,15 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from common import by_scene, md_table, pyplot, save_figure, train_render_eval, write_outputs
+from common import (
+    by_scene,
+    md_table,
+    plain_log,
+    pyplot,
+    save_figure,
+    train_render_eval,
+    write_outputs,
+)
 
 PATCHES = (5, 7, 9)
 
@@ -45,8 +53,7 @@ def main(build: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.0))
     for p in PATCHES:
         axes[0].plot(luxes, [res[p]["de"][x] for x in luxes], "o-", label=f"{p}x{p}")
-    axes[0].set_xscale("log")
-    axes[0].set_yscale("log")
+    plain_log(axes[0], x=True)
     axes[0].set_xlabel("scene illuminance (lux)")
     axes[0].set_title("RGBW Macbeth mean ΔE*ab")
     axes[0].legend(fontsize=7)

@@ -58,6 +58,8 @@ def summary(build: Path) -> str:
         rows += [("2", "RGBW, Macbeth mean ΔE", "1.70", f"{_f(m['rgbw'])} all levels; {_f(mm['rgbw'])} at {mid}"),
                  ("2", "RGBW with W→G, Macbeth mean ΔE", "1.65",
                   f"{_f(m['rgbw-g'])} all levels; {_f(mm['rgbw-g'])} at {mid}"),
+                 ("2", "best linear map, noise-free (colour floor), RGBW / Bayer", "–",
+                  f"{_f(rgbw['linear_colour_floor']['rgbw'])} / {_f(rgbw['linear_colour_floor']['bayer'])}"),
                  ("2", "RGBW behind an IR-cut filter, Macbeth mean ΔE", "–",
                   f"{_f(m['rgbw-ircut'])} all levels; {_f(mm['rgbw-ircut'])} at {mid}"),
                  ("2", "Bayer: L3 vs demosaic + matrix, Macbeth mean ΔE", "L3 better",

@@ -18,7 +18,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from common import captures, md_table, pyplot, report, save_figure, write_outputs
+from common import (
+    captures,
+    linear_colour_floor,
+    md_table,
+    plain_log,
+    pyplot,
+    report,
+    save_figure,
+    write_outputs,
+)
 
 PUBLISHED = {"rgbnir": 2.87, "rgbnir-black": 3.08, "rgbnir-g": 2.69}
 RUNS = [("rgbnir", "RGB-NIR"), ("rgbnir-black", "NIR blacked out"), ("rgbnir-g", "NIR → G")]
@@ -90,8 +99,7 @@ def main(build: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.0))
     for r, lab in RUNS:
         axes[0].plot(luxes, [med[r][x] for x in luxes], "o-", label=lab)
-    axes[0].set_xscale("log")
-    axes[0].set_yscale("log")
+    plain_log(axes[0], x=True)
     axes[0].set_xlabel("scene illuminance (lux), exposure fixed")
     axes[0].set_title("median Macbeth patch ΔE*ab")
     axes[0].legend(fontsize=7)
@@ -109,6 +117,8 @@ def main(build: Path) -> None:
 
     rows = [[f"{x:g}"] + [med[r][x] for r, _ in RUNS] for x in luxes]
     rows.append(["all levels pooled"] + [med_all[r] for r, _ in RUNS])
+    floor = {r: linear_colour_floor(build / "sim" / r / "test")[0] for r, _ in RUNS}
+    rows.append(["linear colour floor (mean ΔE, noise-free; see exp. 2)"] + [floor[r] for r, _ in RUNS])
     rows.append(["published"] + [PUBLISHED[r] for r, _ in RUNS])
     table = md_table(["lux"] + [lab for _, lab in RUNS], rows)
     ok = np.isfinite(signed_raw)
@@ -159,7 +169,7 @@ patches and levels.
   {abs_lit:.2f} (above): positive/negative pairs that cancel on flat areas.
 """
     write_outputs(build, "rgbnir", md, {
-        "median_pooled": med_all, "median_per_lux": {r: {str(k): v for k, v in med[r].items()} for r, _ in RUNS},
+        "median_pooled": med_all, "linear_colour_floor": floor, "median_per_lux": {r: {str(k): v for k, v in med[r].items()} for r, _ in RUNS},
         "mean_per_lux": {r: {str(k): v for k, v in mean[r].items()} for r, _ in RUNS},
         "nir_share_levels": lv.tolist(), "nir_share_raw": share_raw.tolist(),
         "nir_share_smooth": share_s.tolist(), "nir_net_share_raw": signed_raw.tolist(), "nir_net_share_smooth": signed_s.tolist(),
