@@ -395,18 +395,6 @@ def padded_width(s: int) -> int:
 _FM = {"reassoc", "contract"}  # allow vectorised reductions; keep NaN/Inf semantics
 
 
-@nb.njit(cache=True, inline="always")
-def _bin(cuts, v):
-    """Number of cuts <= v (branch-free binary search over increasing cuts)."""
-    n = cuts.shape[0]
-    base = 0
-    while n > 1:
-        half = n >> 1
-        base = base + half if cuts[base + half] <= v else base
-        n -= half
-    return base + 1 if cuts[base] <= v else base
-
-
 _ROWS = 16  # output rows per parallel task
 
 
@@ -431,7 +419,8 @@ def _kernels(S: int):
         Wp = W + S - 1
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
-        nl = level_cuts.shape[0] + 1
+        ncut = level_cuts.shape[0]
+        nl = ncut + 1
         ncc = contrast_cuts.shape[1]
         # along-row tables per row phase (band column xx is image column xx - r)
         mask = np.zeros((ph, nch, Wp), dtype=np.float64)
@@ -525,8 +514,15 @@ def _kernels(S: int):
                     level[i, x] = lev[x]
                     contrast[i, x] = spr[x] / (max(lev[x], 0.0) + eps)
                 if do_class:
+                    lb = 0
                     for x in range(W):
-                        lb = _bin(level_cuts, lev[x])
+                        # count of cuts <= level, walking from the previous pixel's
+                        # bin (levels of neighbours are close: usually 0-1 steps)
+                        lv = lev[x]
+                        while lb < ncut and level_cuts[lb] <= lv:
+                            lb += 1
+                        while lb > 0 and level_cuts[lb - 1] > lv:
+                            lb -= 1
                         con = 0
                         cv = contrast[i, x]
                         for j in range(ncc):
