@@ -379,11 +379,14 @@ def pad_mosaic(mosaic: np.ndarray, r: int, period: tuple[int, int],
     xi = mirror_indices(w, r, period[1])
     if rows is not None:
         yi = yi[rows[0] : rows[1] + 2 * r]
-    if extra:
-        out = np.zeros((yi.size, xi.size + extra), dtype=np.float32)
-        out[:, : xi.size] = mosaic[yi][:, xi]
-        return out
-    return np.ascontiguousarray(mosaic[yi][:, xi], dtype=np.float32)
+    out = np.zeros((yi.size, xi.size + extra), dtype=np.float32)
+    inner = out[:, r : r + w]
+    for k, y in enumerate(yi.tolist()):  # row copies; no full-size temporaries
+        inner[k] = mosaic[y]
+    if r:
+        out[:, :r] = inner[:, xi[:r]]
+        out[:, r + w : 2 * r + w] = inner[:, xi[r + w :]]
+    return out
 
 
 def padded_width(s: int) -> int:
