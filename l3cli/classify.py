@@ -417,8 +417,8 @@ def _kernels(S: int):
 
     @nb.njit(cache=True, parallel=True, fastmath=_FM)
     def features(band, y0, idx_pattern, cnt_inv, wc, sat_thr, eps, level, contrast, sat,
-                 do_class, group, level_cuts, contrast_cuts, n_sat, out_cls):
-        H, W = level.shape
+                 store, do_class, group, level_cuts, contrast_cuts, n_sat, out_cls):
+        H, W = out_cls.shape if do_class else level.shape
         Wp = W + S - 1
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -458,6 +458,7 @@ def _kernels(S: int):
             lev = np.empty(W, dtype=np.float64)
             spr = np.empty(W, dtype=np.float64)
             rows_c = np.empty(S, dtype=np.int64)
+            satr = np.empty(W, dtype=np.int32)
             for yy in range(i0, i1 + S - 1):
                 slot = yy % S
                 py = (y0 - r + yy) % ph
@@ -513,9 +514,13 @@ def _kernels(S: int):
                     b = 0
                     for dy in range(S):
                         b |= ring_b[(i + dy) % S, x]
-                    sat[i, x] = b
-                    level[i, x] = lev[x]
-                    contrast[i, x] = spr[x] / (max(lev[x], 0.0) + eps)
+                    satr[x] = b
+                    spr[x] = spr[x] / (max(lev[x], 0.0) + eps)  # now the contrast
+                if store:
+                    for x in range(W):
+                        level[i, x] = lev[x]
+                        contrast[i, x] = spr[x]
+                        sat[i, x] = satr[x]
                 if do_class:
                     lb = 0
                     for x in range(W):
@@ -527,33 +532,36 @@ def _kernels(S: int):
                         while lb > 0 and level_cuts[lb - 1] > lv:
                             lb -= 1
                         con = 0
-                        cv = contrast[i, x]
+                        cv = spr[x]
                         for j in range(ncc):
                             con += cv >= contrast_cuts[lb, j]
-                        out_cls[i, x] = ((g_row[po, x] * n_sat + sat[i, x]) * nl + lb) * (ncc + 1) + con
+                        out_cls[i, x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lb) * (ncc + 1) + con
 
     return features
 
 
 def band_features(band: np.ndarray, y0: int, rows: int, width: int, args: tuple,
-                  out_cls: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  out_cls: np.ndarray | None = None, *, store: bool = True
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Level, contrast and saturation bits of output rows ``y0 : y0 + rows``.
 
     ``band`` is the padded band (:func:`pad_mosaic` with ``rows``), ``args``
     :meth:`ClassDefinition.kernel_args`. When ``out_cls`` (int32 (rows, width))
-    is given, the class indices are written into it too.
+    is given, the class indices are written into it too; ``store=False``
+    then skips the feature arrays (returns None).
     """
     (idx, cnt_inv, wc, group, lc, cc, thr, eps, n_sat, ph, pw, S) = args
-    level = np.empty((rows, width))
-    contrast = np.empty((rows, width))
-    sat = np.empty((rows, width), dtype=np.int32)
     do_class = out_cls is not None
-    if out_cls is None:
+    if not do_class:
+        store = True
         out_cls = np.empty((1, 1), dtype=np.int32)
+    shape = (rows, width) if store else (1, 1)
+    level = np.empty(shape)
+    contrast = np.empty(shape)
+    sat = np.empty(shape, dtype=np.int32)
     _kernels(S)(band, y0, idx, cnt_inv, wc, thr, eps, level, contrast, sat,
-                do_class, group, lc, cc, n_sat, out_cls)
-    return level, contrast, sat
+                store, do_class, group, lc, cc, n_sat, out_cls)
+    return (level, contrast, sat) if store else None
 
 
 def band_classes(band: np.ndarray, y0: int, rows: int, width: int, args: tuple,
@@ -561,7 +569,7 @@ def band_classes(band: np.ndarray, y0: int, rows: int, width: int, args: tuple,
     """int32 class indices of output rows ``y0 : y0 + rows`` (see :func:`band_features`)."""
     if out is None:
         out = np.empty((rows, width), dtype=np.int32)
-    band_features(band, y0, rows, width, args, out_cls=out)
+    band_features(band, y0, rows, width, args, out_cls=out, store=False)
     return out
 
 
