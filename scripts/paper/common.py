@@ -129,11 +129,13 @@ def md_table(header: list[str], rows: list[list[Any]]) -> str:
 
 def train_render_eval(build: Path, name: str, camera: str, *, train_opts: tuple = (),
                       smooth: bool = True, scenes: tuple[str, ...] | None = None,
-                      train_sim: Path | None = None, test_sim: Path | None = None) -> dict:
+                      train_sim: Path | None = None, test_sim: Path | None = None,
+                      eval_raw: bool = False) -> dict:
     """Train (and smooth) a table on a camera's training captures, render its
     test captures (``scenes`` only, if given) and evaluate them.
 
     Files go to ``BUILD/runs/NAME/``. Returns ``{"report": {stem: metrics},
+    "report_raw" (the table before smoothing, with ``eval_raw``, else None),
     "train_s", "smooth_s", "render_s", "pixels"}`` (wall-clock seconds).
     """
     train_sim = train_sim or build / "sim" / camera / "train"
@@ -151,9 +153,13 @@ def train_render_eval(build: Path, name: str, camera: str, *, train_opts: tuple 
     raws = [r for s in (scenes or (None,)) for r in raws_of(test_sim, scene=s)]
     t_render = run_l3("render", table, *raws, "-o", out / "render")
     rep = evaluate_robust(out / "render", test_sim, out / "eval.json")
+    rep_raw = None
+    if smooth and eval_raw:
+        run_l3("render", raw_table, *raws, "-o", out / "render_raw")
+        rep_raw = evaluate_robust(out / "render_raw", test_sim, out / "eval_raw.json")
     caps = captures(test_sim)
     pixels = sum(caps[r.stem]["width"] * caps[r.stem]["height"] for r in raws)
-    return {"report": rep, "train_s": t_train, "smooth_s": t_smooth,
+    return {"report": rep, "report_raw": rep_raw, "train_s": t_train, "smooth_s": t_smooth,
             "render_s": t_render, "pixels": pixels, "table": table}
 
 
@@ -250,3 +256,10 @@ def linear_colour_floor(sim_dir: Path) -> tuple[float, str]:
     lab_est = colour.XYZ_to_Lab(est / ref[wi, 1], colour.XYZ_to_xy(white))
     lab_ref = colour.XYZ_to_Lab(ref / ref[wi, 1], colour.XYZ_to_xy(white))
     return float(np.mean(colour.delta_E(lab_est, lab_ref, method="CIE 1976"))), cap["stem"]
+
+
+def build_arg(doc: str | None) -> Path:
+    """The BUILD folder from the command line (``script.py BUILD``); prints ``doc`` otherwise."""
+    if len(sys.argv) != 2 or sys.argv[1].startswith("-"):
+        raise SystemExit(doc)
+    return Path(sys.argv[1])

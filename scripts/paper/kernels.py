@@ -18,11 +18,10 @@ when W saturates the weights move from W to the R, G, B pixels.
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
-from common import md_table, pyplot, run_l3, save_figure, write_outputs
+from common import build_arg, md_table, pyplot, run_l3, save_figure, write_outputs
 
 
 def analyse(build: Path, camera: str, title: str) -> tuple:
@@ -166,4 +165,4 @@ share {', '.join(f'{lab} {v:.2f}' for lab, v in zip(labels2, wshare2, strict=Tru
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(build_arg(__doc__))

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from common import (
     ROOT,
+    build_arg,
     captures,
     md_table,
     plain_log,
@@ -231,4 +232,4 @@ published surface has the same shape; our grid is coarser ({len(F_NUMBERS)} x
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(build_arg(__doc__))

@@ -14,11 +14,11 @@ low response levels and near zero at high ones.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 from common import (
+    build_arg,
     captures,
     linear_colour_floor,
     md_table,
@@ -184,4 +184,4 @@ patches and levels.
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(build_arg(__doc__))

@@ -12,11 +12,11 @@ RGBW camera and 1.65 for the same camera with W replaced by G.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 from common import (
+    build_arg,
     by_scene,
     captures,
     linear_colour_floor,
@@ -150,4 +150,4 @@ S-CIELAB mean ΔE*ab of the same Macbeth captures (96 dpi, 1 m):
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(build_arg(__doc__))
