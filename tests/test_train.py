@@ -311,3 +311,24 @@ def test_train_is_deterministic_with_seed_and_subsampling(tmp_path):
     np.testing.assert_array_equal(t1.definition.level_cuts, t2.definition.level_cuts)
     assert t1.counts.sum() == pytest.approx(0.5 * 2 * 48 * 64, rel=0.05)
     assert not np.array_equal(t1.counts, t3.counts)
+
+
+def test_accumulated_statistics_equal_explicit_sums_with_mask(monkeypatch):
+    import l3cli.train.stats as st
+
+    monkeypatch.setattr(st, "_SUB_PIXELS", 500)  # gather from many sub-bands
+    rng, m, d = _synthetic(seed=9, shape=(70, 90))
+    t = rng.random((*m.shape, 3)).astype(np.float32)
+    mask = rng.random(m.shape) < 0.4
+    s = ClassStats.zeros(d, 3)
+    accumulate(s, m, t, mask=mask, max_pixels=2000)  # several bands and sub-bands
+    X = _design(m, d)
+    Y = t.reshape(-1, 3).astype(np.float64)
+    cls = classify(m, d).ravel()
+    keep = mask.ravel()
+    for c in np.unique(cls[keep]):
+        sel = keep & (cls == c)
+        np.testing.assert_allclose(s.xtx[c], X[sel].T @ X[sel], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(s.xty[c], X[sel].T @ Y[sel], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(s.yy[c], (Y[sel] ** 2).sum(0), rtol=1e-12)
+        assert s.n[c] == sel.sum()
