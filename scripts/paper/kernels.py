@@ -150,7 +150,7 @@ to move.
 **The same camera behind an IR-cut filter** (`rgbw-ircut`, ISETCam's
 `ircf_public`; trained and tested like the others, see experiment 2): W
 share {', '.join(f'{lab} {v:.2f}' for lab, v in zip(labels2, wshare2, strict=True))}.
-{'With W limited to the visible, the kernels use it heavily below saturation and drop it when it saturates — the published behaviour' if len(wshare2) == 4 and wshare2[-1] < 0.5 * max(wshare2[:-1]) and max(wshare2[:-1]) > 0.3 else 'Even with the IR-cut filter the published shift from W to R, G, B at saturation is not clearly reproduced'}.
+{f'With W limited to the visible, the kernels lean on W most in the dark ({wshare2[0]:.2f}) and drop it when it saturates (high {wshare2[2]:.2f} → saturated {wshare2[3]:.2f}, same level bin), R, G, B taking over — the published behaviour, if weaker' if len(wshare2) == 4 and wshare2[3] < 0.5 * wshare2[2] else 'Even with the IR-cut filter the published shift from W to R, G, B at saturation is not clearly reproduced'}.
 
 ![RGBW + IR-cut kernels]({fig2})
 

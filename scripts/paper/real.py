@@ -92,5 +92,7 @@ large, low-chroma areas.
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[2] == "--collect":
         collect(Path(sys.argv[1]))
-    else:
+    elif len(sys.argv) == 2 and not sys.argv[1].startswith("-"):
         main(Path(sys.argv[1]))
+    else:
+        raise SystemExit(__doc__)

@@ -108,7 +108,7 @@ def main(build: Path) -> None:
     axes[1].plot(lv, share_raw, "s", color="C1", ms=3, label="share of Σ|w|, as trained")
     axes[1].plot(lv, share_s, "--", color="C1", label="share of Σ|w|, smoothed")
     axes[1].axhline(0, color="k", lw=0.6)
-    axes[1].set_xscale("log")
+    plain_log(axes[1], x=True, y=False)
     axes[1].set_xlabel("response level (normalised raw)")
     axes[1].set_title("NIR pixels' weight for output Y")
     axes[1].legend(fontsize=7)
