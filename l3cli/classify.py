@@ -459,6 +459,8 @@ def _kernels(S: int):
             spr = np.empty(W, dtype=np.float64)
             rows_c = np.empty(S, dtype=np.int64)
             satr = np.empty(W, dtype=np.int32)
+            va = np.empty(W, dtype=np.float64)
+            vq = np.empty(W, dtype=np.float64)
             for yy in range(i0, i1 + S - 1):
                 slot = yy % S
                 py = (y0 - r + yy) % ph
@@ -500,14 +502,17 @@ def _kernels(S: int):
                             rows_c[nrow] = (i + dy) % S
                             nrow += 1
                     for x in range(W):
-                        a = 0.0
-                        q = 0.0
-                        for k in range(nrow):
-                            a += ring_s[rows_c[k], c, x]
-                            q += ring_q[rows_c[k], c, x]
+                        va[x] = 0.0
+                        vq[x] = 0.0
+                    for k in range(nrow):  # rows outside, pixels inside: vectorised
+                        sl = rows_c[k]
+                        for x in range(W):
+                            va[x] += ring_s[sl, c, x]
+                            vq[x] += ring_q[sl, c, x]
+                    for x in range(W):
                         ci = ci_row[po, c, x]
-                        m = a * ci
-                        var = q * ci - m * m
+                        m = va[x] * ci
+                        var = vq[x] * ci - m * m
                         lev[x] += m * wc_row[po, c, x]
                         spr[x] += np.sqrt(max(var, 0.0)) * wc_row[po, c, x]
                 for x in range(W):
