@@ -16,7 +16,7 @@ OUT=${2:-real_camera_out}
 here=$(cd "$(dirname "$0")/.." && pwd)
 DATA=${3:-$here/../shared/data}
 PY=${PYTHON:-python3}
-TRAIN_OPTS=${L3_TRAIN_OPTS:---target linear-srgb}
+TRAIN_OPTS=${L3_TRAIN_OPTS:---target linear-srgb --patch 7}
 IISP=$DATA/raw/infinite_isp
 mkdir -p "$OUT"
 
