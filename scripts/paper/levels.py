@@ -21,6 +21,7 @@ import numpy as np
 from common import (
     build_arg,
     by_scene,
+    captures,
     md_table,
     pyplot,
     save_figure,
@@ -78,6 +79,8 @@ def main(build: Path) -> None:
     few, many = LEVELS[0], LEVELS[-1]
     gap = {k: {n: mean[k]["linear"][n] - mean[k]["log"][n] for n in LEVELS} for k in mean}
     dark = luxes[0]
+    train_lux = ", ".join(f"{x:g}" for x in sorted({c["lux"] for c in captures(build / "sim" / "bayer" / "train").values()}))
+    train_lux += " lux"
     md = f"""## 4. Number of response levels, log vs linear spacing
 
 The Bayer camera of experiment 2, trained with `l3 train --levels N --spacing
@@ -102,13 +105,19 @@ log better): as trained {', '.join(f'{n} levels {gap["raw"][n]:+.2f}' for n in L
 smoothed {', '.join(f'{n} levels {gap["smooth"][n]:+.2f}' for n in LEVELS)}.
 {'Log spacing helps with few levels, as published.' if gap['raw'][few] > 0.1 else 'Log spacing does not help with few levels here: l3 falls short of the published finding.'}
 {'With many levels the spacing matters little, as published.' if abs(gap['raw'][many]) < 0.3 else f'With {many} levels the spacing still matters (as trained), unlike the published result.'}
-The reason is in the darkest column ({dark:g} lux): log spacing cuts the dark
-range into many narrow bins, each with few training samples from our small
-set (five scenes at six light levels), and the ridge fits of those bins are
-noisy; linear spacing pools all dark pixels into one well-sampled bin. The
-paper trained on far more data per bin. Smoothing over levels reduces this
-penalty ({mean['smooth']['log'][many]:.2f} vs {mean['raw']['log'][many]:.2f} for
-{many} log levels).
+The difference comes from the darkest test level ({dark:g} lux), where log
+spacing is much worse; at the middle levels log spacing is as good or
+better. Log spacing cuts the dark range into many narrow bins (a fraction
+of a DN to a few DN wide). They are not short of samples (thousands per
+class), but the patch mean that picks the bin is itself noisy at these
+levels, and each narrow bin's kernel is fitted to the particular mixture of
+training light levels (here {train_lux}) that lands in it; a test level
+between them gets a different mixture. Linear spacing pools all dark pixels
+into one bin whose kernel is an average over levels, which generalises
+better to an unseen dark level. Smoothing over levels (default strength)
+changes little ({mean['smooth']['log'][many]:.2f} vs {mean['raw']['log'][many]:.2f} for
+{many} log levels). The paper's training set covered the light levels far
+more densely.
 """
     write_outputs(build, "levels", md, {
         "levels": list(LEVELS), "mean": mean["raw"], "mean_smooth": mean["smooth"],
