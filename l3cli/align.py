@@ -6,15 +6,16 @@ JPEGs crop a few pixels, and an image may come out mirrored. Training needs
 the render pixel-aligned with the mosaic, so :func:`align` finds
 
 * the integer offset ``(dy, dx)`` of the render's top-left pixel in the raw,
-* the flip (``none``, ``horizontal``, ``vertical``, ``both``) that maps the
-  render back onto the raw's orientation,
+* the flip (``none``, ``horizontal``, ``vertical``, ``both``, and the same
+  after a transpose, which covers 90-degree rotations) that maps the render
+  back onto the raw's orientation,
 
 by phase correlation [1]_ between a quick luminance of the mosaic and the
 luminance of the render, and verifies the match before accepting it.
 
-Convention: with ``a = align(...)``, ``raw.mosaic[a.dy:a.dy + h, a.dx:a.dx + w]``
-shows the same scene pixels as ``apply_flip(render, a.flip)`` where ``(h, w)``
-is the render's size. :func:`aligned_pair` returns exactly that pair, the raw
+Convention: with ``a = align(...)`` and ``t = apply_flip(render, a.flip)`` of
+size ``(h, w)``, ``raw.mosaic[a.dy:a.dy + h, a.dx:a.dx + w]`` shows the same
+scene pixels as ``t``. :func:`aligned_pair` returns exactly that pair, the raw
 side as a :class:`~l3cli.io.raw.RawImage` crop whose CFA phase follows the crop
 origin.
 
@@ -33,7 +34,7 @@ Registration
     Normalised cross-power spectrum (phase correlation) of the mean-removed,
     Tukey-windowed luminances, the render zero-padded into the raw's frame;
     the peak is searched over the offsets that keep the render inside the
-    raw, for each of the four flips.
+    raw, for each of the orientations that fit.
 Verification
     The ``score`` is the Pearson correlation, over the aligned overlap, of
     band-pass (difference of Gaussians, sigma 1 and 3 pixels) versions of both
@@ -86,8 +87,12 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Flips tried, in order of preference when scores tie.
-FLIPS: tuple[str, ...] = ("none", "horizontal", "vertical", "both")
+#: Orientations tried: the four mirrorings, and the same after a transpose
+#: (rows <-> columns; with a mirroring, a 90-degree rotation, see
+#: :func:`apply_flip`). Transposed ones are tried only where they fit the raw.
+FLIPS: tuple[str, ...] = ("none", "horizontal", "vertical", "both",
+                          "transpose", "transpose-horizontal", "transpose-vertical",
+                          "transpose-both")
 
 #: Smallest verification score (band-pass correlation) accepted by :func:`align`.
 MIN_SCORE = 0.5
@@ -105,16 +110,17 @@ class Alignment:
     Attributes
     ----------
     dy, dx
-        Offset of the (un-flipped) render's top-left pixel in the raw mosaic.
+        Offset in the raw mosaic of the top-left pixel of the render brought
+        to the raw's orientation (``apply_flip(render, flip)``).
     flip
-        One of :data:`FLIPS`: how to mirror the render to bring it to the raw's
-        orientation (``horizontal`` = left-right).
+        One of :data:`FLIPS`: how to mirror (or transpose) the render to bring
+        it to the raw's orientation (``horizontal`` = left-right).
     score
         Band-pass correlation of the aligned luminances (1 = identical structure).
     sharpness
         Peak-to-side-lobe ratio of the phase-correlation peak.
     height, width
-        The render's size in pixels.
+        The render's size in pixels, as stored (before ``flip``).
     """
 
     dy: int
@@ -136,9 +142,19 @@ class Alignment:
 
 
 def apply_flip(img: np.ndarray, flip: str) -> np.ndarray:
-    """Mirror an (H, W, ...) array: ``none``, ``horizontal``, ``vertical`` or ``both``."""
+    """Re-orient an (H, W, ...) array by one of :data:`FLIPS`.
+
+    ``transpose...`` swaps rows and columns first; then ``horizontal`` mirrors
+    left-right, ``vertical`` up-down, ``both`` both (a 180-degree turn).
+    A render rotated 90 degrees clockwise from the raw is brought back by
+    ``transpose-vertical``, one rotated counter-clockwise by
+    ``transpose-horizontal``.
+    """
     if flip not in FLIPS:
         raise ValueError(f"flip {flip!r} is not one of {FLIPS}")
+    if flip.startswith("transpose"):
+        img = np.swapaxes(img, 0, 1)
+        flip = flip[len("transpose-"):] if "-" in flip else "none"
     if flip in ("horizontal", "both"):
         img = img[:, ::-1]
     if flip in ("vertical", "both"):
@@ -284,13 +300,16 @@ def register(raw_lum: np.ndarray, render_lum: np.ndarray, *,
     from scipy import fft
 
     H, W = raw_lum.shape
-    h, w = render_lum.shape
-    if h > H or w > W:
-        raise ValueError(f"render {w}x{h} is larger than the raw {W}x{H}")
+    h0, w0 = render_lum.shape
+    fits = [f for f in flips if apply_flip(render_lum, f).shape[0] <= H
+            and apply_flip(render_lum, f).shape[1] <= W]
+    if not fits:
+        raise ValueError(f"render {w0}x{h0} is larger than the raw {W}x{H}")
     fr = fft.rfft2(_prepare(raw_lum, taper), workers=-1)
     cands = []
-    for flip in flips:
+    for flip in fits:
         ren = apply_flip(render_lum, flip)
+        h, w = ren.shape
         canvas = np.zeros((H, W), dtype=np.float32)
         canvas[:h, :w] = _prepare(ren, taper)
         fc = fft.rfft2(canvas, workers=-1)
@@ -312,8 +331,9 @@ def register(raw_lum: np.ndarray, render_lum: np.ndarray, *,
         log.debug("flip %s: offset (%d, %d), sharpness %.1f", flip, iy, ix, sharp)
     sharp, flip, iy, ix = max(cands, key=lambda c: c[0])
     ren = apply_flip(render_lum, flip)
+    h, w = ren.shape
     score = _score(raw_lum[iy : iy + h, ix : ix + w], ren)
-    return Alignment(iy, ix, flip, score, sharp, int(h), int(w))
+    return Alignment(iy, ix, flip, score, sharp, int(h0), int(w0))
 
 
 def align(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
@@ -352,7 +372,9 @@ def align(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
     rname = str(raw_name if raw_name is not None else (raw.path or "raw"))
     iname = str(render_name if render_name is not None else "render")
     h, w = render.shape[:2]
-    if h > raw.height or w > raw.width:
+    transposes = any(f.startswith("transpose") for f in flips)
+    if (h > raw.height or w > raw.width) and (
+            not transposes or w > raw.height or h > raw.width):
         raise InputError(
             f"{iname} ({w}x{h}) is larger than its raw {rname} ({raw.width}x{raw.height}); "
             "l3 needs a render of the raw's full area or a crop of it"
@@ -381,7 +403,7 @@ def align(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
             f"({a.dy}, {a.dx}) flip {a.flip} has structure correlation {a.score:.2f} "
             f"(need {min_score:g}) and peak sharpness {a.sharpness:.0f} (need {min_sharpness:g})"
             " - the render looks scaled, distorted (lens correction) or of a different shot;"
-            " l3 trains only on renders of the full raw, a crop of it, or a mirrored one"
+            " l3 trains only on renders of the full raw or a crop of it, possibly mirrored or rotated"
         )
     log.debug("%s aligned with %s: %s", iname, rname, a.describe())
     return a
@@ -403,14 +425,14 @@ def aligned_pair(raw: RawImage, render: np.ndarray,
     Returns
     -------
     raw_crop, target
-        ``raw_crop`` (h, w) with the CFA phase of the crop origin
-        (:meth:`RawImage.crop`), ``target`` float32 (h, w, C), contiguous.
+        ``raw_crop`` (h, w) (w, h after a transpose) with the CFA phase of the crop origin
+        (:meth:`RawImage.crop`), ``target`` float32, ``apply_flip(render, alignment.flip)``, contiguous.
     """
     a = alignment
     h, w = render.shape[:2]
     if (h, w) != (a.height, a.width):
         raise InputError(f"render is {w}x{h} but the alignment was found for {a.width}x{a.height}")
-    crop = raw.crop(a.dy, a.dx, h, w)
-    crop.metadata["alignment"] = a.to_dict()
     target = np.ascontiguousarray(apply_flip(np.asarray(render, dtype=np.float32), a.flip))
+    crop = raw.crop(a.dy, a.dx, target.shape[0], target.shape[1])
+    crop.metadata["alignment"] = a.to_dict()
     return crop, target

@@ -87,17 +87,40 @@ def test_dng_default_crop():
     np.testing.assert_array_equal(target, render)
 
 
-@pytest.mark.parametrize("flip", FLIPS)
+@pytest.mark.parametrize("flip", ["none", "horizontal", "vertical", "both"])
 def test_mirrored_render(pair, flip):
     raw, render = pair
     cropped = render[3:-5, 5:-3]  # odd offsets: the CFA phase changes
     mirrored = apply_flip(cropped, flip)
     a = align(raw, mirrored)
-    assert (a.dy, a.dx, a.flip) == (3, 5, flip)
+    assert (a.dy, a.dx, a.flip) == (3, 5, flip)  # mirrorings are their own inverse
     crop, target = aligned_pair(raw, mirrored, a)
     np.testing.assert_array_equal(target, cropped)
     assert crop.cfa.spec == "BG/GR"  # RGGB from (3, 5): odd row (G B), odd column -> B
     np.testing.assert_array_equal(crop.mosaic, raw.mosaic[3:-5, 5:-3])
+
+
+@pytest.mark.parametrize("k", [1, 3])
+def test_rotated_render(pair, k):
+    raw, render = pair
+    cropped = render[10:160, 20:200]
+    rotated = np.rot90(cropped, k)  # 90 degrees counter-clockwise (k=1) or clockwise (k=3)
+    a = align(raw, rotated)
+    assert (a.dy, a.dx) == (10, 20)
+    assert a.flip == {1: "transpose-horizontal", 3: "transpose-vertical"}[k]
+    assert (a.height, a.width) == (180, 150)
+    crop, target = aligned_pair(raw, rotated, a)
+    np.testing.assert_array_equal(target, cropped)
+    np.testing.assert_array_equal(crop.mosaic, raw.mosaic[10:160, 20:200])
+
+
+def test_transposed_orientations_are_the_dihedral_group():
+    x = np.arange(12).reshape(3, 4)
+    seen = {apply_flip(x, f).tobytes() + bytes(apply_flip(x, f).shape) for f in FLIPS}
+    assert len(FLIPS) == 8 and len(seen) == 8
+    for f in FLIPS:  # every orientation is undone by one of them
+        y = apply_flip(x, f)
+        assert any(np.array_equal(apply_flip(y, g), x) for g in FLIPS)
 
 
 def test_resized_render_refused(pair):
