@@ -40,7 +40,13 @@ def _levels(build: Path) -> str:
         lux = sorted({c["lux"] for c in caps})
         out.append(f"{part}: {', '.join(f'{x:g}' for x in lux)} lux")
     exp = caps[0]["exposure_s"]
-    return "; ".join(out) + f"; fixed {exp * 1000:g} ms exposure"
+    txt = "; ".join(out) + f"; fixed {exp * 1000:g} ms exposure"
+    p = build / "sim" / "rgbnir" / "test" / "manifest.json"
+    if p.exists():
+        e2 = json.loads(p.read_text())["captures"][0]["exposure_s"]
+        if e2 != exp:
+            txt += f" ({e2 * 1000:g} ms for the RGB-NIR cameras, whose pixels collect about 4x more light)"
+    return txt
 
 
 def summary(build: Path) -> str:
