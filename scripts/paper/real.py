@@ -17,13 +17,21 @@ S-CIELAB ΔE*ab 1.74 and PSNR 40.4 dB on held-out images; DxO rendering 1.46.
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
 import numpy as np
-from common import md_table, write_outputs
+from common import ROOT, md_table, write_outputs
 
 PUBLISHED = {"nikon_scielab": 1.74, "nikon_psnr": 40.4, "dxo_scielab": 1.46}
+
+
+def train_opts() -> str:
+    """The default ``l3 train`` options of scripts/real_camera.sh."""
+    text = (ROOT / "scripts" / "real_camera.sh").read_text()
+    m = re.search(r"TRAIN_OPTS=\$\{L3_TRAIN_OPTS:-(.*)\}", text)
+    return m.group(1).strip() if m else "(see the script)"
 
 
 def collect(build: Path) -> None:
@@ -57,7 +65,7 @@ def main(build: Path) -> None:
     md = f"""## 1. Approximating a real pipeline
 
 Run by `scripts/real_camera.sh` (tutorial: docs/real-camera.md): an L3 table
-(`--target linear-srgb`) trained on the three Infinite-ISP `frames/` pairs
+(`l3 train {train_opts()}`) trained on the three Infinite-ISP `frames/` pairs
 (raw + the ISP's PNG) and scored on the two `holdout/` frames, which are
 never used for training or tuning; and LibRaw's AHD rendering of a
 Blackmagic Pocket 4K DNG learned on the left half, scored on the right half.

@@ -123,9 +123,12 @@ S-CIELAB mean ΔE*ab of the same Macbeth captures (96 dpi, 1 m):
   the 24 patches, `common.linear_colour_floor`): {floor['rgbw']:.2f} for RGBW
   and {floor['bayer']:.2f} for the Bayer camera. Our simulated sensors (ISETCam's
   filter curves under the daylight simulator) are that far from the Luther
-  condition, so no pipeline that is linear at a given level — and L3 is
-  linear within each class — can reach 1.70 on them; the published cameras'
-  spectral sensitivities evidently allowed better colour.
+  condition, so a pipeline that is linear at a given level — as L3 is within
+  each class — is unlikely to reach 1.70 on them (the least-squares fit is
+  not the ΔE-optimal linear map, but the gap is large). Either the published
+  simulation's sensors, illuminant or scene set gave better-conditioned
+  colour, or its ΔE was computed on a different basis; we could not pin
+  this down.
 - **IR.** Our RGBW camera (`sample_configs/rgbw.toml`) has no IR-cut filter,
   so W integrates 700–1060 nm light that the XYZ target does not see; the
   same camera behind an IR-cut filter gives {mean['rgbw-ircut']:.2f}
@@ -140,8 +143,8 @@ S-CIELAB mean ΔE*ab of the same Macbeth captures (96 dpi, 1 m):
   S-CIELAB is similar: the errors concentrate on the saturated patches (red,
   yellow, magenta) while the greys stay low, the signature of colours pulled
   toward grey by the ridge regularisation that the noisy dark classes need.
-  The paper reports L3 ahead of the conventional pipeline at all levels; on
-  our data it is not, in the dark.
+  The paper reports L3 ahead of the conventional pipeline; on our data it
+  is not, in the dark.
 """
     write_outputs(build, "rgbw", md, {"macbeth_de": {r: {str(k): v for k, v in de[r].items()} for r, _ in RUNS},
                                       "scielab": {r: {str(k): v for k, v in sc[r].items()} for r, _ in RUNS},
