@@ -52,7 +52,7 @@ PAPER_EXPOSURE_rgbnir-g     := 0.0125
 PAPER_TRAIN_LUX ?= 10 35 120 450 1600 5000
 PAPER_TEST_LUX  ?= 20 70 250 900 3000
 PAPER_TEST_SCENES_rgbw := macbeth slanted-edge
-PAPER_PY       := $(PY) scripts/paper
+PAPER_PY       := L3=$(abspath $(L3)) $(PY) scripts/paper
 PAPER_COMMON   := scripts/paper/common.py $(STAMP)
 PAPER_SECTIONS := real rgbw rgbnir levels patch mtf kernels
 
