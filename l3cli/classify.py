@@ -34,10 +34,19 @@ Every pixel of a raw mosaic is assigned a *class* from the patch of
 The class index is ``((group * n_sat + sat) * n_levels + level) * n_contrast +
 contrast`` with ``n_sat = 2 ** n_channels``.
 
-The numba kernels here are the only implementation of the rule; render and
-train both call them. Per band of rows they compute S-tap horizontal then
-vertical sums of each channel's ``x`` and ``x²`` (float64) and an OR of the
-saturated-channel bits, then level, contrast and class per pixel.
+The numba tile kernel here (:func:`run_tiles`) is the only implementation of
+the rule; render and train both call it. Per tile of pixels it computes S-tap
+horizontal then vertical sums of each channel's ``x`` and ``x²`` and an OR of
+the saturated-channel bits, then level, contrast and class per pixel.
+
+Precision: the features are computed in float32 in a fixed order (no
+fast-math), so a pixel's class depends on its patch only. The level is exact
+to a few float32 ulps; the contrast to about 1e-4 (``E[x²] - m²`` cancels
+where a channel is nearly flat, so a perfectly flat patch has a contrast
+between 0 and ~5e-4 rather than 0). Real raw data always carry more relative
+noise than that (quantisation alone gives ~1e-4 at 12 bits), and the
+comparisons with the cut points are made in float32: a cut point ``c`` acts
+as ``float32(c)``.
 
 References
 ----------
@@ -50,6 +59,7 @@ References
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 from dataclasses import dataclass, field
@@ -156,6 +166,8 @@ class ClassDefinition:
         cuts = np.asarray(self.level_cuts, dtype=np.float64)
         if cuts.ndim != 1 or cuts.size < 1 or np.any(np.diff(cuts) <= 0) or not np.all(np.isfinite(cuts)):
             raise ConfigError("level cut points must be a finite increasing 1-D list")
+        if cuts[0] <= 0:
+            raise ConfigError(f"level cut points must be > 0 (normalised raw units), got {cuts[0]}")
         cc = np.asarray(self.contrast_cuts, dtype=np.float64)
         if cc.ndim != 2 or cc.shape[0] != cuts.size + 1:
             raise ConfigError(
@@ -287,25 +299,40 @@ class ClassDefinition:
 
     # -------------------------------------------------------- numba tables
     def kernel_args(self) -> tuple:
-        """Arrays the numba kernels need (cached): channel index pattern, per
-        position 1/count of each channel in the patch and 1/channels present."""
+        """Arrays the tile kernel needs (cached): channel index pattern, per
+        position 1/count of each channel in the patch and 1/channels present,
+        position groups, the level lookup table (:func:`_level_lookup`), the
+        float32 level cuts followed by two NaN sentinels (never <= a level), the float32
+        contrast cuts and the float32 thresholds."""
         if "args" not in self._tables:
             cfa, s = self.cfa, self.patch
             npos, nch = cfa.n_positions, cfa.n_channels
-            cnt_inv = np.zeros((npos, nch), dtype=np.float64)
-            wc = np.zeros((npos, nch), dtype=np.float64)
+            cnt_inv = np.zeros((npos, nch), dtype=np.float32)
+            wc = np.zeros((npos, nch), dtype=np.float32)
             for p in range(npos):
                 counts = np.bincount(cfa.neighbourhood(p, s).ravel(), minlength=nch)
                 present = counts > 0
                 cnt_inv[p, present] = 1.0 / counts[present]
                 wc[p, present] = 1.0 / present.sum()
+            lut, shift, base = _level_lookup(self.level_cuts)
+            cuts = np.concatenate([self.level_cuts, [np.nan, np.nan]]).astype(np.float32)
             self._tables["args"] = (
                 cfa.index_pattern.astype(np.int64), cnt_inv, wc,
-                self.position_group.astype(np.int64), self.level_cuts, self.contrast_cuts,
-                float(self.saturation_threshold), float(self.contrast_eps),
-                int(self.n_saturation), int(cfa.period[0]), int(cfa.period[1]), int(s),
+                self.position_group.astype(np.int64), lut, int(shift), int(base), cuts,
+                np.ascontiguousarray(self.contrast_cuts, dtype=np.float32),
+                np.float32(self.saturation_threshold), np.float32(self.contrast_eps),
+                int(self.n_saturation), int(cfa.period[0]), int(cfa.period[1]),
             )
         return self._tables["args"]
+
+    def mirror_maps(self, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """Source row and column of every padded row/column (:func:`mirror_indices`)."""
+        key = ("mirror", height, width)
+        if key not in self._tables:
+            r = self.patch // 2
+            ph, pw = self.cfa.period
+            self._tables[key] = (mirror_indices(height, r, ph), mirror_indices(width, r, pw))
+        return self._tables[key]
 
     def to_dict(self) -> dict:
         """Plain arrays for the table file (see :mod:`l3cli.table`)."""
@@ -389,193 +416,317 @@ def pad_mosaic(mosaic: np.ndarray, r: int, period: tuple[int, int],
     return out
 
 
-def padded_width(s: int) -> int:
-    """Row width of kernels padded to a multiple of 8 (vectorisable inner loops)."""
-    return 8 * ((s + 7) // 8)
-
-
 # ------------------------------------------------------------ numba kernels
-_FM = {"reassoc", "contract"}  # allow vectorised reductions; keep NaN/Inf semantics
+#: Output rows and columns of one parallel tile. A tile's padded band, its
+#: ring of horizontal sums and its output rows stay in the core's L2 cache.
+_TILE_ROWS = 32
+_TILE_COLS = 512
+
+#: What the tile kernel does with each pixel's class (see :func:`run_tiles`).
+MODE_CLASSES, MODE_FEATURES, MODE_RENDER = 0, 1, 2
+
+#: Output lanes of the vectorised render path (tables with up to 4 outputs).
+RENDER_LANES = 4
 
 
-_ROWS = 16  # output rows per parallel task
+@contextlib.contextmanager
+def _slp_vectorize():
+    """Compile with LLVM's SLP vectoriser (numba leaves it off by default).
+
+    It turns the render kernel's per-output multiply-adds into one SIMD
+    multiply-add over the output lanes. Only the tile kernel is compiled
+    inside this context; the classification arithmetic has no fast-math
+    flags, so vectorised and scalar code give bit-identical features.
+    """
+    old = nb.config.SLP_VECTORIZE
+    nb.config.SLP_VECTORIZE = 1
+    try:
+        yield
+    finally:
+        nb.config.SLP_VECTORIZE = old
+
+
+@nb.njit(cache=True, fastmath={"contract"})
+def _render_row4(pb, i, x, tw, S, cls_row, K, outf, o, n_out):
+    """Render pixels ``x .. tw-1`` of tile row ``i`` for tables of <= 4 outputs.
+
+    ``K`` is (n_classes, 4 * (S*S + 1)): per tap (row-major over the patch,
+    then the constant) the 4 output lanes. The 4 lanes are one SIMD register;
+    the partial sums per patch row keep the multiply-add chains short.
+    """
+    P = S * S
+    for x in range(tw):
+        c = cls_row[x]
+        a0 = K[c, 4 * P]
+        a1 = K[c, 4 * P + 1]
+        a2 = K[c, 4 * P + 2]
+        a3 = K[c, 4 * P + 3]
+        for dy in range(S):
+            r0 = np.float32(0.0)
+            r1 = np.float32(0.0)
+            r2 = np.float32(0.0)
+            r3 = np.float32(0.0)
+            for dx in range(S):
+                v = pb[i + dy, x + dx]
+                k = 4 * (dy * S + dx)
+                r0 += v * K[c, k]
+                r1 += v * K[c, k + 1]
+                r2 += v * K[c, k + 2]
+                r3 += v * K[c, k + 3]
+            a0 += r0
+            a1 += r1
+            a2 += r2
+            a3 += r3
+        if n_out == 3:
+            if x < tw - 1:  # the 4th lane lands on the next pixel, written next
+                outf[o] = a0
+                outf[o + 1] = a1
+                outf[o + 2] = a2
+                outf[o + 3] = a3
+            else:
+                outf[o] = a0
+                outf[o + 1] = a1
+                outf[o + 2] = a2
+        elif n_out == 4:
+            outf[o] = a0
+            outf[o + 1] = a1
+            outf[o + 2] = a2
+            outf[o + 3] = a3
+        else:
+            outf[o] = a0
+            if n_out > 1:
+                outf[o + 1] = a1
+        o += n_out
+
+
+@nb.njit(cache=True, fastmath={"contract"})
+def _render_row_any(pb, i, tw, S, cls_row, K, outf, o, n_out):
+    """Render a tile row for tables of any number of outputs (``K`` (n_classes,
+    (S*S + 1) * n_out), tap-major)."""
+    P = S * S
+    acc = np.empty(n_out, dtype=np.float32)
+    for x in range(tw):
+        c = cls_row[x]
+        for q in range(n_out):
+            acc[q] = K[c, P * n_out + q]
+        for dy in range(S):
+            for dx in range(S):
+                v = pb[i + dy, x + dx]
+                k = (dy * S + dx) * n_out
+                for q in range(n_out):
+                    acc[q] += v * K[c, k + q]
+        for q in range(n_out):
+            outf[o + q] = acc[q]
+        o += n_out
 
 
 @functools.cache
-def _kernels(S: int):
-    """The feature kernel compiled for patch size ``S`` (a compile-time constant, so
-    the S-tap loops unroll and the loops along a row vectorise). Cached on disk.
+def _tile_kernel(S: int):
+    """The classifier (and renderer) compiled for patch size ``S``.
 
-    Per task of ``_ROWS`` output rows, each padded band row is reduced once to
-    horizontal S-tap sums of ``x`` and ``x²`` per channel (channel masks along
-    the row) and an OR of saturated-channel bits, kept in a ring of S rows;
-    each output row then sums its S ring rows (in a fixed order, so results do
-    not depend on how the image is split) and finishes level, contrast,
-    saturation and class per pixel.
+    ``S`` is a compile-time constant, so the S-tap loops unroll and the loops
+    along a row vectorise. Parallel over tiles of ``_TILE_ROWS`` x
+    ``_TILE_COLS`` output pixels; each tile copies its padded band from the
+    mosaic (mirror indices at the image borders), reduces every band row to
+    horizontal S-tap sums of ``x`` and ``x²`` per channel present in the row
+    (channel masks along the row) and an OR of saturated-channel bits, kept
+    in a ring of S rows, and finishes each output row from its S ring rows:
+    per channel mean and standard deviation, response level, relative
+    contrast, saturation pattern, class. Every sum runs in a fixed order in
+    float32 without fast-math, so a pixel's features and class depend on its
+    patch only, never on the tiling or on vectorisation.
     """
     r = S // 2
+    TR = _TILE_ROWS
 
-    @nb.njit(cache=True, parallel=True, fastmath=_FM)
-    def features(band, y0, idx_pattern, cnt_inv, wc, sat_thr, eps, level, contrast, sat,
-                 store, do_class, group, level_cuts, contrast_cuts, n_sat, out_cls):
-        H, W = out_cls.shape if do_class else level.shape
-        Wp = W + S - 1
+    @nb.njit(cache=True, parallel=True)
+    def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
+               lut_base, cuts, ccuts, sat_thr, eps, n_sat, mode, out_cls, out_lev, out_con,
+               out_sat, K, n_out, outf):
+        W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
-        ncut = level_cuts.shape[0]
+        ncut = cuts.shape[0] - 2  # two NaN sentinels at the end
         nl = ncut + 1
-        ncc = contrast_cuts.shape[1]
-        # along-row tables per row phase (band column xx is image column xx - r)
-        mask = np.zeros((ph, nch, Wp), dtype=np.float64)
-        bitv = np.zeros((ph, Wp), dtype=np.int32)
+        ncc = ccuts.shape[1]
+        nlut = lut.shape[0]
+        twp_max = tc + S - 1
+        # along-row tables in tile coordinates (tile columns start at multiples of pw)
+        mask = np.zeros((ph, nch, twp_max), dtype=np.float32)
+        bitv = np.zeros((ph, twp_max), dtype=np.int32)
         row_has = np.zeros((ph, nch), dtype=np.bool_)  # channel present in a row phase
         for py in range(ph):
-            for xx in range(Wp):
+            for xx in range(twp_max):
                 c = idx_pattern[py, (xx - r) % pw]
                 mask[py, c, xx] = 1.0
                 bitv[py, xx] = 1 << c
                 row_has[py, c] = True
-        ci_row = np.zeros((ph, nch, W), dtype=np.float64)
-        wc_row = np.zeros((ph, nch, W), dtype=np.float64)
-        g_row = np.zeros((ph, W), dtype=np.int64)
+        ci_row = np.zeros((ph, nch, tc), dtype=np.float32)
+        wc_row = np.zeros((ph, nch, tc), dtype=np.float32)
+        g_row = np.zeros((ph, tc), dtype=np.int32)
         for py in range(ph):
-            for x in range(W):
+            for x in range(tc):
                 pos = py * pw + x % pw
                 g_row[py, x] = group[pos]
                 for c in range(nch):
                     ci_row[py, c, x] = cnt_inv[pos, c]
                     wc_row[py, c, x] = wc[pos, c]
-        ntask = (H + _ROWS - 1) // _ROWS
-        for task in nb.prange(ntask):
-            i0 = task * _ROWS
-            i1 = min(H, i0 + _ROWS)
-            ring_s = np.empty((S, nch, W), dtype=np.float64)
-            ring_q = np.empty((S, nch, W), dtype=np.float64)
-            ring_b = np.empty((S, W), dtype=np.int32)
-            mv = np.empty(Wp, dtype=np.float64)
-            mq = np.empty(Wp, dtype=np.float64)
-            bits = np.empty(Wp, dtype=np.int32)
-            lev = np.empty(W, dtype=np.float64)
-            spr = np.empty(W, dtype=np.float64)
+        n_rt = (nrows + TR - 1) // TR
+        n_ct = (W + tc - 1) // tc
+        for t in nb.prange(n_rt * n_ct):
+            i0 = (t // n_ct) * TR
+            i1 = min(nrows, i0 + TR)
+            x0 = (t % n_ct) * tc
+            x1 = min(W, x0 + tc)
+            tw = x1 - x0
+            twp = tw + S - 1
+            nbr = i1 - i0 + S - 1
+            # padded band of the tile: row k is padded row y0 + i0 + k (image row - r)
+            pb = np.empty((nbr, twp), dtype=np.float32)
+            inner = x0 - r >= 0 and x0 - r + twp <= W
+            for k in range(nbr):
+                src = yi[y0 + i0 + k]
+                if inner:
+                    for xx in range(twp):
+                        pb[k, xx] = mosaic[src, x0 - r + xx]
+                else:
+                    for xx in range(twp):
+                        pb[k, xx] = mosaic[src, xi[x0 + xx]]
+            ring_s = np.empty((S, nch, tw), dtype=np.float32)
+            ring_q = np.empty((S, nch, tw), dtype=np.float32)
+            ring_b = np.empty((S, tw), dtype=np.int32)
+            mv = np.empty(twp, dtype=np.float32)
+            mq = np.empty(twp, dtype=np.float32)
+            bits = np.empty(twp, dtype=np.int32)
+            lev = np.empty(tw, dtype=np.float32)
+            levi = lev.view(np.int32)
+            spr = np.empty(tw, dtype=np.float32)
+            va = np.empty(tw, dtype=np.float32)
+            vq = np.empty(tw, dtype=np.float32)
+            satr = np.empty(tw, dtype=np.int32)
+            clsr = np.empty(tw, dtype=np.int32)
             rows_c = np.empty(S, dtype=np.int64)
-            satr = np.empty(W, dtype=np.int32)
-            va = np.empty(W, dtype=np.float64)
-            vq = np.empty(W, dtype=np.float64)
-            for yy in range(i0, i1 + S - 1):
-                slot = yy % S
-                py = (y0 - r + yy) % ph
+            for k in range(nbr):
+                slot = k % S
+                py = (y0 + i0 + k - r) % ph
                 for c in range(nch):
                     if not row_has[py, c]:
                         continue  # the ring slot is never read for this channel
-                    for xx in range(Wp):
-                        t = np.float64(band[yy, xx])
-                        u = t * mask[py, c, xx]
+                    for xx in range(twp):
+                        u = pb[k, xx] * mask[py, c, xx]
                         mv[xx] = u
-                        mq[xx] = u * t
-                    for x in range(W):
-                        a = 0.0
-                        q = 0.0
-                        for dx in range(S):
+                        mq[xx] = u * pb[k, xx]
+                    for x in range(tw):
+                        a = mv[x]
+                        q = mq[x]
+                        for dx in range(1, S):
                             a += mv[x + dx]
                             q += mq[x + dx]
                         ring_s[slot, c, x] = a
                         ring_q[slot, c, x] = q
-                for xx in range(Wp):
-                    bits[xx] = bitv[py, xx] if band[yy, xx] >= sat_thr else 0
-                for x in range(W):
-                    b = 0
-                    for dx in range(S):
+                for xx in range(twp):
+                    bits[xx] = bitv[py, xx] if pb[k, xx] >= sat_thr else 0
+                for x in range(tw):
+                    b = bits[x]
+                    for dx in range(1, S):
                         b |= bits[x + dx]
                     ring_b[slot, x] = b
-                i = yy - (S - 1)
-                if i < i0:
+                i = k - (S - 1)  # tile output row whose window is now complete
+                if i < 0:
                     continue
-                po = (y0 + i) % ph
-                for x in range(W):
+                po = (y0 + i0 + i) % ph
+                for x in range(tw):
                     lev[x] = 0.0
                     spr[x] = 0.0
                 for c in range(nch):
                     # rows of the window that hold channel c (others are all zero)
                     nrow = 0
                     for dy in range(S):
-                        if row_has[(y0 - r + i + dy) % ph, c]:
+                        if row_has[(y0 + i0 + i + dy - r) % ph, c]:
                             rows_c[nrow] = (i + dy) % S
                             nrow += 1
-                    for x in range(W):
-                        va[x] = 0.0
-                        vq[x] = 0.0
-                    for k in range(nrow):  # rows outside, pixels inside: vectorised
-                        sl = rows_c[k]
-                        for x in range(W):
+                    if nrow == 0:
+                        continue
+                    sl = rows_c[0]
+                    for x in range(tw):
+                        va[x] = ring_s[sl, c, x]
+                        vq[x] = ring_q[sl, c, x]
+                    for kk in range(1, nrow):  # rows outside, pixels inside: vectorised
+                        sl = rows_c[kk]
+                        for x in range(tw):
                             va[x] += ring_s[sl, c, x]
                             vq[x] += ring_q[sl, c, x]
-                    for x in range(W):
+                    for x in range(tw):
                         ci = ci_row[po, c, x]
                         m = va[x] * ci
                         var = vq[x] * ci - m * m
                         lev[x] += m * wc_row[po, c, x]
-                        spr[x] += np.sqrt(max(var, 0.0)) * wc_row[po, c, x]
-                for x in range(W):
-                    b = 0
-                    for dy in range(S):
+                        spr[x] += np.sqrt(max(var, np.float32(0.0))) * wc_row[po, c, x]
+                for x in range(tw):
+                    b = ring_b[i % S, x]
+                    for dy in range(1, S):
                         b |= ring_b[(i + dy) % S, x]
                     satr[x] = b
-                    spr[x] = spr[x] / (max(lev[x], 0.0) + eps)  # now the contrast
-                if store:
-                    for x in range(W):
-                        level[i, x] = lev[x]
-                        contrast[i, x] = spr[x]
-                        sat[i, x] = satr[x]
-                if do_class:
-                    lb = 0
-                    for x in range(W):
-                        # count of cuts <= level, walking from the previous pixel's
-                        # bin (levels of neighbours are close: usually 0-1 steps)
-                        lv = lev[x]
-                        while lb < ncut and level_cuts[lb] <= lv:
-                            lb += 1
-                        while lb > 0 and level_cuts[lb - 1] > lv:
-                            lb -= 1
-                        con = 0
-                        cv = spr[x]
-                        for j in range(ncc):
-                            con += cv >= contrast_cuts[lb, j]
-                        out_cls[i, x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lb) * (ncc + 1) + con
+                    spr[x] = spr[x] / (max(lev[x], np.float32(0.0)) + eps)  # now the contrast
+                if mode == 1:
+                    for x in range(tw):
+                        out_lev[i0 + i, x0 + x] = lev[x]
+                        out_con[i0 + i, x0 + x] = spr[x]
+                        out_sat[i0 + i, x0 + x] = satr[x]
+                    continue
+                for x in range(tw):
+                    # level bin: a lookup on the float's leading bits, then at most
+                    # two comparisons with the cut points (see _level_lookup)
+                    kb = (levi[x] >> lut_shift) - lut_base
+                    kb = min(max(kb, 0), nlut - 1)
+                    lb = lut[kb]
+                    lv = lev[x]
+                    lb += np.int32(cuts[lb] <= lv)
+                    lb += np.int32(cuts[lb] <= lv)
+                    con = 0
+                    cv = spr[x]
+                    for j in range(ncc):
+                        con += np.int32(cv >= ccuts[lb, j])
+                    clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lb) * (ncc + 1) + con
+                if mode == 0:
+                    for x in range(tw):
+                        out_cls[i0 + i, x0 + x] = clsr[x]
+                elif n_out <= 4:
+                    _render_row4(pb, i, 0, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
+                                 n_out)
+                else:
+                    _render_row_any(pb, i, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
+                                    n_out)
 
-    return features
+    return kernel
 
 
-def band_features(band: np.ndarray, y0: int, rows: int, width: int, args: tuple,
-                  out_cls: np.ndarray | None = None, *, store: bool = True
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Level, contrast and saturation bits of output rows ``y0 : y0 + rows``.
+def _level_lookup(cuts: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """A table that bins a positive float32 level with at most two comparisons.
 
-    ``band`` is the padded band (:func:`pad_mosaic` with ``rows``), ``args``
-    :meth:`ClassDefinition.kernel_args`. When ``out_cls`` (int32 (rows, width))
-    is given, the class indices are written into it too; ``store=False``
-    then skips the feature arrays (returns None).
+    The bit pattern of a positive float32 increases with its value, so
+    ``bits >> shift`` numbers buckets of equal relative width. ``lut[k]`` is
+    the number of cuts below bucket ``k``; the coarsest buckets holding at
+    most two cuts each are chosen. Levels <= 0 fall in bucket 0 (below
+    every cut), levels above the last cut in the last bucket.
     """
-    (idx, cnt_inv, wc, group, lc, cc, thr, eps, n_sat, ph, pw, S) = args
-    do_class = out_cls is not None
-    if not do_class:
-        store = True
-        out_cls = np.empty((1, 1), dtype=np.int32)
-    shape = (rows, width) if store else (1, 1)
-    level = np.empty(shape)
-    contrast = np.empty(shape)
-    sat = np.empty(shape, dtype=np.int32)
-    _kernels(S)(band, y0, idx, cnt_inv, wc, thr, eps, level, contrast, sat,
-                store, do_class, group, lc, cc, n_sat, out_cls)
-    return (level, contrast, sat) if store else None
+    cuts32 = np.asarray(cuts, dtype=np.float32)
+    bits = cuts32.view(np.int32).astype(np.int64)
+    for shift in range(23, -1, -1):
+        buckets = bits >> shift
+        size = int(buckets[-1] - buckets[0]) + 1
+        if size > _LUT_MAX:
+            break
+        if np.unique(buckets, return_counts=True)[1].max() <= 2:
+            base = int(buckets[0])
+            k = np.arange(size) + base
+            return np.searchsorted(buckets, k, side="left").astype(np.int32), shift, base
+    raise ConfigError(
+        "level cut points are too close together for their range (ratio of neighbouring "
+        "cuts below ~1e-5); use fewer levels")
 
 
-def band_classes(band: np.ndarray, y0: int, rows: int, width: int, args: tuple,
-                 out: np.ndarray | None = None) -> np.ndarray:
-    """int32 class indices of output rows ``y0 : y0 + rows`` (see :func:`band_features`)."""
-    if out is None:
-        out = np.empty((rows, width), dtype=np.int32)
-    band_features(band, y0, rows, width, args, out_cls=out, store=False)
-    return out
+_LUT_MAX = 1 << 16
 
 
 def _check_mosaic(mosaic: np.ndarray, cfa: CFA, patch: int) -> np.ndarray:
@@ -588,7 +739,7 @@ def _check_mosaic(mosaic: np.ndarray, cfa: CFA, patch: int) -> np.ndarray:
             f"raw mosaic {mosaic.shape[1]}x{mosaic.shape[0]} is too small for a "
             f"{patch}x{patch} patch and a {pw}x{ph} CFA"
         )
-    return mosaic
+    return np.ascontiguousarray(mosaic, dtype=np.float32)
 
 
 def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tuple[int, int]]:
@@ -597,7 +748,62 @@ def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tup
     return [(y0, min(height, y0 + step)) for y0 in range(0, height, step)]
 
 
-def classify(mosaic: np.ndarray, definition: ClassDefinition) -> np.ndarray:
+_NO_F32 = np.zeros((1, 1), dtype=np.float32)
+_NO_I32 = np.zeros((1, 1), dtype=np.int32)
+_NO_OUT = np.zeros(1, dtype=np.float32)
+
+
+def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
+              rows: tuple[int, int] | None = None, out_cls: np.ndarray | None = None,
+              out_features: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+              kernels: np.ndarray | None = None, n_out: int = 0,
+              out: np.ndarray | None = None) -> None:
+    """Run the tile kernel over output rows ``rows`` (default: all) of a mosaic.
+
+    The one entry point to the classifier; :func:`classify`,
+    :func:`patch_features`, training and :func:`l3cli.render.render_mosaic`
+    all come through here.
+
+    Parameters
+    ----------
+    mosaic
+        float32 (H, W) normalised mosaic, C-contiguous, CFA phase as the definition.
+    definition
+        The class definition.
+    mode
+        ``MODE_CLASSES`` (int32 classes into ``out_cls``), ``MODE_FEATURES``
+        (float32 level, float32 contrast, int32 saturation bits into
+        ``out_features``) or ``MODE_RENDER`` (``out`` = affine kernels of the
+        classes applied to the patches).
+    rows
+        ``(y0, y1)``: output rows; the output arrays have ``y1 - y0`` rows.
+    kernels
+        Render only: float32 packed kernels (:func:`l3cli.render.pack_kernels`).
+    n_out
+        Render only: outputs per pixel.
+    out
+        Render only: float32 C-contiguous (y1 - y0, W, n_out).
+    """
+    S = definition.patch
+    h, w = mosaic.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    (idx, cnt_inv, wc, group, lut, shift, base, cuts, ccuts, thr, eps, n_sat,
+     ph, pw) = definition.kernel_args()
+    yi, xi = definition.mirror_maps(h, w)
+    tc = pw * max(1, _TILE_COLS // pw)
+    cls_o = out_cls if out_cls is not None else _NO_I32
+    lev_o, con_o, sat_o = out_features if out_features is not None else (_NO_F32, _NO_F32,
+                                                                         _NO_I32)
+    K = kernels if kernels is not None else _NO_F32
+    outf = out.reshape(-1) if out is not None else _NO_OUT
+    with _slp_vectorize():
+        _tile_kernel(S)(mosaic, yi, xi, y0, y1 - y0, tc, idx, cnt_inv, wc, group, lut, shift,
+                        base, cuts, ccuts, thr, eps, n_sat, mode, cls_o, lev_o, con_o, sat_o, K,
+                        n_out, outf)
+
+
+def classify(mosaic: np.ndarray, definition: ClassDefinition, *,
+             rows: tuple[int, int] | None = None) -> np.ndarray:
     """Class index of every pixel of a mosaic.
 
     Parameters
@@ -606,21 +812,19 @@ def classify(mosaic: np.ndarray, definition: ClassDefinition) -> np.ndarray:
         float32 (H, W) normalised raw mosaic whose CFA phase is ``definition.cfa``.
     definition
         The class definition.
+    rows
+        Optional ``(y0, y1)``: classify only these rows.
 
     Returns
     -------
     numpy.ndarray
-        int32 (H, W) flat class indices (see :class:`ClassDefinition`).
+        int32 (H, W) (or (y1 - y0, W)) flat class indices (see :class:`ClassDefinition`).
     """
     mosaic = _check_mosaic(mosaic, definition.cfa, definition.patch)
-    args = definition.kernel_args()
-    S = definition.patch
-    ph, pw = definition.cfa.period
     h, w = mosaic.shape
-    out = np.empty((h, w), dtype=np.int32)
-    for y0, y1 in band_rows(h, w):
-        band = pad_mosaic(mosaic, S // 2, (ph, pw), rows=(y0, y1))
-        band_classes(band, y0, y1 - y0, w, args, out=out[y0:y1])
+    y0, y1 = rows if rows is not None else (0, h)
+    out = np.empty((y1 - y0, w), dtype=np.int32)
+    run_tiles(mosaic, definition, MODE_CLASSES, rows=(y0, y1), out_cls=out)
     return out
 
 
@@ -633,7 +837,7 @@ def patch_features(mosaic: np.ndarray, cfa: CFA | str, *, patch: int = 5,
     Returns
     -------
     level, contrast, sat
-        float64 (H, W), float64 (H, W), int32 (H, W) (bit ``c`` = channel
+        float32 (H, W), float32 (H, W), int32 (H, W) (bit ``c`` = channel
         ``cfa.channels[c]`` saturated somewhere in the patch).
     """
     cfa = CFA.from_spec(cfa)
@@ -641,14 +845,11 @@ def patch_features(mosaic: np.ndarray, cfa: CFA | str, *, patch: int = 5,
                               saturation_threshold=saturation_threshold,
                               contrast_eps=contrast_eps, merge_positions=False)
     mosaic = _check_mosaic(mosaic, cfa, patch)
-    args = d.kernel_args()
     h, w = mosaic.shape
-    lev = np.empty((h, w))
-    con = np.empty((h, w))
+    lev = np.empty((h, w), dtype=np.float32)
+    con = np.empty((h, w), dtype=np.float32)
     sat = np.empty((h, w), dtype=np.int32)
-    for y0, y1 in band_rows(h, w):
-        band = pad_mosaic(mosaic, patch // 2, cfa.period, rows=(y0, y1))
-        lev[y0:y1], con[y0:y1], sat[y0:y1] = band_features(band, y0, y1 - y0, w, args)
+    run_tiles(mosaic, d, MODE_FEATURES, out_features=(lev, con, sat))
     return lev, con, sat
 
 

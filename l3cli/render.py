@@ -7,79 +7,45 @@ pixel-aligned with it: borders are padded by a mirror that keeps the CFA
 phase (:func:`l3cli.classify.mirror_indices`). Empty classes already hold the
 kernel of their fallback class in the table, so the kernel is branch-free.
 
-The work runs in a numba-compiled, parallel kernel over bands of rows: only
-one padded band (``rows + S - 1`` rows) is held besides the mosaic and the
-output, so memory stays bounded for any frame size.
+Classification and the affine kernels run in one numba-compiled, parallel
+pass over tiles of output pixels (:func:`l3cli.classify.run_tiles`): a tile's
+padded band is classified and rendered while it is in the core's cache, and
+beside the mosaic and the output only a few tile buffers per thread are held,
+so memory stays bounded for any frame size. The kernels of a table are packed
+once (:func:`pack_kernels`) so that the (up to 4) outputs of a tap are one
+SIMD multiply-add.
 """
 
 from __future__ import annotations
 
-import functools
 import os
 from pathlib import Path
 
-import numba as nb
 import numpy as np
 
-from l3cli.classify import band_classes, band_rows, pad_mosaic
+from l3cli.classify import MODE_RENDER, RENDER_LANES, _check_mosaic, run_tiles
 from l3cli.errors import TableError
 from l3cli.table import TransformTable
 
-__all__ = ["check_fits", "render_mosaic", "render_raw", "render_file"]
+__all__ = ["check_fits", "pack_kernels", "render_mosaic", "render_raw", "render_file"]
 
 
-@functools.cache
-def _apply_kernel(S: int, n_out: int):
-    """Per-pixel affine kernel, compiled for patch size S and n_out outputs
-    (compile-time constants: the tap loops unroll; for three outputs the
-    accumulators stay in registers)."""
-    P = S * S
+def pack_kernels(table: TransformTable) -> np.ndarray:
+    """The table's kernels in the render kernel's layout (a copy: ~1 MB, < 1 ms).
 
-    if n_out == 3:
-
-        @nb.njit(cache=True, parallel=True, fastmath={"contract"})
-        def apply(band, cls, K, out):
-            H, W = cls.shape
-            for i in nb.prange(H):
-                for x in range(W):
-                    Kc = K[cls[i, x]]
-                    a0 = Kc[P, 0]
-                    a1 = Kc[P, 1]
-                    a2 = Kc[P, 2]
-                    k = 0
-                    for dy in range(S):
-                        for dx in range(S):
-                            v = band[i + dy, x + dx]
-                            a0 += v * Kc[k, 0]
-                            a1 += v * Kc[k, 1]
-                            a2 += v * Kc[k, 2]
-                            k += 1
-                    out[i, x, 0] = a0
-                    out[i, x, 1] = a1
-                    out[i, x, 2] = a2
-
-        return apply
-
-    @nb.njit(cache=True, parallel=True, fastmath={"contract"})
-    def apply_any(band, cls, K, out):
-        H, W = cls.shape
-        for i in nb.prange(H):
-            acc = np.empty(n_out, dtype=np.float32)
-            for x in range(W):
-                Kc = K[cls[i, x]]
-                for o in range(n_out):
-                    acc[o] = Kc[P, o]
-                k = 0
-                for dy in range(S):
-                    for dx in range(S):
-                        v = band[i + dy, x + dx]
-                        for o in range(n_out):
-                            acc[o] += v * Kc[k, o]
-                        k += 1
-                for o in range(n_out):
-                    out[i, x, o] = acc[o]
-
-    return apply_any
+    Returns
+    -------
+    numpy.ndarray
+        float32 (n_classes, (S*S + 1) * L), tap-major (patch row-major, then the
+        constant), with ``L = 4`` output lanes (zero-padded) for tables of up
+        to 4 outputs and ``L = n_out`` otherwise.
+    """
+    k = np.asarray(table.kernels, dtype=np.float32)  # (n_classes, q, n_out)
+    nc, q, n_out = k.shape
+    lanes = RENDER_LANES if n_out <= RENDER_LANES else n_out
+    packed = np.zeros((nc, q, lanes), dtype=np.float32)
+    packed[:, :, :n_out] = k
+    return np.ascontiguousarray(packed.reshape(nc, q * lanes))
 
 
 def check_fits(table: TransformTable, raw, *, table_name: str = "table") -> None:
@@ -98,7 +64,7 @@ def check_fits(table: TransformTable, raw, *, table_name: str = "table") -> None
 
 
 def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray | None = None,
-                  band_pixels: int = 1 << 20) -> np.ndarray:
+                  rows: tuple[int, int] | None = None) -> np.ndarray:
     """Render a normalised mosaic (CFA phase as the table's) in the table's space.
 
     Parameters
@@ -108,9 +74,11 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
     mosaic
         float32 (H, W), 0 = black, 1 = white level.
     out
-        Optional float32 (H, W, n_out) output array.
-    band_pixels
-        Pixels per band of rows (bounds the padded-band memory).
+        Optional float32 C-contiguous (H, W, n_out) output array (or
+        (y1 - y0, W, n_out) with ``rows``).
+    rows
+        Optional ``(y0, y1)``: render only these rows (their patches still
+        see the rows around them).
 
     Returns
     -------
@@ -118,20 +86,16 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
         float32 (H, W, n_out) in ``table.output_space``.
     """
     d = table.definition
-    mosaic = np.asarray(mosaic, dtype=np.float32)
+    mosaic = _check_mosaic(mosaic, d.cfa, d.patch)
     h, w = mosaic.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    shape = (y1 - y0, w, table.n_out)
     if out is None:
-        out = np.empty((h, w, table.n_out), dtype=np.float32)
-    args = d.kernel_args()
-    S = d.patch
-    apply = _apply_kernel(S, table.n_out)
-    cls = None
-    for y0, y1 in band_rows(h, w, max_pixels=band_pixels):
-        band = pad_mosaic(mosaic, S // 2, d.cfa.period, rows=(y0, y1))
-        if cls is None or cls.shape[0] != y1 - y0:
-            cls = np.empty((y1 - y0, w), dtype=np.int32)
-        band_classes(band, y0, y1 - y0, w, args, out=cls)
-        apply(band, cls, table.kernels, out[y0:y1])
+        out = np.empty(shape, dtype=np.float32)
+    elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
+    run_tiles(mosaic, d, MODE_RENDER, rows=(y0, y1), kernels=pack_kernels(table),
+              n_out=table.n_out, out=out)
     return out
 
 

@@ -54,8 +54,10 @@ def test_features_match_reference(spec, patch):
     m = (rng.random((15, 21)) ** 2).astype(np.float32)
     lev, con, sat = patch_features(m, cfa, patch=patch, saturation_threshold=0.9)
     rlev, rcon, rsat, _ = features_reference(m, cfa, patch, 0.9, 1e-4)
-    np.testing.assert_allclose(lev, rlev, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(con, rcon, rtol=1e-9, atol=1e-9)
+    # the kernel works in float32 (the reference in float64): the level to a few
+    # ulps; the contrast to ~1e-4 (E[x²] - m² cancels where a channel is nearly flat)
+    np.testing.assert_allclose(lev, rlev, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(con, rcon, rtol=1e-4, atol=5e-4)
     np.testing.assert_array_equal(sat, rsat)
 
 
@@ -64,7 +66,8 @@ def test_level_of_flat_patch_is_its_value_and_contrast_zero():
     m = np.full((12, 12), 0.3, dtype=np.float32)
     lev, con, sat = patch_features(m, cfa)
     np.testing.assert_allclose(lev, 0.3, rtol=1e-6)
-    np.testing.assert_allclose(con, 0.0, atol=1e-7)  # sqrt of float64 rounding in E[x²] - m²
+    # float32 E[x²] - m² leaves a rounding floor: sd ~ 1e-4 of the level at most
+    np.testing.assert_allclose(con, 0.0, atol=1e-3)
     assert not sat.any()
 
 
@@ -76,7 +79,7 @@ def test_level_is_mean_of_channel_means_not_pixel_mean():
     m = vals[cfa.channel_map(10, 10)].astype(np.float32)
     lev, con, _ = patch_features(m, cfa)
     np.testing.assert_allclose(lev, 0.4, rtol=1e-6)
-    np.testing.assert_allclose(con, 0.0, atol=1e-7)  # colour is not texture
+    np.testing.assert_allclose(con, 0.0, atol=1e-3)  # colour is not texture (float32 floor)
 
 
 def test_saturation_bits_per_channel():
@@ -98,8 +101,52 @@ def test_classes_match_reference(spec):
     d = ClassDefinition.build(cfa, patch=5, level_cuts=level_cuts_between(0.01, 0.8, 12),
                               contrast_cuts=[0.2, 0.6], saturation_threshold=0.97)
     got = classify(m, d)
-    np.testing.assert_array_equal(got, classify_reference(m, d))
+    want = classify_reference(m, d)
+    # the kernel's float32 features may fall on the other side of a cut where the
+    # float64 reference is within float32 rounding of it: only there may they differ
+    rlev, rcon, _, _ = features_reference(m, cfa, 5, 0.97, d.contrast_eps)
+    near = np.any(np.abs(rlev[..., None] - d.level_cuts) <= 1e-6 * d.level_cuts, axis=-1)
+    near |= np.any(np.abs(rcon[..., None] - d.contrast_cuts[0]) <= 5e-4, axis=-1)
+    np.testing.assert_array_equal(got[~near], want[~near])
+    assert near.sum() <= 2
     assert got.min() >= 0 and got.max() < d.n_classes
+
+
+@pytest.mark.parametrize("spacing,n", [("log", 40), ("linear", 40), ("log", 400), ("log", 2)])
+def test_level_lookup_bins_like_searchsorted(spacing, n):
+    cuts = level_cuts_between(1e-4, 0.95, n, spacing)
+    d = ClassDefinition.build("RGGB", level_cuts=cuts)
+    lut, shift, base = d.kernel_args()[4:7]
+    c32 = cuts.astype(np.float32)
+    rng = np.random.default_rng(7)
+    v = np.concatenate([
+        c32, np.nextafter(c32, np.float32(0)), np.nextafter(c32, np.float32(2)),
+        np.exp(rng.uniform(np.log(1e-7), np.log(4.0), 20000)).astype(np.float32),
+        np.array([0.0, -0.0, -1e-3, -5.0, 1e-38, 1.0, 3e38, np.inf], np.float32)]).astype(np.float32)
+    k = np.clip((v.view(np.int32).astype(np.int64) >> shift) - base, 0, lut.size - 1)
+    b = lut[k].astype(np.int64)
+    padded = np.concatenate([c32, [np.nan, np.nan]]).astype(np.float32)  # as the kernel
+    b += padded[b] <= v
+    b += padded[b] <= v
+    np.testing.assert_array_equal(b, np.searchsorted(c32, v, side="right"))
+    assert lut.size <= 4096
+
+
+@pytest.mark.parametrize("spec", ["GRBG", "RGBW/GWRB/BRWG/WBGR"])
+def test_class_depends_on_the_patch_only_not_on_tiles(spec):
+    # a mosaic spanning several parallel tiles, and the same pixels inside a
+    # larger mosaic at an offset (a multiple of the CFA period): same classes
+    cfa = CFA.from_spec(spec)
+    rng = np.random.default_rng(8)
+    big = (rng.random((100, 1200)) ** 2).astype(np.float32)
+    d = ClassDefinition.build(cfa, patch=5, level_cuts=level_cuts_between(0.01, 0.8, 20),
+                              contrast_cuts=0.5)
+    full = classify(big, d)
+    oy, ox = 12, 4 * 67
+    crop = classify(big[oy:oy + 70, ox:ox + 700], d)
+    np.testing.assert_array_equal(crop[2:-2, 2:-2], full[oy + 2:oy + 68, ox + 2:ox + 698])
+    rows = classify(big, d, rows=(33, 71))
+    np.testing.assert_array_equal(rows, full[33:71])
 
 
 def test_class_index_layout():
@@ -155,5 +202,7 @@ def test_bad_definitions():
         ClassDefinition.build("RGGB", patch=4, level_cuts=[0.1])
     with pytest.raises(ConfigError, match="increasing"):
         ClassDefinition.build("RGGB", level_cuts=[0.2, 0.1])
+    with pytest.raises(ConfigError, match="must be > 0"):
+        ClassDefinition.build("RGGB", level_cuts=[0.0, 0.1])
     with pytest.raises(InputError, match="too small"):
         classify(np.zeros((1, 1), np.float32), ClassDefinition.build("RGGB", level_cuts=[0.1]))

@@ -31,11 +31,16 @@ def test_render_equals_numpy_reference(spec, patch):
     np.testing.assert_allclose(out, render_reference(table, m), rtol=1e-5, atol=1e-5)
 
 
-def test_render_bands_do_not_change_the_result():
+def test_render_bands_and_tiles_do_not_change_the_result():
     table = make_table()
-    m = np.random.default_rng(1).random((41, 37)).astype(np.float32)
-    np.testing.assert_array_equal(render_mosaic(table, m, band_pixels=37 * 3),
-                                  render_mosaic(table, m))
+    m = np.random.default_rng(1).random((75, 1100)).astype(np.float32)  # several tiles
+    full = render_mosaic(table, m)
+    parts = np.concatenate([render_mosaic(table, m, rows=(y, min(75, y + 7)))
+                            for y in range(0, 75, 7)])
+    np.testing.assert_array_equal(parts, full)
+    # pixels inside a crop (offset by whole CFA periods) render as in the full mosaic
+    crop = render_mosaic(table, m[10:50, 520:1000])
+    np.testing.assert_array_equal(crop[2:-2, 2:-2], full[12:48, 522:998])
 
 
 def test_identity_kernel_returns_the_mosaic_at_every_pixel():
