@@ -167,6 +167,30 @@ def test_equivalent_positions_merge():
     assert bayer.tolist() == [0, 1, 2, 3]
 
 
+@pytest.mark.parametrize("spec,n_pos", [("RGGB", 4), ("WGWR/BWGW/WRWG/GWBW", 16),
+                                         ("RGBW/GWRB/BRWG/WBGR", 16)])
+def test_position_is_the_place_in_the_cfa_repeat_and_equal_layouts_share(spec, n_pos):
+    """Positions = the CFA repeat (Bayer 4, a 4x4 RGBW 16); positions share a group
+    exactly when their 5x5 channel layouts coincide (found here from a tiled
+    pattern, independently of CFA.neighbourhood)."""
+    cfa = CFA.from_spec(spec)
+    assert cfa.n_positions == n_pos
+    ph, pw = cfa.period
+    tiled = np.tile(np.array(cfa.pattern), (3, 3))
+    lay = [tiled[ph + y - 2: ph + y + 3, pw + x - 2: pw + x + 3].tobytes()
+           for y in range(ph) for x in range(pw)]
+    grp = position_groups(cfa, 5)
+    for a in range(n_pos):
+        for b in range(n_pos):
+            assert (grp[a] == grp[b]) == (lay[a] == lay[b]), (a, b)
+    # the class of a pixel uses its position: same patch values, different positions
+    # (other layouts) give different classes
+    m = np.full((4 * ph, 4 * pw), 0.3, np.float32)
+    d = ClassDefinition.build(cfa, patch=5, level_cuts=[0.1])
+    g_map = np.asarray(d.class_tuple(classify(m, d))[0])
+    np.testing.assert_array_equal(g_map, grp[cfa.position_map(*m.shape)])
+
+
 def test_level_cuts():
     c = level_cuts_between(0.001, 0.9, 25)
     assert c.size == 24 and c[0] == pytest.approx(0.001) and c[-1] == pytest.approx(0.9)

@@ -598,11 +598,23 @@ def test_empty_classes_render_without_holes_and_inspect_lists_them(scarce):
     res = runner.invoke(cli, ["inspect", str(scarce / "smooth.npz")])
     assert res.exit_code == 0, res.output
     assert "filled classes (by prior):" in res.output
-    listed = res.output.split("filled classes (by prior):")[1]
-    from l3cli.inspect import compress_ranges
-
-    assert compress_ranges(filled.tolist()) in listed.replace("\n", " ") or all(
-        str(i) in listed for i in filled[:3])
+    # the lines "  <prior>: <count> [<ranges>]" under that heading name exactly the
+    # classes that were empty before and are not after
+    listed: set[int] = set()
+    section = res.output.split("filled classes (by prior):")[1].splitlines()[1:]
+    for line in section:
+        if not line.startswith("  "):
+            break
+        prior, rest = line.strip().split(": ", 1)
+        assert prior in ("symmetry", "spline", "uniformity"), line
+        count, ranges = rest.split(" ", 1)
+        got = set()
+        for part in ranges.strip("[]").split(", "):
+            lo, _, hi = part.partition("-")
+            got |= set(range(int(lo), int(hi or lo) + 1))
+        assert len(got) == int(count) and not got & listed, line
+        listed |= got
+    assert listed == set(filled.tolist())
 
 
 def test_plentiful_data_smoothing_costs_at_most_two_percent(tmp_path):

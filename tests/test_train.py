@@ -66,6 +66,45 @@ def test_noise_free_affine_kernels_are_recovered_with_near_zero_lambda():
         assert np.all(sol.lam_rel <= 1e-7), sol.lam_rel
 
 
+def test_full_training_recovers_exact_affine_kernels_to_1e5_with_near_zero_lambda():
+    """The whole path (classify, accumulate float32 inputs, GCV, solve, float32 table)
+    against the known filters themselves. Raw values k/256 and weights j/64 make every
+    target exactly representable in float32, so nothing but the solver can be off."""
+    rng = np.random.default_rng(0)
+    m = (rng.integers(13, 155, (120, 160)) / 256).astype(np.float32)
+    d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.3, 0.34], contrast_cuts=0.3,
+                              saturation_threshold=2.0)
+    cls = classify(m, d).ravel()
+    X = _design(m, d)
+    K = rng.integers(-128, 129, size=(d.n_classes, d.n_coeffs, 3)) / 64
+    Y = np.einsum("nq,nqo->no", X, K[cls])
+    Y32 = Y.astype(np.float32)
+    assert np.array_equal(Y32, Y)  # exact in float32
+    stats = ClassStats.zeros(d, 3)
+    accumulate(stats, m, Y32.reshape(*m.shape, 3))
+    table = table_from_stats(stats, TrainOptions(min_samples_factor=3))
+    # empty = fewer samples than 3x the coefficients (some classes on each side)
+    np.testing.assert_array_equal(table.empty, stats.n < 3 * d.n_coeffs)
+    assert (table.empty & (stats.n > 0)).any()
+    trained = np.flatnonzero(~table.empty)
+    assert trained.size >= 12
+    np.testing.assert_allclose(table.kernels[trained], K[trained], rtol=0, atol=1e-5)
+    # the λ training chose, relative to the mean eigenvalue: the bottom of the grid
+    # (1e-9 .. 1e-7 of a grid reaching 10; rounding decides between its first values)
+    p = d.n_coeffs - 1
+    for c in trained:
+        zc = X[cls == c, :p] - X[cls == c, :p].mean(0)
+        lam_rel = table.lambdas[c] / (np.trace(zc.T @ zc) / p)
+        assert np.all(lam_rel <= 1e-7), (c, lam_rel)
+    # with noise on the target the same classes need a clearly larger λ
+    noisy = Y32 + 0.5 * rng.standard_normal(Y32.shape).astype(np.float32)
+    sn = ClassStats.zeros(d, 3)
+    accumulate(sn, m, noisy.reshape(*m.shape, 3))
+    tn = table_from_stats(sn, TrainOptions(min_samples_factor=3))
+    zc = X[cls == trained[0], :p] - X[cls == trained[0], :p].mean(0)
+    assert np.all(tn.lambdas[trained[0]] / (np.trace(zc.T @ zc) / p) > 1e-4)
+
+
 def test_exact_float64_targets_to_1e5():
     rng, m, d = _synthetic(seed=5)
     cls = classify(m, d).ravel()
@@ -272,6 +311,28 @@ def test_find_pairs_simulation_and_pairs_folders(tmp_path):
     np.testing.assert_allclose(t, 0.5, atol=1 / 255)
 
 
+@pytest.mark.parametrize("space", ["xyz", "linear-srgb", "srgb", "lab"])
+def test_targets_are_converted_to_the_training_space(tmp_path, space):
+    """--target: the XYZ targets of a simulation become linear sRGB, encoded sRGB or
+    CIELAB (colour-science as the reference) and the table renders into that space."""
+    import colour
+
+    sim = _sim_dir(tmp_path, n=2, seed=13)
+    pairs = find_pairs([sim])
+    xyz = load_pair(pairs[0], target_space="xyz")[1].astype(np.float64)
+    got = load_pair(pairs[0], target_space=space)[1]
+    from l3cli.colourspace import D65_XYZ  # l3's documented Lab white (D65, Y = 1)
+
+    d65 = colour.XYZ_to_xy(D65_XYZ)
+    lin = colour.XYZ_to_sRGB(xyz, apply_cctf_encoding=False)
+    ref = {"xyz": xyz, "linear-srgb": lin,
+           "srgb": colour.cctf_encoding(np.clip(lin, 0, 1), function="sRGB"),
+           "lab": colour.XYZ_to_Lab(xyz, d65)}[space]
+    np.testing.assert_allclose(got, ref, atol=1e-3 if space == "lab" else 1e-5)  # float32
+    t = train(pairs, TrainOptions(levels=3, target_space=space, min_samples_factor=2))
+    assert t.output_space == space
+
+
 def test_bad_inputs(tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -292,6 +353,34 @@ def test_bad_inputs(tmp_path):
     write_raw(lonely / "x.dng", np.zeros((40, 48), np.uint16), "RGGB", white_level=4095)
     with pytest.raises(InputError, match="no target image with the same stem"):
         find_pairs([lonely])
+
+
+def test_one_run_on_a_and_b_equals_merged_statistics_of_separate_runs(tmp_path):
+    """Training on captures A + B in one run == statistics of A and of B collected in
+    separate runs (written to and read from files), added, then solved."""
+    from l3cli.train import collect_stats, define_classes
+
+    sim = _sim_dir(tmp_path, n=2, shape=(48, 64), seed=12)
+    pairs = find_pairs([sim])
+    opts = TrainOptions(levels=4, sample_fraction=0.6, min_samples_factor=2, seed=5)
+    one = train(pairs, opts)
+    d = define_classes(pairs, opts)  # the shared class definition of both runs
+    assert d.same_as(one.definition)
+    sa = collect_stats(pairs[:1], d, opts)
+    sb = collect_stats(pairs[1:], d, opts, index_offset=1)  # B is image 1 of the set
+    assert sa.n.sum() > 0 and sb.n.sum() > 0
+    merged = (ClassStats.load(sa.save(tmp_path / "a.npz"))
+              + ClassStats.load(sb.save(tmp_path / "b.npz")))
+    both = collect_stats(pairs, d, opts)
+    np.testing.assert_array_equal(merged.n, both.n)
+    for k in ("xtx", "xty", "yy"):
+        np.testing.assert_allclose(getattr(merged, k), getattr(both, k), rtol=1e-12, atol=1e-12)
+    t = table_from_stats(merged, opts)
+    np.testing.assert_array_equal(t.counts, one.counts)
+    np.testing.assert_array_equal(t.empty, one.empty)
+    np.testing.assert_array_equal(t.source_class, one.source_class)
+    np.testing.assert_allclose(t.kernels, one.kernels, rtol=1e-6, atol=1e-6)
+    assert (~one.empty).sum() >= 4
 
 
 def test_too_little_data_gives_zero_trained_classes(tmp_path):

@@ -1,7 +1,7 @@
 """Symmetry prior: kernels of mirror/rotation-related CFA positions agree.
 
 The patch classifier only looks at per-channel statistics of the patch
-(channel means, mean absolute deviations, which channels saturate), all of
+(channel means, standard deviations, which channels saturate), all of
 which are unchanged when the patch is mirrored or rotated *as long as every
 raw pixel keeps its channel*. So if an element ``g`` of the symmetry group of
 the square (the dihedral group D4: identity, left-right and up-down flips,
