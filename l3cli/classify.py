@@ -550,6 +550,7 @@ def _tile_kernel(S: int):
         nl = ncut + 1
         ncc = ccuts.shape[1]
         nlut = lut.shape[0]
+        ccf = ccuts.ravel()
         twp_max = tc + S - 1
         # along-row tables in tile coordinates (tile columns start at multiples of pw)
         mask = np.zeros((ph, nch, twp_max), dtype=np.float32)
@@ -605,6 +606,7 @@ def _tile_kernel(S: int):
             vq = np.empty(tw, dtype=np.float32)
             satr = np.empty(tw, dtype=np.int32)
             clsr = np.empty(tw, dtype=np.int32)
+            lbr = np.empty(tw, dtype=np.int32)
             rows_c = np.empty(S, dtype=np.int64)
             for k in range(nbr):
                 slot = k % S
@@ -676,18 +678,19 @@ def _tile_kernel(S: int):
                     continue
                 for x in range(tw):
                     # level bin: a lookup on the float's leading bits, then at most
-                    # two comparisons with the cut points (see _level_lookup)
+                    # two comparisons with the cut points (see _level_lookup);
+                    # branch-free, so the loop vectorises (gathers)
                     kb = (levi[x] >> lut_shift) - lut_base
                     kb = min(max(kb, 0), nlut - 1)
                     lb = lut[kb]
                     lv = lev[x]
                     lb += np.int32(cuts[lb] <= lv)
                     lb += np.int32(cuts[lb] <= lv)
-                    con = 0
-                    cv = spr[x]
-                    for j in range(ncc):
-                        con += np.int32(cv >= ccuts[lb, j])
-                    clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lb) * (ncc + 1) + con
+                    clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lb) * (ncc + 1)
+                    lbr[x] = lb * ncc
+                for j in range(ncc):  # contrast bin
+                    for x in range(tw):
+                        clsr[x] += np.int32(spr[x] >= ccf[lbr[x] + j])
                 if mode == 0:
                     for x in range(tw):
                         out_cls[i0 + i, x0 + x] = clsr[x]

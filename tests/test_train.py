@@ -402,15 +402,12 @@ def test_train_is_deterministic_with_seed_and_subsampling(tmp_path):
     assert not np.array_equal(t1.counts, t3.counts)
 
 
-def test_accumulated_statistics_equal_explicit_sums_with_mask(monkeypatch):
-    import l3cli.train.stats as st
-
-    monkeypatch.setattr(st, "_SUB_PIXELS", 500)  # gather from many sub-bands
+def test_accumulated_statistics_equal_explicit_sums_with_mask():
     rng, m, d = _synthetic(seed=9, shape=(70, 90))
     t = rng.random((*m.shape, 3)).astype(np.float32)
     mask = rng.random(m.shape) < 0.4
     s = ClassStats.zeros(d, 3)
-    accumulate(s, m, t, mask=mask, max_pixels=2000)  # several bands and sub-bands
+    accumulate(s, m, t, mask=mask, max_pixels=2000)  # several bands
     X = _design(m, d)
     Y = t.reshape(-1, 3).astype(np.float64)
     cls = classify(m, d).ravel()
@@ -421,3 +418,24 @@ def test_accumulated_statistics_equal_explicit_sums_with_mask(monkeypatch):
         np.testing.assert_allclose(s.xty[c], X[sel].T @ Y[sel], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(s.yy[c], (Y[sel] ** 2).sum(0), rtol=1e-12)
         assert s.n[c] == sel.sum()
+
+
+def test_statistics_do_not_depend_on_the_number_of_threads():
+    import numba
+
+    rng, m, d = _synthetic(seed=11, shape=(90, 130))
+    t = rng.random((*m.shape, 3)).astype(np.float32)
+    before = numba.get_num_threads()
+    runs = []
+    try:
+        for n in sorted({1, numba.config.NUMBA_NUM_THREADS}):
+            numba.set_num_threads(n)
+            s = ClassStats.zeros(d, 3)
+            accumulate(s, m, t, max_pixels=3000)
+            runs.append(s)
+    finally:
+        numba.set_num_threads(before)
+    for s in runs[1:]:
+        np.testing.assert_array_equal(s.xtx, runs[0].xtx)
+        np.testing.assert_array_equal(s.xty, runs[0].xty)
+        np.testing.assert_array_equal(s.yy, runs[0].yy)

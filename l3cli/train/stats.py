@@ -13,15 +13,17 @@ merged with ``+``. :mod:`l3cli.train.ridge` solves the ridge problem and its
 generalised cross-validation exactly from them.
 
 Accumulation: the classes of the selected pixels are computed by the shared
-classifier (:mod:`l3cli.classify`); the patches are gathered in class order
-into a float64 design matrix (one column per sample) by a numba kernel (a
-counting sort) and each class block is reduced by a numba kernel of
-contiguous dot products (parallel over classes; BLAS's own threads would
-fight numba's on these many small products).
+classifier (:mod:`l3cli.classify`), a counting sort lists each class's pixels,
+and a numba kernel, parallel over classes, gathers each class's patches 64 at
+a time straight from the mosaic into an L1-resident block and forms the
+products with register-tiled, vectorised sums (BLAS's own threads would fight
+numba's on these many small products).
 """
 
 from __future__ import annotations
 
+import functools
+import heapq
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +32,7 @@ import numba as nb
 import numpy as np
 
 from l3cli.cfa import CFA
-from l3cli.classify import ClassDefinition, band_rows, pad_mosaic
+from l3cli.classify import ClassDefinition, band_rows
 from l3cli.errors import InputError, TableError
 from l3cli.io.atomic import atomic_path
 
@@ -144,99 +146,153 @@ class ClassStats:
 
 # --------------------------------------------------------------- kernels
 @nb.njit(cache=True)
-def _sorted_slots(cls_sel, starts):
-    """Destination row of every selected sample in class order (counting sort)."""
-    nxt = starts.copy()
-    dest = np.empty(cls_sel.shape[0], dtype=np.int64)
-    for i in range(cls_sel.shape[0]):
-        c = cls_sel[i]
-        dest[i] = nxt[c]
-        nxt[c] += 1
-    return dest
+def _class_sort(cls, mask, use_mask, nc):
+    """Band pixels (flat indices) in class order, and each class's start (counting sort).
 
-
-@nb.njit(cache=True, parallel=True)
-def _scatter(band, ys, xs, dest, S, target, XY):
-    """Row ``dest[i]`` of XY = [patch of pixel i (ys[i], xs[i]) of the band, 1, target].
-
-    Reads stream in pixel order from a small (cache-resident) band; each
-    sample is one contiguous row, appended to its class's run of rows."""
-    P = S * S
-    n_out = target.shape[2]
-    for i in nb.prange(ys.shape[0]):
-        j = dest[i]
-        y = ys[i]
-        x = xs[i]
-        k = 0
-        for dy in range(S):
-            for dx in range(S):
-                XY[j, k] = band[y + dy, x + dx]
-                k += 1
-        XY[j, P] = 1.0
-        for o in range(n_out):
-            XY[j, P + 1 + o] = target[y, x, o]
-
-
-_CHUNK = 128  # samples per block of the Gram products (a block stays in L1)
-_SUB_PIXELS = 1 << 14  # pixels per gather sub-band
-
-
-@nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
-def _gram(XY, q, starts, classes, xtx, xty, yy):
-    """Add XᵀX, XᵀY and Σy² of each class's run of rows of XY = [X | Y] (float64).
-
-    Own kernel rather than BLAS: OpenBLAS threads fight numba's on these many
-    small products. Parallel over classes; each block of rows is transposed
-    into an L1 buffer so every product is a contiguous, vectorised dot.
+    Pixels where ``use_mask`` and not ``mask`` are left out. Within a class the
+    pixels keep their raster order, so the result does not depend on threads.
     """
-    m = XY.shape[1]
-    n_out = m - q
-    for t in nb.prange(classes.shape[0]):
-        c = classes[t]
-        a = starts[c]
-        b = starts[c + 1]
-        G = np.zeros((q, q))
-        R = np.zeros((q, n_out))
-        Q = np.zeros(n_out)
-        T = np.empty((m, _CHUNK))
-        for n0 in range(a, b, _CHUNK):
-            nn = min(b, n0 + _CHUNK) - n0
-            for n in range(nn):
-                for k in range(m):
-                    T[k, n] = np.float64(XY[n0 + n, k])
-            for i in range(q):
-                xi = T[i, :nn]
-                for j in range(i, q):
-                    xj = T[j, :nn]
-                    s = 0.0
+    rows, w = cls.shape
+    starts = np.zeros(nc + 1, dtype=np.int64)
+    for i in range(rows):
+        for x in range(w):
+            if not use_mask or mask[i, x]:
+                starts[cls[i, x] + 1] += 1
+    for c in range(nc):
+        starts[c + 1] += starts[c]
+    nxt = starts[:-1].copy()
+    idx = np.empty(starts[nc], dtype=np.int64)
+    for i in range(rows):
+        for x in range(w):
+            if not use_mask or mask[i, x]:
+                c = cls[i, x]
+                idx[nxt[c]] = i * w + x
+                nxt[c] += 1
+    return idx, starts
+
+
+_BLOCK = 64  # samples per block: the block's transposed samples stay in L1
+
+
+@functools.cache
+def _gram_kernel(S: int, n_out: int):
+    """The per-class Gram kernel, compiled for patch size ``S`` and ``n_out`` targets.
+
+    For each class assigned to a thread, its samples are gathered straight
+    from the mosaic (mirror indices at the borders) and the target, 64 at a
+    time, into a transposed block ``T`` (one row per coefficient: patch, 1,
+    targets; zero-padded to a multiple of 4 rows and to 64 samples), and the
+    upper triangle of ``T Tᵀ`` is accumulated in float64 by 4x2 register tiles
+    whose sums over the block vectorise. float32 products are exact in
+    float64, so the result depends only on the order of the samples (raster
+    order within each class), never on the threads.
+    """
+    P = S * S
+    q = P + 1
+    M = q + n_out
+    MP = 4 * ((M + 3) // 4)
+    r = S // 2
+    B = _BLOCK
+
+    @nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
+    def gram(mosaic, yi, xi, y0, idx, starts, assign, target, xtx, xty, yy):
+        W = mosaic.shape[1]
+        for t in nb.prange(assign.shape[0]):
+            T = np.zeros((MP, B))
+            G = np.zeros((MP, MP))
+            for ai in range(assign.shape[1]):
+                c = assign[t, ai]
+                if c < 0:
+                    break
+                a = starts[c]
+                b = starts[c + 1]
+                G[:, :] = 0.0
+                for n0 in range(a, b, B):
+                    nn = min(b, n0 + B) - n0
                     for n in range(nn):
-                        s += xi[n] * xj[n]
-                    G[i, j] += s
+                        p = idx[n0 + n]
+                        i = p // W
+                        x = p - i * W
+                        y = y0 + i
+                        inner = x >= r and x < W - r
+                        k = 0
+                        for dy in range(S):
+                            row = yi[y + dy]  # padded row y + dy is image row y + dy - r
+                            for dx in range(S):
+                                col = x - r + dx if inner else xi[x + dx]
+                                T[k, n] = mosaic[row, col]
+                                k += 1
+                        T[P, n] = 1.0
+                        for o in range(n_out):
+                            T[q + o, n] = target[y, x, o]
+                    for n in range(nn, B):
+                        for k in range(M):
+                            T[k, n] = 0.0
+                    for i0 in range(0, MP, 4):
+                        for j0 in range(i0, MP, 2):
+                            s00 = 0.0
+                            s01 = 0.0
+                            s10 = 0.0
+                            s11 = 0.0
+                            s20 = 0.0
+                            s21 = 0.0
+                            s30 = 0.0
+                            s31 = 0.0
+                            for n in range(B):
+                                u0 = T[j0, n]
+                                u1 = T[j0 + 1, n]
+                                t0 = T[i0, n]
+                                t1 = T[i0 + 1, n]
+                                t2 = T[i0 + 2, n]
+                                t3 = T[i0 + 3, n]
+                                s00 += t0 * u0
+                                s01 += t0 * u1
+                                s10 += t1 * u0
+                                s11 += t1 * u1
+                                s20 += t2 * u0
+                                s21 += t2 * u1
+                                s30 += t3 * u0
+                                s31 += t3 * u1
+                            G[i0, j0] += s00
+                            G[i0, j0 + 1] += s01
+                            G[i0 + 1, j0] += s10
+                            G[i0 + 1, j0 + 1] += s11
+                            G[i0 + 2, j0] += s20
+                            G[i0 + 2, j0 + 1] += s21
+                            G[i0 + 3, j0] += s30
+                            G[i0 + 3, j0 + 1] += s31
+                for i in range(q):
+                    xtx[c, i, i] += G[i, i]
+                    for j in range(i + 1, q):
+                        xtx[c, i, j] += G[i, j]
+                        xtx[c, j, i] += G[i, j]
+                    for o in range(n_out):
+                        xty[c, i, o] += G[i, q + o]
                 for o in range(n_out):
-                    yo = T[q + o, :nn]
-                    s = 0.0
-                    for n in range(nn):
-                        s += xi[n] * yo[n]
-                    R[i, o] += s
-            for o in range(n_out):
-                yo = T[q + o, :nn]
-                s = 0.0
-                for n in range(nn):
-                    s += yo[n] * yo[n]
-                Q[o] += s
-        for i in range(q):
-            for j in range(i, q):
-                xtx[c, i, j] += G[i, j]
-                if j != i:
-                    xtx[c, j, i] += G[i, j]
-            for o in range(n_out):
-                xty[c, i, o] += R[i, o]
-        for o in range(n_out):
-            yy[c, o] += Q[o]
+                    yy[c, o] += G[q + o, q + o]
+
+    return gram
+
+
+def _assign_classes(counts: np.ndarray, n_threads: int) -> np.ndarray:
+    """Classes with samples, spread over threads largest first onto the least
+    loaded thread (int64 (n_threads, k), padded with -1)."""
+    nz = np.flatnonzero(counts)
+    order = nz[np.argsort(-counts[nz], kind="stable")]
+    load = [(0, t) for t in range(n_threads)]
+    lists: list[list[int]] = [[] for _ in range(n_threads)]
+    for c in order.tolist():
+        ld, t = heapq.heappop(load)
+        lists[t].append(c)
+        heapq.heappush(load, (ld + int(counts[c]), t))
+    out = np.full((n_threads, max(1, max(len(v) for v in lists))), -1, dtype=np.int64)
+    for t, v in enumerate(lists):
+        out[t, : len(v)] = v
+    return out
 
 
 def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
-               mask: np.ndarray | None = None, max_pixels: int = 1 << 18) -> None:
+               mask: np.ndarray | None = None, max_pixels: int = 1 << 20) -> None:
     """Add the patches of one (mosaic, target) pair to ``stats`` in place.
 
     Parameters
@@ -250,15 +306,26 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
     mask
         Optional bool (H, W): only these pixels are used (subsampling).
     max_pixels
-        Pixels per band (bounds memory: about ``max_pixels * (q + n_out) * 8`` bytes).
+        Pixels per band of rows (bounds memory: about 12 bytes per pixel of
+        a band for its classes and sorted indices).
+
+    Notes
+    -----
+    Per band: the shared classifier (:func:`l3cli.classify.classify`) gives
+    the classes, a counting sort lists each class's pixels, and
+    :func:`_gram_kernel` forms the float64 products per class, parallel over
+    classes. Bands, classes within a band and samples within a class are
+    visited in a fixed order, so the statistics are bit-identical whatever
+    the number of threads.
     """
-    from l3cli.classify import classify
+    from l3cli.classify import _check_mosaic, classify
 
     d = stats.definition
-    mosaic = np.asarray(mosaic, dtype=np.float32)
+    mosaic = _check_mosaic(mosaic, d.cfa, d.patch)
     target = np.asarray(target, dtype=np.float32)
     if target.ndim == 2:
         target = target[:, :, None]
+    target = np.ascontiguousarray(target)
     if target.shape[:2] != mosaic.shape:
         raise InputError(
             f"target is {target.shape[1]}x{target.shape[0]} but the raw is "
@@ -266,42 +333,22 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
         )
     if target.shape[2] != stats.n_out:
         raise InputError(f"target has {target.shape[2]} channels, expected {stats.n_out}")
-    cls_map = classify(mosaic, d)
-    S = d.patch
-    r = S // 2
-    q = d.n_coeffs
-    nc = d.n_classes
+    if mask is not None:
+        mask = np.ascontiguousarray(mask, dtype=np.bool_)
+        if mask.shape != mosaic.shape:
+            raise InputError(f"mask shape {mask.shape} differs from the raw's {mosaic.shape}")
     h, w = mosaic.shape
-    ph, pw = d.cfa.period
-    for Y0, Y1 in band_rows(h, w, max_pixels=max_pixels):
-        # samples of this band in pixel (row-major) order, and their class-sorted slots
-        if mask is None:
-            yy, xx = np.divmod(np.arange((Y1 - Y0) * w, dtype=np.int64), w)
-        else:
-            yy, xx = np.nonzero(mask[Y0:Y1])
-            yy = yy.astype(np.int64)
-            xx = xx.astype(np.int64)
-        if yy.size == 0:
+    yi, xi = d.mirror_maps(h, w)
+    gram = _gram_kernel(d.patch, stats.n_out)
+    no_mask = np.zeros((1, 1), dtype=np.bool_)
+    n_threads = nb.get_num_threads()
+    for y0, y1 in band_rows(h, w, max_pixels=max_pixels):
+        cls = classify(mosaic, d, rows=(y0, y1))
+        band_mask = mask[y0:y1] if mask is not None else no_mask
+        idx, starts = _class_sort(cls, band_mask, mask is not None, d.n_classes)
+        if idx.size == 0:
             continue
-        cls_sel = cls_map[Y0:Y1][yy, xx].astype(np.int64)
-        counts = np.bincount(cls_sel, minlength=nc)
-        starts = np.zeros(nc + 1, dtype=np.int64)
-        np.cumsum(counts, out=starts[1:])
-        dest = _sorted_slots(cls_sel, starts[:-1])
-        # float32 holds the float32 mosaic/target values exactly; products and
-        # sums are formed in float64 by _gram
-        XY = np.empty((yy.size, q + stats.n_out), dtype=np.float32)
-        # gather from small sub-bands (their padded rows stay in cache)
-        row_start = np.searchsorted(yy, np.arange(Y1 - Y0 + 1))
-        for y0, y1 in band_rows(Y1 - Y0, w, max_pixels=_SUB_PIXELS):
-            s0, s1 = row_start[y0], row_start[y1]
-            if s1 == s0:
-                continue
-            band = pad_mosaic(mosaic, r, (ph, pw), rows=(Y0 + y0, Y0 + y1))
-            _scatter(band, yy[s0:s1] - y0, xx[s0:s1], dest[s0:s1], S,
-                     target[Y0 + y0 : Y0 + y1], XY)
-        # largest classes first: better balance across threads
-        nz = np.flatnonzero(counts)
-        order = nz[np.argsort(-counts[nz], kind="stable")]
-        _gram(XY, q, starts, order, stats.xtx, stats.xty, stats.yy)
+        counts = np.diff(starts)
+        gram(mosaic, yi, xi, y0, idx, starts, _assign_classes(counts, n_threads), target,
+             stats.xtx, stats.xty, stats.yy)
         stats.n += counts
