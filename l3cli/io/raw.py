@@ -14,7 +14,8 @@
 the CFA, and a 16-bit TIFF plus sidecar otherwise.
 
 The mosaic is float32, normalised so that black is 0 and the white level is 1
-(``(DN - black) / (white - black)``; values may be slightly negative from noise).
+(``(DN - black_p) / (white - black_p)`` with the black level ``black_p`` of the
+pixel's CFA position; values may be slightly negative from noise).
 """
 
 from __future__ import annotations
@@ -127,14 +128,19 @@ def sidecar_path(path: str | os.PathLike) -> Path:
 
 
 def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.ndarray:
+    """``(DN - black_p) / (white - black_p)`` with the black level of each pixel's CFA position.
+
+    Every position maps its own black level to 0 and the white level to 1.
+    """
     ph, pw = cfa.period
-    h, w = dn.shape
-    reps = (-(-h // ph), -(-w // pw))
-    black_map = np.tile(black.reshape(ph, pw), reps)[:h, :w]
-    scale = np.float32(1.0 / (white - black_map.max()))
+    black_pos = np.asarray(black, dtype=np.float64).reshape(ph, pw)
     out = dn.astype(np.float32)
-    out -= black_map.astype(np.float32)
-    out *= scale
+    for y in range(ph):
+        for x in range(pw):
+            b = black_pos[y, x]
+            view = out[y::ph, x::pw]
+            view -= np.float32(b)
+            view *= np.float32(1.0 / (white - b))
     return out
 
 
@@ -196,7 +202,9 @@ def _read_headerless(path: Path) -> RawImage:
             f"{sc}: dtype {meta['dtype']!r} is not allowed; use one of {', '.join(_DTYPES)}"
         )
     dtype = _DTYPES[meta["dtype"]]
-    offset = int(meta.get("offset", 0))
+    offset = meta.get("offset", 0)
+    if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
+        raise ConfigError(f"{sc}: offset must be an integer >= 0 (bytes), got {offset!r}")
     cfa = CFA.from_spec(meta["cfa"])
     black, white = _levels(meta, cfa, sc)
     expected = offset + w * h * dtype.itemsize
