@@ -92,14 +92,17 @@ class RawImage:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(height, width) of the mosaic."""
         return self.mosaic.shape  # type: ignore[return-value]
 
     @property
     def height(self) -> int:
+        """Mosaic height in pixels."""
         return int(self.mosaic.shape[0])
 
     @property
     def width(self) -> int:
+        """Mosaic width in pixels."""
         return int(self.mosaic.shape[1])
 
     def crop(self, y0: int, x0: int, height: int, width: int) -> RawImage:
