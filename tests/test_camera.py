@@ -76,6 +76,10 @@ def test_minimal_defaults(tmp_path: Path) -> None:
     assert cam.exposure.mode == "auto" and cam.exposure.illuminant == "D65"
     assert cam.wavelengths[0] == 380 and cam.wavelengths[-1] == 730  # the QE's visible range
     assert cam.readout.white_level_dn == 1023
+    import dataclasses
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cam.pixel.pitch_um = 3.0  # type: ignore[misc]
 
 
 @pytest.mark.parametrize(

@@ -233,3 +233,17 @@ def test_output_parent_is_a_file(tmp_path):
     f.write_text("x")
     with pytest.raises(OutputError, match="not a folder"):
         write_raw(f / "a.dng", np.zeros((4, 4), np.uint16), "RGGB")
+
+
+@pytest.mark.parametrize("dtype, name", [("<u1", "uint8"), ("<u2", "uint16"), (">u2", "uint16be")])
+def test_headerless_dtypes_as_in_the_contract(tmp_path, dtype, name):
+    """The CONTRACT's sidecar (width, height, dtype, cfa, black_level, white_level)."""
+    white = 255 if name == "uint8" else 4095
+    dn = np.random.default_rng(4).integers(12, white + 1, (6, 10)).astype(dtype)
+    p = tmp_path / "dump.raw"
+    dn.tofile(p)
+    sidecar_path(p).write_text(f'width = 10\nheight = 6\ndtype = "{name}"\ncfa = "GRBG"\n'
+                               f"black_level = 12\nwhite_level = {white}\n")
+    raw = read_raw(p)
+    assert raw.cfa.spec == "GR/BG" and raw.shape == (6, 10)
+    np.testing.assert_allclose(raw.mosaic, (dn.astype(float) - 12) / (white - 12), rtol=1e-6)
