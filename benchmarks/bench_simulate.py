@@ -1,8 +1,9 @@
 """Benchmark: one 12-megapixel capture of `l3 simulate` (issue 3's performance figure).
 
-Simulates a 4000x3000 Bayer capture of the bundled natural scene ``coffee``
-with 31 wavelengths (400-700 nm) and, separately, 61 wavelengths for the
-interleaved RGBW camera (400-1000 nm): scene → Airy optics → noise chain →
+Simulates a 4000x3000 capture of the bundled natural scene ``coffee`` with
+``sample_configs/bayer.toml`` (RGGB, 71 wavelengths, 380-730 nm in 5 nm steps)
+and, separately, ``sample_configs/rgbw.toml`` (4x4 interleaved RGBW, 69
+wavelengths, 380-1060 nm in 10 nm steps): scene → Airy optics → noise chain →
 DN, plus the XYZ target and the noise-free response (in memory; file writing
 is not timed). Reports wall time and peak resident memory of a fresh
 process per case, limited to 2 FFT/BLAS threads.

@@ -175,6 +175,7 @@ class CFA:
 
     @property
     def n_channels(self) -> int:
+        """Number of distinct channels."""
         return len(self.channels)
 
     @cached_property

@@ -15,6 +15,7 @@ References
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -32,7 +33,7 @@ def saturation_name(bits: int, channels: tuple[str, ...]) -> str:
     return "+".join(names) if names else "-"
 
 
-def compress_ranges(indices) -> str:
+def compress_ranges(indices: Iterable[int]) -> str:
     """``[1, 2, 3, 7]`` -> ``"1-3, 7"``."""
     idx = sorted(int(i) for i in indices)
     if not idx:

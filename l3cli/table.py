@@ -144,14 +144,17 @@ class TransformTable:
 
     @property
     def n_out(self) -> int:
+        """Number of output channels."""
         return int(self.kernels.shape[2])
 
     @property
     def cfa(self) -> CFA:
+        """The CFA the table was trained for."""
         return self.definition.cfa
 
     @property
     def patch(self) -> int:
+        """Patch size S (odd)."""
         return self.definition.patch
 
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -76,6 +76,10 @@ def test_minimal_defaults(tmp_path: Path) -> None:
     assert cam.exposure.mode == "auto" and cam.exposure.illuminant == "D65"
     assert cam.wavelengths[0] == 380 and cam.wavelengths[-1] == 730  # the QE's visible range
     assert cam.readout.white_level_dn == 1023
+    import dataclasses
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cam.pixel.pitch_um = 3.0  # type: ignore[misc]
 
 
 @pytest.mark.parametrize(
@@ -203,3 +207,20 @@ def test_channel_mapping(tmp_path: Path) -> None:
     bad = text.replace('{ C = "W" }', '{ G = "W" }')
     with pytest.raises(ConfigError, match="cfa.channels.G.*not a channel"):
         load_camera(write(tmp_path, bad))
+
+
+@pytest.mark.parametrize("qe, ir_cut, reaches_nir", [
+    ("interleaved-rgbw", "none", True),     # W responds far into the NIR
+    ("nikon-d200-ir", "none", True),        # no IR-cut: R, G, B leak beyond 700 nm
+    ("nikon-d200-ir", "ircf-public", False),  # behind the IR-cut filter: visible only
+    ("bayer-rgb", "none", False),           # data end at 730 nm
+])
+def test_default_grid_reaches_1000nm_when_a_channel_responds(tmp_path: Path, qe, ir_cut,
+                                                              reaches_nir) -> None:
+    pattern = '[["R", "G"], ["W", "B"]]' if qe == "interleaved-rgbw" else '"RGGB"'
+    text = MINIMAL.replace('"bayer-rgb"', f'"{qe}"').replace('"RGGB"', pattern)
+    cam = load_camera(write(tmp_path, text + f'ir_cut = "{ir_cut}"\n'))
+    wl = cam.wavelengths
+    assert (wl[-1] >= 1000) == reaches_nir
+    if not reaches_nir:
+        assert wl[-1] <= 780

@@ -75,3 +75,117 @@ def test_preview_with_several_inputs_is_usage_error(runner, data_dir, tmp_path):
     src = str(data_dir / "halide_bayer_small.png")
     res = runner.invoke(cli, ["info", src, src, "--preview", str(tmp_path / "p.png")])
     assert res.exit_code == 2 and "--preview" in res.output
+
+
+# ----------------------------------------------------------- global options
+SIM_ARGS = ["--scene", "macbeth", "--lux", "100", "--size", "64x48"]
+
+
+def _bayer() -> str:
+    from pathlib import Path
+
+    return str(Path(__file__).resolve().parents[1] / "sample_configs" / "bayer.toml")
+
+
+def test_version_names_the_program(runner):
+    res = runner.invoke(cli, ["--version"])
+    assert res.exit_code == 0 and res.output.strip() == f"l3, version {__version__}"
+
+
+def test_verbose_shows_info_logs_quiet_hides_them(runner, tmp_path):
+    import logging
+
+    res = runner.invoke(cli, ["simulate", _bayer(), "-o", str(tmp_path / "a"), *SIM_ARGS])
+    assert res.exit_code == 0 and "INFO" not in res.output
+    res = runner.invoke(cli, ["-v", "simulate", _bayer(), "-o", str(tmp_path / "b"), *SIM_ARGS])
+    assert res.exit_code == 0
+    assert "INFO l3cli.simulate.run: simulated macbeth_D65_0100lux" in res.output
+    assert logging.getLogger().level == logging.INFO
+    res = runner.invoke(cli, ["-vv", "simulate", _bayer(), "-o", str(tmp_path / "c"), *SIM_ARGS])
+    assert res.exit_code == 0 and logging.getLogger().level == logging.DEBUG
+    res = runner.invoke(cli, ["-q", "simulate", _bayer(), "-o", str(tmp_path / "d"), *SIM_ARGS])
+    assert res.exit_code == 0 and res.output == ""
+    assert logging.getLogger().level == logging.ERROR
+
+
+def test_quiet_hides_warnings(runner, tmp_path):
+    """A warning (here: a featureless render whose alignment cannot be checked) shows by
+    default, not under -q."""
+    from l3cli.io.raw import write_raw
+
+    pairs = tmp_path / "pairs"
+    pairs.mkdir()
+    write_raw(pairs / "a.dng", np.full((48, 64), 500, np.uint16), "RGGB", white_level=4095)
+    from l3cli.io.image import write_image
+
+    write_image(pairs / "a.png", np.full((48, 64, 3), 0.5, np.float32))
+    res = runner.invoke(cli, ["train", str(pairs), "-o", str(tmp_path / "t.npz")])
+    assert res.exit_code == 0, res.output
+    assert "WARNING" in res.output and "featureless" in res.output
+    res = runner.invoke(cli, ["-q", "train", str(pairs), "-o", str(tmp_path / "t2.npz")])
+    assert res.exit_code == 0 and "WARNING" not in res.output
+
+
+def test_debug_reraises_the_library_error(runner, tmp_path):
+    from l3cli.errors import InputError
+
+    res = runner.invoke(cli, ["--debug", "info", str(tmp_path / "missing.dng")])
+    assert res.exit_code != 0 and isinstance(res.exception, InputError)
+    res = runner.invoke(cli, ["info", str(tmp_path / "missing.dng")])
+    assert res.exit_code == 1 and not isinstance(res.exception, InputError)
+
+
+# ------------------------------------------------------------------ layout
+def test_one_module_per_subcommand():
+    """Each registered subcommand lives in its own module l3cli/cli/<name>.py."""
+    import importlib
+
+    from l3cli.cli.main import _COMMANDS
+
+    for name, target in _COMMANDS.items():
+        mod_name, attr = target.split(":")
+        assert mod_name == f"l3cli.cli.{name}", (name, mod_name)
+        cmd = getattr(importlib.import_module(mod_name), attr)
+        assert cmd.name == name
+
+
+def test_library_core_does_not_import_click():
+    """Only l3cli/cli/ may use click: the library core stays usable without it."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "l3cli"
+    offenders = []
+    for path in root.rglob("*.py"):
+        if path.relative_to(root).parts[0] == "cli":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(n == "click" or n.startswith("click.") for n in names):
+                offenders.append(str(path.relative_to(root)))
+    assert offenders == []
+
+
+def test_progress_draws_through_the_installed_factory():
+    import contextlib
+
+    from l3cli import progress
+
+    seen = []
+
+    @contextlib.contextmanager
+    def fake(items, *, label, length=None):
+        seen.append((label, length))
+        yield items
+
+    previous = progress.set_bar_factory(fake)
+    try:
+        assert list(progress.progress(range(3), label="x", length=3, enabled=True)) == [0, 1, 2]
+        assert list(progress.progress(range(2), label="y", enabled=False)) == [0, 1]
+        assert seen == [("x", 3)]
+        progress.set_bar_factory(None)
+        assert list(progress.progress(range(2), label="z", enabled=True)) == [0, 1]
+        assert seen == [("x", 3)]
+    finally:
+        progress.set_bar_factory(previous)

@@ -93,3 +93,26 @@ def test_failed_write_leaves_nothing(tmp_path, img):
     with pytest.raises(Exception):  # noqa: B017 - any failure must leave no file behind
         write_image(tmp_path / "a.png", img[:, :, :0], space="data")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name, kwargs, fmt, oiio_type, channels", [
+    ("a.exr", {"space": "xyz"}, "openexr", "float", 3),
+    ("h.exr", {"space": "xyz", "half": True}, "openexr", "half", 3),
+    ("a.tif", {"space": "srgb"}, "tiff", "uint16", 3),
+    ("a.png", {"space": "srgb", "bits": 16}, "png", "uint16", 3),
+    ("b.png", {"space": "srgb"}, "png", "uint8", 3),
+    ("a.jpg", {"space": "srgb"}, "jpeg", "uint8", 3),
+])
+def test_written_file_types(tmp_path, img, name, kwargs, fmt, oiio_type, channels):
+    """What lands on disk: EXR float32/half, TIFF 16-bit, PNG 8/16-bit, JPEG 8-bit."""
+    import OpenImageIO as oiio
+
+    p = write_image(tmp_path / name, img, **kwargs)
+    inp = oiio.ImageInput.open(str(p))
+    try:
+        spec = inp.spec()
+        assert inp.format_name() == fmt
+        assert str(spec.format) == oiio_type and spec.nchannels == channels
+        assert (spec.width, spec.height) == (23, 17)
+    finally:
+        inp.close()

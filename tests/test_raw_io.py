@@ -48,26 +48,83 @@ def test_blackmagic_dng(shared_data):
                                rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.parametrize("black", [64, [60, 62, 64, 66]], ids=["black64", "black-per-position"])
 @pytest.mark.parametrize("spec", ["RGGB", "GRBG", "BGGR", "GBRG"])
-def test_dng_round_trip(tmp_path, spec):
+def test_dng_round_trip(tmp_path, spec, black):
+    """write -> read with rawpy and with l3: same mosaic, CFA and levels; postprocess() works."""
     rng = np.random.default_rng(1)
     dn = rng.integers(64, 4095, size=(48, 64)).astype(np.uint16)
-    out = write_raw(tmp_path / "a.dng", dn, spec, black_level=64, white_level=4095,
+    out = write_raw(tmp_path / "a.dng", dn, spec, black_level=black, white_level=4095,
                     make="l3", model="test")
     assert out.suffix == ".dng"
+    black_pos = np.broadcast_to(np.asarray(black, float), (4,))
+    black_map = np.tile(black_pos.reshape(2, 2), (24, 32))
     raw = read_raw(out)
     assert raw.cfa == CFA.from_spec(spec)
-    assert raw.black_level.tolist() == [64.0] * 4 and raw.white_level == 4095
-    np.testing.assert_allclose(raw.mosaic, (dn - 64.0) / (4095 - 64), rtol=1e-6)
+    assert raw.black_level.tolist() == black_pos.tolist() and raw.white_level == 4095
+    np.testing.assert_allclose(raw.mosaic, (dn - black_map) / (4095 - black_map), rtol=1e-6)
     with rawpy.imread(str(out)) as rp:
         np.testing.assert_array_equal(rp.raw_image_visible, dn)
+        # LibRaw's own view of the CFA and the levels, position by position
         letters = rp.color_desc.decode()
-        got = "".join(letters[c] for c in rp.raw_pattern.ravel()).replace("G", "G")
-        assert got.replace("G", "G") == spec.replace("G", "G")[: len(got)] or got == spec
-        assert list(rp.black_level_per_channel) == [64] * 4
+        colors = rp.raw_colors_visible
+        assert "".join(letters[colors[y, x]] for y in range(2) for x in range(2)) == spec
+        per_colour = rp.black_level_per_channel
+        assert [per_colour[colors[y, x]] for y in range(2) for x in range(2)] == black_pos.tolist()
         assert rp.white_level == 4095
         rgb = rp.postprocess()
-    assert rgb.shape == (48, 64, 3) and rgb.dtype == np.uint8
+    assert rgb.shape == (48, 64, 3) and rgb.dtype == np.uint8 and rgb.max() > 0
+
+
+def test_dng_tags(tmp_path):
+    """The DNG tags raw converters need are present (read back with tifffile)."""
+    import tifffile
+
+    out = write_raw(tmp_path / "t.dng", np.full((8, 8), 100, np.uint16), "GRBG", black_level=16,
+                    white_level=1023, make="l3", model="unit", as_shot_neutral=[0.5, 1.0, 0.8])
+    with tifffile.TiffFile(out) as tf:
+        tags = {t.name: t.value for t in tf.pages[0].tags}
+    assert tags["Make"] == "l3" and tags["Model"] == "unit"
+    assert tags["UniqueCameraModel"] == "l3 unit"
+    assert tuple(tags["DNGVersion"]) == (1, 4, 0, 0)
+    assert tuple(tags["CFARepeatPatternDim"]) == (2, 2)
+    assert tuple(tags["CFAPattern"]) == (1, 0, 2, 1)
+    assert tuple(tags["BlackLevel"]) == (16, 16, 16, 16) and tags["WhiteLevel"] == 1023
+    assert len(tags["ColorMatrix1"]) == 18  # 9 signed rationals
+    neutral = np.array(tags["AsShotNeutral"], float).reshape(3, 2)
+    np.testing.assert_allclose(neutral[:, 0] / neutral[:, 1], [0.5, 1.0, 0.8])
+
+
+def test_raw_image_visible_excludes_masked_margins(tmp_path):
+    """A DNG with an ActiveArea: l3 reads LibRaw's visible area, with the CFA phase there."""
+    import tifffile
+
+    h, w, top, left = 52, 70, 2, 4
+    dn = np.random.default_rng(2).integers(100, 4000, (h, w)).astype(np.uint16)
+    dn[:top] = 7
+    dn[:, :left] = 7  # masked (optical black) margins
+    one, zero = (10000, 10000), (0, 10000)
+    identity = one + zero + zero + zero + one + zero + zero + zero + one  # 3x3 SRATIONAL
+    tags = [(271, "s", 0, "l3", True), (272, "s", 0, "margins", True),
+            (33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
+            (50706, "B", 4, (1, 4, 0, 0), True), (50708, "s", 0, "l3 margins", True),
+            (50710, "B", 3, (0, 1, 2), True), (50711, "H", 1, 1, True),
+            (50714, "I", 1, 64, True), (50717, "I", 1, 4095, True),
+            (50721, "2i", 9, identity, True),  # ColorMatrix1
+            (50829, "I", 4, (top, left, h, w), True)]  # ActiveArea
+    path = tmp_path / "m.dng"
+    tifffile.imwrite(path, dn, photometric=32803, planarconfig=1, compression=None,
+                     subfiletype=0, extratags=tags, metadata=None)
+    with rawpy.imread(str(path)) as rp:
+        assert rp.raw_image.shape == (h, w)
+        vis = rp.raw_image_visible.astype(np.float64)
+        letters = rp.color_desc.decode()
+        phase = [letters[c] for c in rp.raw_colors_visible[:2, :2].ravel()]
+    raw = read_raw(path)
+    assert raw.shape == vis.shape and raw.shape[0] < h and raw.shape[1] < w
+    np.testing.assert_allclose(raw.mosaic, (vis - 64) / (4095 - 64), rtol=1e-6, atol=1e-7)
+    assert [raw.cfa.channel_at(y, x) for y in range(2) for x in range(2)] == phase
+    assert raw.mosaic.min() > (7.5 - 64) / (4095 - 64)  # no masked pixel got in
 
 
 def test_non_dng_cfa_writes_tiff_with_sidecar(tmp_path):
@@ -78,7 +135,8 @@ def test_non_dng_cfa_writes_tiff_with_sidecar(tmp_path):
     raw = read_raw(out)
     assert raw.cfa.channels == ("R", "G", "NIR", "B")
     assert raw.black_level.tolist() == [1, 2, 3, 4]
-    expect = (dn - np.tile([[1, 2], [3, 4]], (8, 12))) / (60000 - 4)
+    black = np.tile([[1, 2], [3, 4]], (8, 12))
+    expect = (dn - black) / (60000 - black)  # each position: its black -> 0, white -> 1
     np.testing.assert_allclose(raw.mosaic, expect, rtol=1e-6, atol=1e-8)
 
 
@@ -175,3 +233,17 @@ def test_output_parent_is_a_file(tmp_path):
     f.write_text("x")
     with pytest.raises(OutputError, match="not a folder"):
         write_raw(f / "a.dng", np.zeros((4, 4), np.uint16), "RGGB")
+
+
+@pytest.mark.parametrize("dtype, name", [("<u1", "uint8"), ("<u2", "uint16"), (">u2", "uint16be")])
+def test_headerless_dtypes_as_in_the_contract(tmp_path, dtype, name):
+    """The CONTRACT's sidecar (width, height, dtype, cfa, black_level, white_level)."""
+    white = 255 if name == "uint8" else 4095
+    dn = np.random.default_rng(4).integers(12, white + 1, (6, 10)).astype(dtype)
+    p = tmp_path / "dump.raw"
+    dn.tofile(p)
+    sidecar_path(p).write_text(f'width = 10\nheight = 6\ndtype = "{name}"\ncfa = "GRBG"\n'
+                               f"black_level = 12\nwhite_level = {white}\n")
+    raw = read_raw(p)
+    assert raw.cfa.spec == "GR/BG" and raw.shape == (6, 10)
+    np.testing.assert_allclose(raw.mosaic, (dn.astype(float) - 12) / (white - 12), rtol=1e-6)

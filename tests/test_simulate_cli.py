@@ -117,15 +117,23 @@ def test_default_scenes_and_levels(runner, tmp_path: Path) -> None:
     assert {c["lux"] for c in m["captures"]} == {10.0, 100.0, 1000.0}
 
 
-def test_seed_bit_identical(runner, tmp_path: Path) -> None:
+@pytest.mark.parametrize("camera", [BAYER, RGBW], ids=["bayer-dng", "rgbw-tiff"])
+def test_seed_bit_identical(runner, tmp_path: Path, camera: str) -> None:
+    """Every file of SIM_DIR (raw, sidecar, EXRs, manifest) is byte-identical for a seed."""
+    import time
+
     outs = []
     for name, seed in (("a", 5), ("b", 5), ("c", 6)):
         out = tmp_path / name
-        r = runner.invoke(cli, ["simulate", BAYER, "-o", str(out), "--scene", "macbeth",
-                                "--lux", "20", "--size", "64x48", "--seed", str(seed)])
+        r = runner.invoke(cli, ["simulate", camera, "-o", str(out), "--scene", "macbeth",
+                                "--scene", "natural:coffee", "--lux", "20", "--size", "64x48",
+                                "--seed", str(seed)])
         assert r.exit_code == 0, r.output
-        outs.append((out / "macbeth_D65_0020lux.dng").read_bytes())
-    assert outs[0] == outs[1] and outs[0] != outs[2]
+        outs.append({p.name: p.read_bytes() for p in sorted(out.iterdir())})
+        time.sleep(1.1)  # a time stamp in any file would now differ
+    assert len(outs[0]) >= 7 and outs[0] == outs[1]
+    raws = [n for n in outs[0] if n.endswith((".dng", ".tif"))]
+    assert raws and all(outs[0][n] != outs[2][n] for n in raws)
 
 
 def test_user_rgb_image_and_spectral_cube(runner, tmp_path: Path) -> None:

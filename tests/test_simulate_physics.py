@@ -418,3 +418,46 @@ def test_capture_stems_are_distinct() -> None:
 
     assert capture_stem("macbeth", "D65", 100) == "macbeth_D65_0100lux"
     assert capture_stem("macbeth", "D65", 12.5) != capture_stem("macbeth", "D65", 12.4)
+
+
+def test_fill_factor_and_transmittance_scale_the_signal(tmp_path: Path) -> None:
+    """Fill factor scales photo-electrons (not the target); lens transmittance scales both."""
+    import dataclasses
+
+    base = flat_qe_camera(tmp_path, time_s=0.01)
+    half_fill = dataclasses.replace(base, pixel=dataclasses.replace(base.pixel, fill_factor=0.5))
+    dim_lens = dataclasses.replace(base, optics=dataclasses.replace(base.optics, transmittance=0.25))
+    caps = []
+    for cam in (base, half_fill, dim_lens):
+        model = prepare_camera(cam)
+        caps.append(simulate_capture(model, uniform_scene(8, 8, model.wavelengths), illuminant="E",
+                                     lux=100, seed=0, noise=False, blur=False, exposure_s=0.01))
+    a, b, c = caps
+    np.testing.assert_allclose(b.noise_free, 0.5 * a.noise_free, rtol=1e-5)
+    np.testing.assert_allclose(c.noise_free, 0.25 * a.noise_free, rtol=1e-5)
+    # The target is the optical image on the camera's fixed scale Y = H_v / H_ref: the lens
+    # dims H_v; the fill factor leaves H_v alone but doubles H_ref (the exposure that
+    # saturates the pixel), so raw and target keep their ratio.
+    np.testing.assert_allclose(c.target, 0.25 * a.target, rtol=1e-5)
+    assert prepare_camera(half_fill).h_ref == pytest.approx(2 * prepare_camera(base).h_ref,
+                                                            rel=1e-9)
+    np.testing.assert_allclose(b.target, 0.5 * a.target, rtol=1e-5)
+
+
+def test_ir_cut_filter_multiplies_every_channel(tmp_path: Path) -> None:
+    """QE with an IR-cut filter = QE x the filter's transmittance (read here from its CSV)."""
+    import dataclasses
+
+    from l3cli import spectral
+
+    cam = load_camera(REPO / "sample_configs" / "bayer.toml")
+    open_cam = dataclasses.replace(cam, cfa=dataclasses.replace(cam.cfa, ir_cut="none",
+                                                                 ir_cut_source="none"))
+    wl = np.arange(400.0, 1001.0, 10.0)
+    text = [ln for ln in (spectral.DATA_DIR / "filter_ircf_public.csv").read_text().splitlines()
+            if ln and not ln.startswith("#")][1:]
+    rows = np.array([[float(v) for v in ln.split(",")] for ln in text])
+    t = np.interp(wl, rows[:, 0], rows[:, 1])
+    np.testing.assert_allclose(cam.qe_curves(wl), open_cam.qe_curves(wl) * t[:, None], rtol=1e-6)
+    # and it does block the near infrared
+    assert t[wl >= 750].max() < 0.05 and t[(wl >= 450) & (wl <= 600)].min() > 0.75

@@ -13,11 +13,23 @@ from __future__ import annotations
 import importlib
 import logging
 import sys
+from collections.abc import Iterable
+from contextlib import AbstractContextManager
+from typing import Any
 
 import click
 
-from l3cli import __version__
+from l3cli import __version__, progress
 from l3cli.errors import L3Error
+
+
+def _click_bar(items: Iterable[Any], *, label: str, length: int | None = None
+               ) -> AbstractContextManager[Iterable[Any]]:
+    """The progress bar the library draws through :func:`l3cli.progress.progress`."""
+    return click.progressbar(items, label=label, length=length, file=sys.stderr)
+
+
+progress.set_bar_factory(_click_bar)
 
 #: name -> "module:attribute" of each registered subcommand. Register a command
 #: only when it works.
@@ -100,6 +112,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
 
 
 def main() -> None:  # pragma: no cover - console entry point
+    """Console entry point of ``l3``."""
     cli()
 
 

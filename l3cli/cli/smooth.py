@@ -44,7 +44,7 @@ def _strength(ctx, param, value):
               help="Common per-channel sums: the mean over CFA positions (keeps flat-area "
                    "colours) or the sample-weighted least-squares values.")
 def smooth(table_path: str, output: str, symmetry: bool, spline: bool, uniformity: bool,
-           spline_strength, uniformity_target: str) -> None:
+           spline_strength: float | str, uniformity_target: str) -> None:
     """Apply priors to TABLE.npz and write the smoothed table to OUT.npz (-o).
 
     Each prior is on by default and can be switched off; the output table

@@ -35,6 +35,20 @@ def check_writable_dir(folder: str | os.PathLike) -> Path:
     return folder
 
 
+def _umask() -> int:
+    """The process umask (read from /proc where possible: setting it is not thread-safe)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
@@ -50,6 +64,7 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     Notes
     -----
     On any exception the temporary file is removed and ``path`` is untouched.
+    The file gets the permissions of a newly created file (``0666 & ~umask``).
     """
     path = Path(path)
     folder = check_writable_dir(path.parent if str(path.parent) else Path("."))
@@ -61,6 +76,8 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
         yield tmp_path
         if not tmp_path.exists() or tmp_path.stat().st_size == 0:
             raise OutputError(f"{path}: nothing was written")
+        # mkstemp makes the file private (0600); give it the mode a plain open() would.
+        os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

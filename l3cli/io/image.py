@@ -112,7 +112,8 @@ def write_image(
     bits
         8 or 16 for PNG (TIFF is 16, JPEG 8).
     attributes
-        Extra string metadata.
+        Extra string metadata. No ``DateTime`` is written unless given here, so
+        the same image always gives the same bytes.
     """
     import OpenImageIO as oiio
 
@@ -147,6 +148,9 @@ def write_image(
         spec.attribute("jpeg:subsampling", "4:4:4")
     if fmt != "exr" and space != "data":
         spec.attribute("oiio:ColorSpace", "sRGB")
+    # OpenImageIO stamps EXR/TIFF files with the current DateTime unless one is given;
+    # an empty one leaves it out, so equal pixels give byte-identical files (--seed).
+    spec.attribute("DateTime", "")
     for k, v in (attributes or {}).items():
         spec.attribute(str(k), str(v))
     with atomic_path(path) as tmp:

@@ -14,14 +14,20 @@
 the CFA, and a 16-bit TIFF plus sidecar otherwise.
 
 The mosaic is float32, normalised so that black is 0 and the white level is 1
-(``(DN - black) / (white - black)``; values may be slightly negative from noise).
+(``(DN - black_p) / (white - black_p)`` with the black level ``black_p`` of the
+pixel's CFA position; values may be slightly negative from noise).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import sys
+import tempfile
+import threading
 import tomllib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -86,14 +92,17 @@ class RawImage:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(height, width) of the mosaic."""
         return self.mosaic.shape  # type: ignore[return-value]
 
     @property
     def height(self) -> int:
+        """Mosaic height in pixels."""
         return int(self.mosaic.shape[0])
 
     @property
     def width(self) -> int:
+        """Mosaic width in pixels."""
         return int(self.mosaic.shape[1])
 
     def crop(self, y0: int, x0: int, height: int, width: int) -> RawImage:
@@ -127,14 +136,19 @@ def sidecar_path(path: str | os.PathLike) -> Path:
 
 
 def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.ndarray:
+    """``(DN - black_p) / (white - black_p)`` with the black level of each pixel's CFA position.
+
+    Every position maps its own black level to 0 and the white level to 1.
+    """
     ph, pw = cfa.period
-    h, w = dn.shape
-    reps = (-(-h // ph), -(-w // pw))
-    black_map = np.tile(black.reshape(ph, pw), reps)[:h, :w]
-    scale = np.float32(1.0 / (white - black_map.max()))
+    black_pos = np.asarray(black, dtype=np.float64).reshape(ph, pw)
     out = dn.astype(np.float32)
-    out -= black_map.astype(np.float32)
-    out *= scale
+    for y in range(ph):
+        for x in range(pw):
+            b = black_pos[y, x]
+            view = out[y::ph, x::pw]
+            view -= np.float32(b)
+            view *= np.float32(1.0 / (white - b))
     return out
 
 
@@ -169,6 +183,13 @@ def _read_sidecar(raw_path: Path, sc: Path) -> dict[str, Any]:
     return meta
 
 
+def _sidecar_cfa(meta: dict[str, Any], sc: Path) -> CFA:
+    try:
+        return CFA.from_spec(meta["cfa"])
+    except ConfigError as exc:
+        raise ConfigError(f"{sc}: cfa: {exc}") from None
+
+
 def _levels(meta: dict[str, Any], cfa: CFA, sc: Path) -> tuple[np.ndarray, float]:
     try:
         cfa_black = _per_position(meta["black_level"], cfa, str(sc))
@@ -196,8 +217,10 @@ def _read_headerless(path: Path) -> RawImage:
             f"{sc}: dtype {meta['dtype']!r} is not allowed; use one of {', '.join(_DTYPES)}"
         )
     dtype = _DTYPES[meta["dtype"]]
-    offset = int(meta.get("offset", 0))
-    cfa = CFA.from_spec(meta["cfa"])
+    offset = meta.get("offset", 0)
+    if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
+        raise ConfigError(f"{sc}: offset must be an integer >= 0 (bytes), got {offset!r}")
+    cfa = _sidecar_cfa(meta, sc)
     black, white = _levels(meta, cfa, sc)
     expected = offset + w * h * dtype.itemsize
     size = path.stat().st_size
@@ -249,7 +272,7 @@ def _read_image_mosaic(path: Path) -> RawImage:
         raise InputError(
             f"{path}: expected a single-channel integer mosaic, got shape {dn.shape} {dn.dtype}"
         )
-    cfa = CFA.from_spec(meta["cfa"])
+    cfa = _sidecar_cfa(meta, sc)
     black, white = _levels(meta, cfa, sc)
     return RawImage(
         mosaic=_normalise(dn, black, white, cfa),
@@ -262,19 +285,72 @@ def _read_image_mosaic(path: Path) -> RawImage:
     )
 
 
+_FD2_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _libraw_messages() -> Iterator[list[str]]:
+    """Capture what LibRaw prints on the C-level stderr (e.g. "Unexpected end of file").
+
+    LibRaw reports data errors by writing to file descriptor 2; l3 folds them
+    into its one-line error instead. Yields a list that holds the captured
+    lines once the block has run.
+    """
+    lines: list[str] = []
+    # fd 2 is process-wide: one capture at a time, or nested threads would restore
+    # each other's sinks instead of the real stderr.
+    with _FD2_LOCK:
+        try:
+            sys.stderr.flush()
+            saved = os.dup(2)
+        except (OSError, ValueError):  # no usable fd 2: nothing to capture
+            yield lines
+            return
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield lines
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+                sink.seek(0)
+                text = sink.read().decode("utf-8", "replace")
+                lines.extend(ln.strip() for ln in text.splitlines() if ln.strip())
+
+
+def _libraw_detail(path: Path, lines: list[str], fallback: str) -> str:
+    """LibRaw's own message without the file name it prefixes, or ``fallback``."""
+    if not lines:
+        return fallback
+    msg = lines[-1]
+    for prefix in (f"{path}: ", f"{path.name}: "):
+        if msg.startswith(prefix):
+            msg = msg[len(prefix):]
+    return msg
+
+
 def _read_rawpy(path: Path) -> RawImage:
     import rawpy
 
-    try:
-        rp = rawpy.imread(str(path))
-    except (rawpy.LibRawError, OSError, ValueError) as exc:
-        kind = type(exc).__name__.replace("LibRaw", "").replace("Error", "")
-        raise InputError(f"{path}: not a raw file LibRaw can read ({kind or exc})") from exc
-    with rp:
+    rp = None
+    failure: Exception | None = None
+    with _libraw_messages() as said:
         try:
-            vis = rp.raw_image_visible
-        except (rawpy.LibRawError, AttributeError) as exc:
-            raise InputError(f"{path}: cannot unpack raw data ({type(exc).__name__})") from exc
+            rp = rawpy.imread(str(path))
+            vis = rp.raw_image_visible  # unpacks the raw data
+        except (rawpy.LibRawError, OSError, ValueError, AttributeError) as exc:
+            failure = exc
+    if failure is not None:
+        if rp is not None:
+            rp.close()
+            detail = _libraw_detail(path, said, type(failure).__name__)
+            raise InputError(f"{path}: cannot unpack raw data ({detail})") from failure
+        kind = type(failure).__name__.replace("LibRaw", "").replace("Error", "")
+        detail = _libraw_detail(path, said, kind or str(failure))
+        raise InputError(f"{path}: not a raw file LibRaw can read ({detail})") from failure
+    for line in said:
+        log.debug("LibRaw: %s", line)
+    with rp:
         if vis is None or vis.ndim != 2 or rp.raw_type != rawpy.RawType.Flat:
             raise InputError(f"{path}: not a CFA mosaic (linear or Foveon raw); l3 needs a CFA")
         colors = rp.raw_colors_visible

@@ -60,6 +60,7 @@ def _on(wl_src: np.ndarray, values: np.ndarray, wl: np.ndarray, *, hold: bool = 
 
 
 def main(root: Path) -> None:
+    """Convert the ISETCam ``data/`` folder at ``root`` into the bundled CSV files."""
     # --- QE presets ------------------------------------------------------
     wl, d, _ = _load(root, "sensor/colorfilters/RGB.mat")
     _write("qe_bayer_rgb", "qe", "electrons per photon",
