@@ -71,6 +71,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba as nb  # noqa: E402
 import numpy as np  # noqa: E402
+from numpy.typing import ArrayLike  # noqa: E402
 
 from l3cli.cfa import CFA  # noqa: E402
 from l3cli.errors import ConfigError, InputError
@@ -247,22 +248,27 @@ class ClassDefinition:
 
     @property
     def n_levels(self) -> int:
+        """Number of response-level bins (cut points + 1)."""
         return int(self.level_cuts.size + 1)
 
     @property
     def n_contrast(self) -> int:
+        """Number of contrast bins per level."""
         return int(self.contrast_cuts.shape[1] + 1)
 
     @property
     def n_groups(self) -> int:
+        """Number of position groups (CFA positions with distinct patch layouts)."""
         return int(self.position_group.max() + 1)
 
     @property
     def n_saturation(self) -> int:
+        """Number of saturation patterns, ``2 ** n_channels``."""
         return 1 << self.cfa.n_channels
 
     @property
     def n_classes(self) -> int:
+        """Total number of classes (groups x saturation patterns x levels x contrasts)."""
         return self.n_groups * self.n_saturation * self.n_levels * self.n_contrast
 
     @property
@@ -275,11 +281,12 @@ class ClassDefinition:
         """(n_groups, n_saturation, n_levels, n_contrast): the class index is its ravel."""
         return (self.n_groups, self.n_saturation, self.n_levels, self.n_contrast)
 
-    def class_index(self, group, sat, level, contrast):
+    def class_index(self, group: ArrayLike, sat: ArrayLike, level: ArrayLike,
+                    contrast: ArrayLike) -> np.ndarray:
         """Flat class index of (group, saturation pattern, level, contrast)."""
         return np.ravel_multi_index((group, sat, level, contrast), self.shape)
 
-    def class_tuple(self, index):
+    def class_tuple(self, index: ArrayLike) -> tuple[np.ndarray, ...]:
         """(group, sat, level, contrast) of flat class indices."""
         return np.unravel_index(index, self.shape)
 
@@ -348,6 +355,28 @@ class ClassDefinition:
             "saturation_threshold": np.array(self.saturation_threshold, dtype=np.float64),
             "position_group": self.position_group.astype(np.int64),
         }
+
+
+def describe_difference(a: ClassDefinition, b: ClassDefinition) -> str:
+    """What makes two class definitions classify differently, in words."""
+    diffs = []
+    if a.cfa.spec != b.cfa.spec:
+        diffs.append(f"CFA {a.cfa.spec} vs {b.cfa.spec}")
+    if a.patch != b.patch:
+        diffs.append(f"patch {a.patch}x{a.patch} vs {b.patch}x{b.patch}")
+    if not np.array_equal(a.level_cuts, b.level_cuts):
+        diffs.append(f"level cut points ({a.n_levels} vs {b.n_levels} levels"
+                     + (", different values)" if a.n_levels == b.n_levels else ")"))
+    if not np.array_equal(a.contrast_cuts, b.contrast_cuts):
+        diffs.append("contrast cut points")
+    if a.saturation_threshold != b.saturation_threshold:
+        diffs.append(f"saturation threshold {a.saturation_threshold} vs {b.saturation_threshold}")
+    if not np.array_equal(a.position_group, b.position_group):
+        diffs.append("position groups")
+    if a.contrast_eps != b.contrast_eps or a.contrast_rule != b.contrast_rule \
+            or a.saturation_rule != b.saturation_rule:
+        diffs.append("classification rules")
+    return "; ".join(diffs) or "identical"
 
 
 def position_groups(cfa: CFA, patch: int, *, merge: bool = True) -> np.ndarray:
@@ -887,6 +916,7 @@ class ContrastHistogram:
 
     @classmethod
     def empty(cls) -> ContrastHistogram:
+        """A histogram with no patches."""
         return cls(np.zeros((_LEVEL_EDGES.size + 1, _CONTRAST_EDGES.size + 1), dtype=np.int64))
 
     def __add__(self, other: ContrastHistogram) -> ContrastHistogram:
@@ -907,6 +937,7 @@ class ContrastHistogram:
 
     @property
     def total(self) -> int:
+        """Number of patches counted."""
         return int(self.counts.sum())
 
     def level_range(self, *, low_quantile: float = 0.002, high_quantile: float = 0.998,

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from l3cli.classify import describe_difference
 from l3cli.errors import ConfigError, TableError
 from l3cli.io.atomic import atomic_path, check_writable_dir
 from l3cli.table import TransformTable
@@ -189,7 +190,8 @@ def plot_coefficient_curves(table: TransformTable, out_dir: str | os.PathLike, *
     out_dir = check_writable_dir(out_dir)
     d = table.definition
     if before is not None and not before.definition.same_as(d):
-        raise TableError("the two tables have different class definitions; cannot compare")
+        raise TableError("the two tables have different class definitions "
+                         f"({describe_difference(before.definition, d)}); cannot compare")
     if before is not None and before.n_out != table.n_out:
         raise TableError("the two tables have different numbers of output channels")
     ng, ns, nl, nc = d.shape

@@ -20,12 +20,16 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from l3cli.classify import MODE_RENDER, RENDER_LANES, _check_mosaic, run_tiles
 from l3cli.errors import TableError
 from l3cli.table import TransformTable
+
+if TYPE_CHECKING:
+    from l3cli.io.raw import RawImage
 
 __all__ = ["check_fits", "pack_kernels", "render_mosaic", "render_raw", "render_file"]
 
@@ -48,8 +52,12 @@ def pack_kernels(table: TransformTable) -> np.ndarray:
     return np.ascontiguousarray(packed.reshape(nc, q * lanes))
 
 
-def check_fits(table: TransformTable, raw, *, table_name: str = "table") -> None:
-    """Raise :class:`TableError` when ``table`` cannot render ``raw`` (CFA, size)."""
+def check_fits(table: TransformTable, raw: RawImage, *, table_name: str = "table") -> None:
+    """Raise :class:`TableError` when ``table`` cannot render ``raw``.
+
+    The table's CFA (with its phase) must equal the raw's, and the raw must be
+    at least one patch and one CFA period large; the message names both.
+    """
     name = getattr(raw, "path", None) or "raw"
     if raw.cfa.spec != table.cfa.spec:
         raise TableError(
@@ -99,8 +107,14 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
     return out
 
 
-def render_raw(table: TransformTable, raw, *, table_name: str = "table") -> np.ndarray:
-    """Render a :class:`l3cli.io.raw.RawImage` (checks that the table fits)."""
+def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table") -> np.ndarray:
+    """Render a :class:`l3cli.io.raw.RawImage` (checks that the table fits).
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 (H, W, n_out) in ``table.output_space``.
+    """
     check_fits(table, raw, table_name=table_name)
     return render_mosaic(table, raw.mosaic)
 

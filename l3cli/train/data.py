@@ -141,7 +141,7 @@ def find_pairs(inputs: list[str | os.PathLike]) -> list[Pair]:
     return pairs
 
 
-def load_pair(pair: Pair, *, target_space: str = "xyz", with_mask: bool = False):
+def load_pair(pair: Pair, *, target_space: str = "xyz", with_mask: bool = False) -> tuple:
     """Read a pair: ``(RawImage, target float32 (H, W, 3) in target_space)``.
 
     Pairs-folder pairs (``pair.align``) are aligned by :func:`l3cli.pairs.load_pair`:

@@ -77,6 +77,7 @@ class TrainOptions:
         self.lambda_grid = np.asarray(lambda_grid, dtype=np.float64)
 
     def as_dict(self) -> dict:
+        """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
         d = dict(vars(self))
         d["lambda_grid"] = self.lambda_grid.tolist()
         return d

@@ -73,7 +73,8 @@ class RidgeSolution:
     gcv: np.ndarray
 
 
-def centred_stats(n: float, xtx: np.ndarray, xty: np.ndarray, yy: np.ndarray):
+def centred_stats(n: float, xtx: np.ndarray, xty: np.ndarray, yy: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Centred statistics ``(Z_cᵀZ_c, Z_cᵀy_c, y_cᵀy_c, μ_z, μ_y)``; constant column last."""
     p = xtx.shape[0] - 1
     mu_z = xtx[:p, p] / n

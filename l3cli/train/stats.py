@@ -32,7 +32,7 @@ import numba as nb
 import numpy as np
 
 from l3cli.cfa import CFA
-from l3cli.classify import ClassDefinition, band_rows
+from l3cli.classify import ClassDefinition, band_rows, describe_difference
 from l3cli.errors import InputError, TableError
 from l3cli.io.atomic import atomic_path
 
@@ -72,17 +72,20 @@ class ClassStats:
     @classmethod
     def zeros(cls, definition: ClassDefinition, n_out: int, *,
               target_space: str = "xyz") -> ClassStats:
+        """Empty statistics for ``definition`` and ``n_out`` target channels."""
         nc, q = definition.n_classes, definition.n_coeffs
         return cls(definition, np.zeros(nc, np.int64), np.zeros((nc, q, q)),
                    np.zeros((nc, q, n_out)), np.zeros((nc, n_out)), target_space)
 
     @property
     def n_out(self) -> int:
+        """Number of target channels."""
         return int(self.yy.shape[1])
 
     def _check_compatible(self, other: ClassStats) -> None:
         if not self.definition.same_as(other.definition):
-            raise TableError("cannot add statistics collected with different class definitions")
+            raise TableError("cannot add statistics collected with different class definitions"
+                             f" ({describe_difference(self.definition, other.definition)})")
         if self.n_out != other.n_out or self.target_space != other.target_space:
             raise TableError(
                 f"cannot add statistics for {self.n_out} {self.target_space} outputs and "
