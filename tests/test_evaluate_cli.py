@@ -175,6 +175,10 @@ def test_simulation_folder_ideal_target(runner, sim_dir, tmp_path):
     assert any(n.endswith("_macbeth.png") for n in names)
     assert any(n.endswith("_mtf.png") for n in names)
     assert any(n.endswith("_scielab.png") for n in names)
+    assert any(n.endswith("_crops.png") for n in names)
+    import matplotlib
+
+    assert matplotlib.get_backend().lower() == "agg"
 
 
 def test_simulation_known_colour_shift(runner, sim_dir, tmp_path):
