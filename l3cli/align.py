@@ -596,6 +596,7 @@ def align_scaled(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
     and columns are refined separately, since a resize rounds each side to
     whole pixels.
     """
+    from scipy.ndimage import gaussian_filter
     from scipy.optimize import minimize
 
     rname = str(raw_name if raw_name is not None else (raw.path or "raw"))
@@ -646,8 +647,6 @@ def align_scaled(raw: RawImage, render: np.ndarray, *, space: str = "srgb",
     m = max(1.0, max(h, w) / _REFINE_SIDE)
     rm = _bandpass(_encode(_reduce(ren, m)))
     rm = (rm - rm.mean()) / max(float(rm.std()), 1e-12)
-    from scipy.ndimage import gaussian_filter
-
     lum_b = gaussian_filter(lum, 0.45 * step * m)
     off = 0.5 * m - 0.5  # render position of the first refine-grid pixel
 
