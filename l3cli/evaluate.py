@@ -45,6 +45,12 @@ white Y = 1, so its XYZ is scaled by 100). XYZ is clipped to
 PSNR is computed on the encoded values (data range 1) when both images are
 display-encoded, and on linear XYZ with the white's Y as data range otherwise.
 
+``align`` registers each reference on its render first (:func:`align_reference`):
+a camera JPEG or raw-converter output is often a crop of the raw's area (and
+may be mirrored or rotated), while ``l3 render`` writes the raw's full area.
+The render is then cut to the reference's area and brought to its
+orientation, so chart corners and edge regions are in the reference's pixels.
+
 ``exclude_border`` removes a margin of N pixels on every side from both images
 before S-CIELAB and PSNR (some camera ISPs corrupt the outer pixels); chart
 patches and edge regions keep their full-image coordinates.
@@ -81,6 +87,7 @@ __all__ = [
     "ImageReport",
     "find_items",
     "load_xyz",
+    "align_reference",
     "evaluate_item",
     "evaluate",
     "summarise",
@@ -409,6 +416,68 @@ def _chart_from_capture(capture: dict | None) -> dict | None:
     return chart if isinstance(chart, dict) and chart.get("patches") else None
 
 
+def _inverse_flip(flip: str) -> str:
+    return {"transpose-horizontal": "transpose-vertical",
+            "transpose-vertical": "transpose-horizontal"}.get(flip, flip)
+
+
+def align_reference(
+    rendered: np.ndarray, reference: np.ndarray, *, rendered_name: str = "rendered",
+    reference_name: str = "reference",
+) -> tuple[tuple[int, int, int, int], str]:
+    """Where a reference image lies in a rendered image of the raw's full area.
+
+    Parameters
+    ----------
+    rendered, reference
+        (H, W, 3) and (h, w, 3) XYZ images on one scale; the reference is the
+        rendered image's area or a crop of it, possibly mirrored or rotated by
+        90 degrees.
+    rendered_name, reference_name
+        Names for messages.
+
+    Returns
+    -------
+    window, flip
+        ``(y0, x0, height, width)`` of the rendered pixels under the
+        reference, and the flip (:data:`l3cli.align.FLIPS`) that brings that
+        window to the reference's orientation.
+
+    Raises
+    ------
+    InputError
+        The reference is larger than the render, or does not align with it
+        (:data:`l3cli.align.MIN_SCORE`, :data:`l3cli.align.MIN_SHARPNESS`).
+
+    References
+    ----------
+    The registration of :mod:`l3cli.align` (phase correlation, band-pass check).
+    """
+    from l3cli.align import MIN_SCORE, MIN_SHARPNESS, register
+
+    try:
+        a = register(rendered[..., 1].astype(np.float32), reference[..., 1].astype(np.float32))
+    except ValueError:
+        raise InputError(
+            f"reference {reference_name} ({reference.shape[1]}x{reference.shape[0]}) is larger "
+            f"than rendered {rendered_name} ({rendered.shape[1]}x{rendered.shape[0]}) in every "
+            "orientation; --align needs a reference of the render's area or a crop of it"
+        ) from None
+    if a.score < MIN_SCORE or a.sharpness < MIN_SHARPNESS:
+        raise InputError(
+            f"reference {reference_name} does not align with rendered {rendered_name}: best "
+            f"match at offset ({a.dy}, {a.dx}) flip {a.flip} has structure correlation "
+            f"{a.score:.2f} (need {MIN_SCORE:g}) and peak sharpness {a.sharpness:.0f} "
+            f"(need {MIN_SHARPNESS:g}); is it a resized copy, or of another shot?"
+        )
+    h, w = reference.shape[:2]
+    if a.flip.startswith("transpose"):
+        h, w = w, h
+    log.info("%s lies in %s at offset (dy=%d, dx=%d), flip %s (score %.3f)", reference_name,
+             rendered_name, a.dy, a.dx, a.flip, a.score)
+    return (a.dy, a.dx, h, w), _inverse_flip(a.flip)
+
+
 def evaluate_item(
     item: EvalItem,
     *,
@@ -421,6 +490,7 @@ def evaluate_item(
     pixel_pitch_um: float | None = None,
     exclude_border: int = 0,
     keep_images: bool = False,
+    align: bool = False,
 ) -> ImageReport:
     """Compute every applicable metric for one pair.
 
@@ -445,6 +515,10 @@ def evaluate_item(
         Pixels removed on each side before S-CIELAB and PSNR.
     keep_images
         Keep the XYZ images in the report (for plots).
+    align
+        Register the reference on the render and cut the render to it
+        (:func:`align_reference`), for references that are a crop of the raw's
+        area; chart corners and edge regions are then in the reference's pixels.
 
     Returns
     -------
@@ -454,10 +528,19 @@ def evaluate_item(
         raise ConfigError(f"exclude_border must be >= 0, got {exclude_border}")
     rend, rend_space, rend_values = _load(item.rendered, None)
     ref, ref_space, ref_values = _load(item.reference, item.reference_space)
+    if align:
+        from l3cli.align import apply_flip
+
+        (y0, x0, hh, ww), flip = align_reference(
+            rend, ref, rendered_name=str(item.rendered), reference_name=str(item.reference))
+        rend = np.ascontiguousarray(apply_flip(rend[y0:y0 + hh, x0:x0 + ww], flip))
+        rend_values = np.ascontiguousarray(apply_flip(rend_values[y0:y0 + hh, x0:x0 + ww], flip))
     if rend.shape != ref.shape:
         raise InputError(
             f"rendered {item.rendered} is {rend.shape[1]}x{rend.shape[0]} but reference "
             f"{item.reference} is {ref.shape[1]}x{ref.shape[0]}; they must be the same size"
+            + ("" if align or rend.shape[0] < ref.shape[0] or rend.shape[1] < ref.shape[1]
+               else " (for a reference that is a crop of the render, use --align)")
         )
     white = white_point_for(ref, ref_space, item.capture)
     if rend_space == "srgb" and ref_space != "srgb":
@@ -563,6 +646,7 @@ def evaluate(
     pixel_pitch_um: float | None = None,
     exclude_border: int = 0,
     keep_images: bool = False,
+    align: bool = False,
 ) -> tuple[list[ImageReport], dict[str, float]]:
     """Evaluate every pair; returns the per-image reports and the summary.
 
@@ -578,7 +662,7 @@ def evaluate(
                 item, dpi=dpi, distance=distance, filters=filters, opponent=opponent,
                 chart_corners=chart_corners,
                 edge_roi=edge_roi, pixel_pitch_um=pixel_pitch_um, exclude_border=exclude_border,
-                keep_images=keep_images,
+                keep_images=keep_images, align=align,
             )
         )
     return reports, summarise(reports)

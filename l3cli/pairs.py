@@ -24,6 +24,15 @@ Border margin
     ISPs treat edges specially (the Infinite-ISP sharpening zero-pads, so its
     outer rows and columns come out brighter), and near the crop edge the raw
     patch would reach outside the pixels the render covers.
+Scaled renders (only with ``scaled=True``; ``l3 train --scaled-renders``)
+    A render that does not align pixel for pixel is registered as a resized
+    copy (:func:`l3cli.align.align_scaled`) and resampled onto the raw's
+    pixels (:func:`l3cli.align.scaled_pair`): the pair then trains at the
+    render's reduced resolution (the target holds no finer detail than the
+    render), on the raw's own pixel grid, so the table still renders raws at
+    full size. Clipped render pixels and the margin (in render pixels) are
+    excluded wherever they contribute to a target pixel, and ``margin`` raw
+    pixels at the crop's edges as well.
 
 References
 ----------
@@ -42,7 +51,17 @@ from pathlib import Path
 
 import numpy as np
 
-from l3cli.align import FLIPS, MIN_SCORE, MIN_SHARPNESS, Alignment, align, aligned_pair
+from l3cli.align import (
+    FLIPS,
+    MIN_SCORE,
+    MIN_SHARPNESS,
+    Alignment,
+    ScaledAlignment,
+    align,
+    align_scaled,
+    aligned_pair,
+    scaled_pair,
+)
 from l3cli.errors import InputError
 from l3cli.io.raw import RAW_SUFFIXES, RawImage, read_raw, sidecar_path
 
@@ -98,7 +117,8 @@ class Pair:
     weight_mask
         bool (H, W): pixels that may train (not clipped, not in the margin).
     alignment
-        Where the render lies on the full raw.
+        Where the render lies on the full raw (:class:`~l3cli.align.ScaledAlignment`
+        for a resized render trained with ``scaled=True``).
     space
         Colour space of ``target``.
     files
@@ -109,7 +129,7 @@ class Pair:
     raw: RawImage
     target: np.ndarray
     weight_mask: np.ndarray
-    alignment: Alignment
+    alignment: Alignment | ScaledAlignment
     space: str
     files: PairFiles
 
@@ -240,7 +260,8 @@ def weight_mask(encoded: np.ndarray, *, margin: int = DEFAULT_MARGIN,
 def load_pair(files: PairFiles, *, target_space: str | None = None,
               margin: int = DEFAULT_MARGIN, clip_low: float = CLIP_LOW,
               clip_high: float = CLIP_HIGH, flips: Sequence[str] = FLIPS,
-              min_score: float = MIN_SCORE, min_sharpness: float = MIN_SHARPNESS) -> Pair:
+              min_score: float = MIN_SCORE, min_sharpness: float = MIN_SHARPNESS,
+              scaled: bool = False) -> Pair:
     """Read, align and mask one pair.
 
     Parameters
@@ -255,6 +276,10 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
         See :func:`weight_mask`.
     flips, min_score, min_sharpness
         See :func:`l3cli.align.align`.
+    scaled
+        Accept a render that is a resized copy of the raw (or of a crop of it)
+        and train at its reduced resolution (see the module notes). Renders
+        that align pixel for pixel are used as they are either way.
 
     Returns
     -------
@@ -264,7 +289,7 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
     ------
     InputError
         Unreadable files, a render that is not RGB, or a render that does not
-        align with its raw.
+        align with its raw (with ``scaled``: not even as a resized copy).
     """
     from l3cli.colourspace import check_space, convert
     from l3cli.io.image import read_image
@@ -276,8 +301,20 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
             f"{files.render}: a rendered image must be RGB, got {img.shape[2]} channel(s)"
         )
     img = img[:, :, :3]
-    a = align(raw, img, space=space, raw_name=files.raw, render_name=files.render,
-              flips=tuple(flips), min_score=min_score, min_sharpness=min_sharpness)
+    is_float = files.render.suffix.lower() == ".exr"
+    try:
+        a = align(raw, img, space=space, raw_name=files.raw, render_name=files.render,
+                  flips=tuple(flips), min_score=min_score, min_sharpness=min_sharpness)
+    except InputError as exc:
+        smaller = img.shape[0] * img.shape[1] < raw.height * raw.width
+        if not (scaled and smaller):
+            hint = (" (if the render is a resized copy of the raw, `l3 train --scaled-renders` "
+                    "trains at its reduced resolution)") if smaller and not scaled else ""
+            raise InputError(f"{exc}{hint}") from None
+        return _load_scaled(files, raw, img, space, target_space=target_space, margin=margin,
+                            clip_low=None if is_float else clip_low,
+                            clip_high=None if is_float else clip_high, flips=flips,
+                            min_score=min_score)
     crop, encoded = aligned_pair(raw, img, a)
     # Keep the raw's CFA phase: a render starting at an odd row/column of a
     # Bayer raw loses its first row/column, so the crop's CFA equals the raw's
@@ -288,7 +325,6 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
         crop = raw.crop(a.dy + ty, a.dx + tx, crop.height - ty, crop.width - tx)
         crop.metadata["alignment"] = a.to_dict()
         encoded = encoded[ty:, tx:]
-    is_float = files.render.suffix.lower() == ".exr"
     mask = weight_mask(encoded, margin=margin,
                        clip_low=None if is_float else clip_low,
                        clip_high=None if is_float else clip_high)
@@ -307,11 +343,42 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
                 space=dst, files=files)
 
 
+def _load_scaled(files: PairFiles, raw: RawImage, img: np.ndarray, space: str, *,
+                 target_space: str | None, margin: int, clip_low: float | None,
+                 clip_high: float | None, flips: Sequence[str], min_score: float) -> Pair:
+    """:func:`load_pair` for a resized render (``scaled=True``)."""
+    from l3cli.colourspace import check_space, convert
+
+    a = align_scaled(raw, img, space=space, raw_name=files.raw, render_name=files.render,
+                     flips=tuple(flips), min_score=min_score)
+    valid = weight_mask(img, margin=margin, clip_low=clip_low, clip_high=clip_high)
+    crop, encoded, mask = scaled_pair(raw, img, a, valid=valid, space=space)
+    if margin:
+        mask[:margin] = False
+        mask[mask.shape[0] - margin:] = False
+        mask[:, :margin] = False
+        mask[:, mask.shape[1] - margin:] = False
+    dst = space if target_space is None else check_space(target_space)
+    target = encoded if dst == space else convert(encoded, space, dst)
+    target = np.ascontiguousarray(np.nan_to_num(target, nan=0.0), dtype=np.float32)
+    log.info("%s: %s; trains at the render's reduced resolution on the raw's %dx%d pixels "
+             "from (y=%d, x=%d); %.1f%% of them train (margin %d, clipped excluded)",
+             files.name, a.describe(), crop.width, crop.height, crop.metadata["crop"][0],
+             crop.metadata["crop"][1], 100 * float(mask.mean()), margin)
+    if not mask.any():
+        raise InputError(
+            f"{files.render}: no pixel left to train after excluding clipped values and a "
+            f"{margin}-pixel margin"
+        )
+    return Pair(name=files.name, raw=crop, target=target, weight_mask=mask, alignment=a,
+                space=dst, files=files)
+
+
 def iter_pairs(paths: Iterable[str | os.PathLike], *, target_space: str | None = None,
                margin: int = DEFAULT_MARGIN, clip_low: float = CLIP_LOW,
                clip_high: float = CLIP_HIGH, flips: Sequence[str] = FLIPS,
-               min_score: float = MIN_SCORE,
-               min_sharpness: float = MIN_SHARPNESS) -> Iterator[Pair]:
+               min_score: float = MIN_SCORE, min_sharpness: float = MIN_SHARPNESS,
+               scaled: bool = False) -> Iterator[Pair]:
     """Aligned, masked training pairs from pairs directories.
 
     All pairs are found (and missing renders reported) before the first is
@@ -321,7 +388,7 @@ def iter_pairs(paths: Iterable[str | os.PathLike], *, target_space: str | None =
     ----------
     paths
         Pairs directories (or raw files with their render alongside).
-    target_space, margin, clip_low, clip_high, flips, min_score, min_sharpness
+    target_space, margin, clip_low, clip_high, flips, min_score, min_sharpness, scaled
         See :func:`load_pair`.
 
     Yields
@@ -331,4 +398,4 @@ def iter_pairs(paths: Iterable[str | os.PathLike], *, target_space: str | None =
     for files in find_pairs(paths):
         yield load_pair(files, target_space=target_space, margin=margin, clip_low=clip_low,
                         clip_high=clip_high, flips=flips, min_score=min_score,
-                        min_sharpness=min_sharpness)
+                        min_sharpness=min_sharpness, scaled=scaled)

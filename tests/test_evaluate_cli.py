@@ -175,6 +175,10 @@ def test_simulation_folder_ideal_target(runner, sim_dir, tmp_path):
     assert any(n.endswith("_macbeth.png") for n in names)
     assert any(n.endswith("_mtf.png") for n in names)
     assert any(n.endswith("_scielab.png") for n in names)
+    assert any(n.endswith("_crops.png") for n in names)
+    import matplotlib
+
+    assert matplotlib.get_backend().lower() == "agg"
 
 
 def test_simulation_known_colour_shift(runner, sim_dir, tmp_path):
@@ -316,3 +320,37 @@ def test_json_has_patch_errors_and_mtf_curve(runner, sim_dir, tmp_path):
     f, m = np.array(edge["mtf_curve"]["cy_per_px"]), np.array(edge["mtf_curve"]["mtf"])
     assert f[0] == 0 and m[0] == pytest.approx(1.0)
     assert np.interp(edge["mtf50_cy_per_px"], f, m) == pytest.approx(0.5, abs=0.01)
+
+
+def test_align_reference_undoes_crops_and_flips():
+    from scipy.ndimage import gaussian_filter
+
+    from l3cli.align import FLIPS, apply_flip
+    from l3cli.evaluate import align_reference
+
+    rng = np.random.default_rng(8)
+    full = gaussian_filter(rng.random((96, 128, 3)), (1.5, 1.5, 0)) * 100
+    window = full[5:85, 3:83]  # square: every orientation fits
+    for flip in FLIPS:
+        ref = np.ascontiguousarray(apply_flip(window, flip))
+        (y0, x0, h, w), back = align_reference(full, ref)
+        assert (y0, x0, h, w) == (5, 3, 80, 80)
+        np.testing.assert_array_equal(apply_flip(full[y0:y0 + h, x0:x0 + w], back), ref)
+
+
+def test_align_option_scores_a_cropped_mirrored_reference(runner, pngs, tmp_path):
+    from l3cli.io.image import read_image
+
+    img = read_image(pngs / "ref.png")[0]
+    write_image(tmp_path / "cam.png", img[4:-4, 6:-2][:, ::-1], space="srgb")
+    args = ["evaluate", str(pngs / "same.png"), "--reference", str(tmp_path / "cam.png"),
+            "--json", str(tmp_path / "r.json")]
+    res = runner.invoke(cli, args)
+    assert res.exit_code == 1 and "use --align" in res.output and "120x88" in res.output
+    res = runner.invoke(cli, args + ["--align"])
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "r.json").read_text())["images"][0]["scielab_mean"] == 0.0
+    other = tmp_path / "other.png"
+    write_image(other, _smooth_image(80, 100, seed=9), space="srgb")
+    res = runner.invoke(cli, ["evaluate", str(pngs / "same.png"), "--reference", str(other), "--align"])
+    assert res.exit_code == 1 and "does not align with rendered" in res.output

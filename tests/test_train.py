@@ -351,7 +351,7 @@ def test_bad_inputs(tmp_path):
     from l3cli.io.raw import write_raw
 
     write_raw(lonely / "x.dng", np.zeros((40, 48), np.uint16), "RGGB", white_level=4095)
-    with pytest.raises(InputError, match="no target image with the same stem"):
+    with pytest.raises(InputError, match="no rendered image with the same stem"):
         find_pairs([lonely])
 
 
@@ -439,3 +439,15 @@ def test_statistics_do_not_depend_on_the_number_of_threads():
         np.testing.assert_array_equal(s.xtx, runs[0].xtx)
         np.testing.assert_array_equal(s.xty, runs[0].xty)
         np.testing.assert_array_equal(s.yy, runs[0].yy)
+
+
+def test_pairs_folder_with_two_renders_of_one_raw_is_refused(tmp_path):
+    """`l3 train` reads pairs folders through l3cli.pairs: one render per raw."""
+    from l3cli.io.image import write_image
+    from l3cli.io.raw import write_raw
+
+    write_raw(tmp_path / "a.dng", np.full((40, 48), 1000, np.uint16), "RGGB", white_level=4095)
+    write_image(tmp_path / "a.png", np.full((40, 48, 3), 0.5, np.float32), space="srgb")
+    write_image(tmp_path / "a.jpg", np.full((40, 48, 3), 0.2, np.float32), space="srgb")
+    with pytest.raises(InputError, match=r"several rendered images.*a\.jpg, a\.png"):
+        find_pairs([tmp_path])

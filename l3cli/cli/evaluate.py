@@ -74,11 +74,15 @@ class _GreedyOption(click.Option):
                                  "(default: the simulation manifest's).")
 @click.option("--exclude-border", type=click.IntRange(min=0), default=0, show_default=True,
               metavar="N", help="Ignore N pixels on every side for S-CIELAB and PSNR.")
+@click.option("--align", "align", is_flag=True, default=False,
+              help="Find each reference in its render first (a camera JPEG or converter output "
+                   "that is a crop of the raw, possibly mirrored or rotated) and score the "
+                   "render's matching window; --chart/--edge are then in the reference's pixels.")
 @click.pass_context
 def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[str, ...],
              json_path: str | None, dpi: float, distance: float, filters: str, opponent: str,
              plots_dir: str | None, chart: list[float] | None, edge: list[int] | None,
-             pixel_pitch: float | None, exclude_border: int) -> None:
+             pixel_pitch: float | None, exclude_border: int, align: bool) -> None:
     """Compare RENDERED images (files, or one folder) with references.
 
     \b
@@ -106,11 +110,12 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
         list(rendered), list(references), dpi=dpi, distance=distance, filters=filters,
         opponent=opponent,
         chart_corners=chart, edge_roi=edge, pixel_pitch_um=pixel_pitch,
-        exclude_border=exclude_border, keep_images=bool(plots_dir),
+        exclude_border=exclude_border, keep_images=bool(plots_dir), align=align,
     )
     settings = {
         "dpi": dpi, "distance_m": distance, "samples_per_degree": samples_per_degree(dpi, distance),
-        "filters": filters, "opponent": opponent, "exclude_border": exclude_border, "delta_e": "CIE 1976 (extra: CIE 2000)",
+        "filters": filters, "opponent": opponent, "exclude_border": exclude_border, "align": align,
+        "delta_e": "CIE 1976 (extra: CIE 2000)",
     }
     report = report_dict(reports, summary, settings=settings)
     if json_path:

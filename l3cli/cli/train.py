@@ -37,12 +37,16 @@ from l3cli.cli.options import output_opt, quiet, seed_opt
 @click.option("--min-samples", "min_samples_factor", type=float, default=3.0,
               show_default=True,
               help="A class needs at least this many samples per coefficient to be trained.")
+@click.option("--scaled-renders", is_flag=True, default=False,
+              help="Accept pairs-folder renders that are resized copies of their raws (e.g. "
+                   "reduced-size camera JPEGs) and train them at their reduced resolution, "
+                   "resampled onto the raw's pixels; without it such pairs are refused.")
 @seed_opt
 def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing: str,
           level_range: tuple[float, float] | None, contrast_bins: int,
           contrast_threshold: float | None, saturation: float, merge_positions: bool,
           target_space: str, sample_fraction: float, min_samples_factor: float,
-          seed: int) -> None:
+          seed: int, scaled_renders: bool = False) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -59,7 +63,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
 
     if patch < 1 or patch % 2 == 0:
         raise click.BadParameter(f"{patch} is not an odd size >= 1", param_hint="--patch")
-    pairs = find_pairs(list(inputs))
+    pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
     if target_space is None:  # pairs folders reproduce their renders' encoding
         target_space = "srgb" if all(p.align for p in pairs) else "xyz"
     opts = TrainOptions(patch=patch, levels=levels, spacing=spacing,

@@ -25,14 +25,16 @@ import numpy as np
 
 from l3cli.colourspace import check_space, convert
 from l3cli.errors import InputError
+from l3cli.io.raw import RAW_SUFFIXES as _RAW_SUFFIXES
+from l3cli.pairs import RENDER_SUFFIXES
 
 __all__ = ["Pair", "find_pairs", "load_pair", "RAW_SUFFIXES", "IMAGE_SUFFIXES"]
 
-#: Suffixes of raw files in a pairs folder (plus mosaics with a .toml sidecar).
-RAW_SUFFIXES = (".dng", ".nef", ".cr2", ".cr3", ".arw", ".orf", ".rw2", ".raf", ".pef",
-                ".srw", ".raw")
-#: Suffixes of target images in a pairs folder, in order of preference.
-IMAGE_SUFFIXES = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
+#: Suffixes of raw files in a pairs folder (plus mosaics with a .toml sidecar);
+#: the one list of :mod:`l3cli.io.raw`.
+RAW_SUFFIXES = _RAW_SUFFIXES
+#: Suffixes of rendered images in a pairs folder (:data:`l3cli.pairs.RENDER_SUFFIXES`).
+IMAGE_SUFFIXES = RENDER_SUFFIXES
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,10 @@ class Pair:
         True for pairs-folder renders: :func:`load_pair` registers the render
         on the raw (crop, flips; :mod:`l3cli.align`) and masks clipped pixels
         and the border (:mod:`l3cli.pairs`).
+    scaled
+        For pairs-folder renders: a render that is a resized copy of the raw
+        is accepted and trained at its reduced resolution
+        (:func:`l3cli.pairs.load_pair` with ``scaled=True``).
     """
 
     raw: Path
@@ -61,6 +67,7 @@ class Pair:
     stem: str
     space: str | None = None
     align: bool = False
+    scaled: bool = False
 
 
 def _simulation_pairs(folder: Path) -> list[Pair]:
@@ -85,38 +92,27 @@ def _simulation_pairs(folder: Path) -> list[Pair]:
     return pairs
 
 
-def _is_raw(path: Path) -> bool:
-    suffix = path.suffix.lower()
-    if suffix in (".tif", ".tiff", ".png"):
-        return Path(str(path) + ".toml").exists()
-    return suffix in RAW_SUFFIXES
+def _pairs_folder(folder: Path, scaled: bool) -> list[Pair]:
+    # One definition of a pairs folder: l3cli.pairs (raw suffixes, one render per raw).
+    from l3cli.pairs import find_pairs as find_pair_files
+    from l3cli.pairs import is_pairs_dir
+
+    if not is_pairs_dir(folder):
+        return []
+    return [Pair(f.raw, f.render, f.name, None, align=True, scaled=scaled)
+            for f in find_pair_files([folder])]
 
 
-def _pairs_folder(folder: Path) -> list[Pair]:
-    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-    raws = [p for p in files if _is_raw(p)]
-    pairs = []
-    for raw in raws:
-        stem = raw.name[: -len(raw.suffix)]
-        target = None
-        for suf in IMAGE_SUFFIXES:
-            for cand in (folder / f"{stem}{suf}", folder / f"{stem}{suf.upper()}"):
-                if cand.exists() and cand != raw and not _is_raw(cand):
-                    target = cand
-                    break
-            if target is not None:
-                break
-        if target is None:
-            raise InputError(
-                f"{raw}: no target image with the same stem "
-                f"({', '.join(stem + s for s in IMAGE_SUFFIXES)})"
-            )
-        pairs.append(Pair(raw, target, stem, None, align=True))
-    return pairs
-
-
-def find_pairs(inputs: list[str | os.PathLike]) -> list[Pair]:
+def find_pairs(inputs: list[str | os.PathLike], *, scaled_renders: bool = False) -> list[Pair]:
     """Training pairs of every input folder, in a stable order.
+
+    Parameters
+    ----------
+    inputs
+        ``simulate`` output folders and pairs folders.
+    scaled_renders
+        Accept pairs-folder renders that are resized copies of their raws
+        (see :attr:`Pair.scaled`).
 
     Raises
     ------
@@ -131,7 +127,7 @@ def find_pairs(inputs: list[str | os.PathLike]) -> list[Pair]:
         if not folder.is_dir():
             raise InputError(f"{folder}: training input must be a simulate or pairs folder")
         found = (_simulation_pairs(folder) if (folder / "manifest.json").exists()
-                 else _pairs_folder(folder))
+                 else _pairs_folder(folder, scaled_renders))
         if not found:
             raise InputError(
                 f"{folder}: no training pairs (no manifest.json and no raw file with a "
@@ -162,7 +158,8 @@ def load_pair(pair: Pair, *, target_space: str = "xyz", with_mask: bool = False)
         from l3cli.pairs import PairFiles
         from l3cli.pairs import load_pair as load_aligned
 
-        al = load_aligned(PairFiles(pair.stem, pair.raw, pair.target), target_space=target_space)
+        al = load_aligned(PairFiles(pair.stem, pair.raw, pair.target), target_space=target_space,
+                          scaled=pair.scaled)
         if not np.all(np.isfinite(al.raw.mosaic)):
             raise InputError(f"{pair.raw}: raw mosaic holds NaN or Inf")
         return (al.raw, al.target, al.weight_mask) if with_mask else (al.raw, al.target)
