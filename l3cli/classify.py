@@ -476,10 +476,8 @@ def _slp_vectorize():
 
 
 @nb.njit(cache=True, fastmath={"contract"})
-def _render_row4(src, rowmap, i, c0, tw, S, cls_row, K, outf, o, n_out):
-    """Render the ``tw`` pixels of tile row ``i`` for tables of <= 4 outputs.
-
-    Patch row ``dy`` of pixel ``x`` is ``src[rowmap[i + dy], c0 + x : c0 + x + S]``.
+def _render_row4(pb, i, x, tw, S, cls_row, K, outf, o, n_out):
+    """Render pixels ``x .. tw-1`` of tile row ``i`` for tables of <= 4 outputs.
 
     ``K`` is (n_classes, 4 * (S*S + 1)): per tap (row-major over the patch,
     then the constant) the 4 output lanes. The 4 lanes are one SIMD register;
@@ -497,9 +495,8 @@ def _render_row4(src, rowmap, i, c0, tw, S, cls_row, K, outf, o, n_out):
             r1 = np.float32(0.0)
             r2 = np.float32(0.0)
             r3 = np.float32(0.0)
-            row = rowmap[i + dy]
             for dx in range(S):
-                v = src[row, c0 + x + dx]
+                v = pb[i + dy, x + dx]
                 k = 4 * (dy * S + dx)
                 r0 += v * K[c, k]
                 r1 += v * K[c, k + 1]
@@ -532,7 +529,7 @@ def _render_row4(src, rowmap, i, c0, tw, S, cls_row, K, outf, o, n_out):
 
 
 @nb.njit(cache=True, fastmath={"contract"})
-def _render_row_any(src, rowmap, i, c0, tw, S, cls_row, K, outf, o, n_out):
+def _render_row_any(pb, i, tw, S, cls_row, K, outf, o, n_out):
     """Render a tile row for tables of any number of outputs (``K`` (n_classes,
     (S*S + 1) * n_out), tap-major)."""
     P = S * S
@@ -542,9 +539,8 @@ def _render_row_any(src, rowmap, i, c0, tw, S, cls_row, K, outf, o, n_out):
         for q in range(n_out):
             acc[q] = K[c, P * n_out + q]
         for dy in range(S):
-            row = rowmap[i + dy]
             for dx in range(S):
-                v = src[row, c0 + x + dx]
+                v = pb[i + dy, x + dx]
                 k = (dy * S + dx) * n_out
                 for q in range(n_out):
                     acc[q] += v * K[c, k + q]
@@ -615,23 +611,17 @@ def _tile_kernel(S: int):
             tw = x1 - x0
             twp = tw + S - 1
             nbr = i1 - i0 + S - 1
-            # the tile's padded band: row k is padded row y0 + i0 + k (image row
-            # - r), column xx padded column x0 + xx; read in place from the mosaic
-            # (through the mirror row map) unless the tile touches a side
-            rowmap = np.empty(nbr, dtype=np.int64)
-            if x0 - r >= 0 and x0 - r + twp <= W:
-                src = mosaic
-                c0 = x0 - r
-                for k in range(nbr):
-                    rowmap[k] = yi[y0 + i0 + k]
-            else:
-                src = np.empty((nbr, twp), dtype=np.float32)
-                c0 = 0
-                for k in range(nbr):
-                    rowmap[k] = k
-                    sr = yi[y0 + i0 + k]
+            # padded band of the tile: row k is padded row y0 + i0 + k (image row - r)
+            pb = np.empty((nbr, twp), dtype=np.float32)
+            inner = x0 - r >= 0 and x0 - r + twp <= W
+            for k in range(nbr):
+                src = yi[y0 + i0 + k]
+                if inner:
                     for xx in range(twp):
-                        src[k, xx] = mosaic[sr, xi[x0 + xx]]
+                        pb[k, xx] = mosaic[src, x0 - r + xx]
+                else:
+                    for xx in range(twp):
+                        pb[k, xx] = mosaic[src, xi[x0 + xx]]
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
             ring_q = np.empty((S, nch, tw), dtype=np.float32)
             ring_b = np.empty((S, tw), dtype=np.int32)
@@ -650,15 +640,13 @@ def _tile_kernel(S: int):
             for k in range(nbr):
                 slot = k % S
                 py = (y0 + i0 + k - r) % ph
-                rk = rowmap[k]
                 for c in range(nch):
                     if not row_has[py, c]:
                         continue  # the ring slot is never read for this channel
                     for xx in range(twp):
-                        t = src[rk, c0 + xx]
-                        u = t * mask[py, c, xx]
+                        u = pb[k, xx] * mask[py, c, xx]
                         mv[xx] = u
-                        mq[xx] = u * t
+                        mq[xx] = u * pb[k, xx]
                     for x in range(tw):
                         a = mv[x]
                         q = mq[x]
@@ -668,7 +656,7 @@ def _tile_kernel(S: int):
                         ring_s[slot, c, x] = a
                         ring_q[slot, c, x] = q
                 for xx in range(twp):
-                    bits[xx] = bitv[py, xx] if src[rk, c0 + xx] >= sat_thr else 0
+                    bits[xx] = bitv[py, xx] if pb[k, xx] >= sat_thr else 0
                 for x in range(tw):
                     b = bits[x]
                     for dx in range(1, S):
@@ -736,11 +724,11 @@ def _tile_kernel(S: int):
                     for x in range(tw):
                         out_cls[i0 + i, x0 + x] = clsr[x]
                 elif n_out <= 4:
-                    _render_row4(src, rowmap, i, c0, tw, S, clsr, K, outf,
-                                 ((i0 + i) * W + x0) * n_out, n_out)
+                    _render_row4(pb, i, 0, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
+                                 n_out)
                 else:
-                    _render_row_any(src, rowmap, i, c0, tw, S, clsr, K, outf,
-                                    ((i0 + i) * W + x0) * n_out, n_out)
+                    _render_row_any(pb, i, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
+                                    n_out)
 
     return kernel
 
