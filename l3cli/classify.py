@@ -309,7 +309,7 @@ class ClassDefinition:
         """Arrays the tile kernel needs (cached): channel index pattern, per
         position 1/count of each channel in the patch and 1/channels present,
         position groups, the level lookup table (:func:`_level_lookup`), the
-        float32 level cuts followed by two NaN sentinels (never <= a level), the float32
+        float32 cuts inside each lookup bucket (NaN where none), the float32
         contrast cuts and the float32 thresholds."""
         if "args" not in self._tables:
             cfa, s = self.cfa, self.patch
@@ -322,7 +322,15 @@ class ClassDefinition:
                 cnt_inv[p, present] = 1.0 / counts[present]
                 wc[p, present] = 1.0 / present.sum()
             lut, shift, base = _level_lookup(self.level_cuts)
-            cuts = np.concatenate([self.level_cuts, [np.nan, np.nan]]).astype(np.float32)
+            # the (up to two) cuts inside each bucket, NaN where none (never <= a level)
+            c32 = self.level_cuts.astype(np.float32)
+            buckets = (c32.view(np.int32).astype(np.int64) >> shift) - base
+            cuts = np.full((lut.size, 2), np.nan, dtype=np.float32)
+            for j in range(2):
+                k = lut.astype(np.int64) + j
+                ok = k < c32.size
+                ok[ok] &= buckets[k[ok]] == np.flatnonzero(ok)
+                cuts[ok, j] = c32[k[ok]]
             self._tables["args"] = (
                 cfa.index_pattern.astype(np.int64), cnt_inv, wc,
                 self.position_group.astype(np.int64), lut, int(shift), int(base), cuts,
@@ -575,8 +583,7 @@ def _tile_kernel(S: int):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
-        ncut = cuts.shape[0] - 2  # two NaN sentinels at the end
-        nl = ncut + 1
+        nl = ccuts.shape[0]
         ncc = ccuts.shape[1]
         nlut = lut.shape[0]
         ccf = ccuts.ravel()
@@ -711,10 +718,8 @@ def _tile_kernel(S: int):
                     # branch-free, so the loop vectorises (gathers)
                     kb = (levi[x] >> lut_shift) - lut_base
                     kb = min(max(kb, 0), nlut - 1)
-                    lb = lut[kb]
                     lv = lev[x]
-                    lb += np.int32(cuts[lb] <= lv)
-                    lb += np.int32(cuts[lb] <= lv)
+                    lb = lut[kb] + np.int32(cuts[kb, 0] <= lv) + np.int32(cuts[kb, 1] <= lv)
                     clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lb) * (ncc + 1)
                     lbr[x] = lb * ncc
                 for j in range(ncc):  # contrast bin
