@@ -14,6 +14,8 @@ DNG, then times, interleaved and best of ``--repeat``:
   float32 XYZ out);
 * rawpy ``postprocess`` with AHD, PPG and LINEAR demosaicing (file already
   opened and unpacked, 8-bit sRGB out);
+* colour-demosaicing's Malvar (2004) and Menon (2007) demosaicking of the
+  same mosaic in memory (pure numpy/scipy; timed once each, they are slow);
 * the memory-bandwidth ceiling: a numpy copy of the bytes render must touch
   (mosaic in, 3-channel float32 out).
 
@@ -131,6 +133,13 @@ def main() -> None:
             for name, alg in algs.items():
                 timings[name].append(_best(lambda alg=alg: raw.postprocess(demosaic_algorithm=alg), 1))
             timings["numpy copy (bandwidth)"].append(_best(lambda: np.copyto(dst, src), 1))
+    import colour_demosaicing as cd
+
+    cd_mosaic = mosaic.astype(np.float64)
+    for name, fn in (("colour-demosaicing Malvar 2004", cd.demosaicing_CFA_Bayer_Malvar2004),
+                     ("colour-demosaicing Menon 2007", cd.demosaicing_CFA_Bayer_Menon2007)):
+        timings[name] = [_best(lambda fn=fn: fn(cd_mosaic, "RGGB"), 1)]
+    del cd_mosaic
     mp = h * w / 1e6
     for k, v in timings.items():
         rows[k] = min(v)
@@ -142,6 +151,10 @@ def main() -> None:
     print("|---|---|---|---|---|")
     for k, (t, cpu) in rows.items():
         print(f"| {k} | {t:.3f} | {mp / t:.1f} | {t / t_l3:.2f}x | {cpu:.3f} |")
+    t_copy = rows["numpy copy (bandwidth)"][0]
+    print(f"\nl3 render runs at {100 * t_copy / t_l3:.0f} % of the memory-bandwidth ceiling "
+          f"(a copy of the {(mosaic.nbytes + out.nbytes) / 1e6:.0f} MB it reads and writes takes "
+          f"{t_copy * 1e3:.0f} ms): it is compute-bound.")
     # peak memory of a 24 MP render in a child process
     mw, mh = (int(v) for v in a.memory_size.split("x"))
     big = synthetic_mosaic(mh, mw, seed=2)
