@@ -138,7 +138,7 @@ def main() -> None:
     cd_mosaic = mosaic.astype(np.float64)
     for name, fn in (("colour-demosaicing Malvar 2004", cd.demosaicing_CFA_Bayer_Malvar2004),
                      ("colour-demosaicing Menon 2007", cd.demosaicing_CFA_Bayer_Menon2007)):
-        timings[name] = [_best(lambda fn=fn: fn(cd_mosaic, "RGGB"), 1)]
+        timings[name] = [_best(lambda fn=fn, m=cd_mosaic: fn(m, "RGGB"), 1)]
     del cd_mosaic
     mp = h * w / 1e6
     for k, v in timings.items():
