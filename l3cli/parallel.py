@@ -24,20 +24,26 @@ output only after the reduce leave nothing partial behind.
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import Callable, Sequence
+import os
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 from l3cli.errors import L3Error
 from l3cli.progress import progress as _progress
 
-__all__ = ["map_reduce", "ParallelError"]
+__all__ = ["map_reduce", "dask_client", "ParallelError"]
 
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 R = TypeVar("R")
 A = TypeVar("A")
+
+#: Tasks in flight (submitted, not yet folded) per worker thread: enough to keep
+#: every worker busy while bounding the results held out of order.
+WINDOW_PER_THREAD = 4
 
 
 class ParallelError(L3Error):
@@ -49,6 +55,77 @@ def _describe(item: Any) -> str:
     return s if len(s) < 120 else s[:117] + "..."
 
 
+def _cpu_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+    """A dask.distributed client for a job, or ``None`` to run in process.
+
+    Parameters
+    ----------
+    workers
+        Start a local cluster of this many single-threaded worker processes
+        (closed when the block ends). Each worker's numba kernels get
+        ``cpus // workers`` threads (``NUMBA_NUM_THREADS``), so the workers do
+        not oversubscribe the machine.
+    scheduler
+        Address of a running scheduler (takes precedence over ``workers``).
+
+    Yields
+    ------
+    distributed.Client or None
+        ``None`` when neither is given (the in-process path).
+
+    Raises
+    ------
+    ParallelError
+        The scheduler cannot be reached or the local cluster cannot start.
+    """
+    if workers is None and scheduler is None:
+        yield None
+        return
+    from distributed import Client, LocalCluster
+
+    # dask logs its own life (workers starting, closing) at INFO: show it only
+    # with -vv (debug); warnings (a worker died and restarts) with the default.
+    root = logging.getLogger().getEffectiveLevel()
+    dlog = logging.getLogger("distributed")
+    old_level = dlog.level
+    dlog.setLevel(root if root <= logging.DEBUG else max(root, logging.WARNING))
+    cluster = None
+    try:
+        if scheduler is not None:
+            try:
+                client = Client(scheduler, timeout="5s")
+            except (OSError, TimeoutError) as exc:
+                raise ParallelError(f"cannot reach dask scheduler {scheduler}: {exc}") from exc
+        else:
+            n = int(workers)  # type: ignore[arg-type]
+            threads = max(1, _cpu_count() // n)
+            try:
+                cluster = LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True,
+                    dashboard_address=":0", silence_logs=logging.ERROR,
+                    env={"NUMBA_NUM_THREADS": str(threads)},
+                )
+            except (OSError, TimeoutError, RuntimeError) as exc:
+                raise ParallelError(f"cannot start a local dask cluster of {n} workers: "
+                                    f"{exc}") from exc
+            client = Client(cluster)
+        with client:
+            log.info("dask: %s", client)
+            yield client
+    finally:
+        if cluster is not None:
+            cluster.close()
+        dlog.setLevel(old_level)
+
+
 def map_reduce(
     func: Callable[[T], R],
     items: Sequence[T],
@@ -56,6 +133,7 @@ def map_reduce(
     reduce: Callable[[A | None, R], A] | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
+    client: Any = None,
     label: str = "working",
     show_progress: bool | None = None,
     retries: int = 1,
@@ -75,6 +153,9 @@ def map_reduce(
         Start a local cluster with this many single-threaded worker processes.
     scheduler
         Address of a running dask.distributed scheduler (takes precedence).
+    client
+        An open client (:func:`dask_client`) to reuse across several maps;
+        takes precedence over ``workers`` and ``scheduler``.
     label
         Progress-bar label.
     show_progress
@@ -87,6 +168,12 @@ def map_reduce(
     -------
     The folded value, or the list of results.
 
+    Notes
+    -----
+    On a cluster at most ``WINDOW_PER_THREAD`` tasks per worker thread are in
+    flight (submitted and not yet folded), so the results waiting for an
+    earlier one to fold stay bounded whatever the number of items.
+
     Raises
     ------
     ParallelError
@@ -95,6 +182,11 @@ def map_reduce(
         Re-raised from a task (bad input file), unchanged.
     """
     items = list(items)
+    if client is None and (workers is not None or scheduler is not None):
+        with dask_client(workers, scheduler) as c:
+            return map_reduce(func, items, reduce=reduce, client=c, label=label,
+                              show_progress=show_progress, retries=retries)
+
     acc: Any = None
     results: list[R] = []
 
@@ -105,59 +197,68 @@ def map_reduce(
         else:
             acc = reduce(acc, r)
 
-    if workers is None and scheduler is None:
+    if client is None:
         for item in _progress(items, label=label, enabled=show_progress):
             fold(func(item))
         return acc if reduce is not None else results
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import as_completed
     from distributed.client import FutureCancelledError
     from distributed.scheduler import KilledWorker
 
-    cluster = None
-    try:
-        if scheduler is not None:
-            try:
-                client = Client(scheduler, timeout="5s")
-            except (OSError, TimeoutError) as exc:
-                raise ParallelError(f"cannot reach dask scheduler {scheduler}: {exc}") from exc
-        else:
-            cluster = LocalCluster(
-                n_workers=int(workers), threads_per_worker=1, processes=True,
-                dashboard_address=None, silence_logs=logging.ERROR,
-            )
-            client = Client(cluster)
-        with client:
-            log.info("dask: %s", client)
-            futures = client.map(func, items, retries=retries, pure=False)
-            index = {f.key: i for i, f in enumerate(futures)}
-            done: dict[int, R] = {}
-            next_i = 0
-            it = as_completed(futures)
-            for fut in _progress(it, label=label, length=len(futures), enabled=show_progress):
-                i = index[fut.key]
-                try:
-                    done[i] = fut.result()
-                except L3Error:
-                    client.cancel(futures)
-                    raise
-                except KilledWorker as exc:
-                    client.cancel(futures)
-                    raise ParallelError(
-                        f"{_describe(items[i])}: workers kept dying on this input; job abandoned"
-                    ) from exc
-                except FutureCancelledError as exc:
-                    raise ParallelError(f"{_describe(items[i])}: task was cancelled") from exc
-                except Exception as exc:  # noqa: BLE001 - task errors become one line
-                    client.cancel(futures)
-                    raise ParallelError(
-                        f"{_describe(items[i])}: task failed after {retries + 1} attempts: "
-                        f"{type(exc).__name__}: {exc}"
-                    ) from exc
-                while next_i in done:
-                    fold(done.pop(next_i))
-                    next_i += 1
-    finally:
-        if cluster is not None:
-            cluster.close()
+    n = len(items)
+    index: dict[str, int] = {}
+    live: dict[int, Any] = {}
+    done: dict[int, R] = {}
+    ac = as_completed()
+    state = {"submitted": 0, "next": 0, "window": 0, "refresh": 0}
+
+    def window() -> int:
+        if state["refresh"] <= 0:
+            threads = sum(client.nthreads().values())
+            state["window"] = max(8, WINDOW_PER_THREAD * threads)
+            state["refresh"] = 16
+        state["refresh"] -= 1
+        return state["window"]
+
+    def top_up() -> None:
+        while state["submitted"] < n and state["submitted"] - state["next"] < window():
+            k = state["submitted"]
+            fut = client.submit(func, items[k], retries=retries, pure=False)
+            index[fut.key] = k
+            live[k] = fut
+            ac.add(fut)
+            state["submitted"] += 1
+
+    def abandon() -> None:
+        client.cancel(list(live.values()))
+
+    top_up()
+    for fut in _progress(ac, label=label, length=n, enabled=show_progress):
+        i = index.pop(fut.key)
+        try:
+            done[i] = fut.result()
+        except L3Error:
+            abandon()
+            raise
+        except KilledWorker as exc:
+            abandon()
+            raise ParallelError(
+                f"{_describe(items[i])}: workers kept dying on this input; job abandoned"
+            ) from exc
+        except FutureCancelledError as exc:
+            abandon()
+            raise ParallelError(f"{_describe(items[i])}: task was cancelled") from exc
+        except Exception as exc:  # noqa: BLE001 - task errors become one line
+            abandon()
+            raise ParallelError(
+                f"{_describe(items[i])}: task failed after {retries + 1} attempts: "
+                f"{type(exc).__name__}: {exc}"
+            ) from exc
+        del live[i]
+        fut.release()
+        while state["next"] in done:
+            fold(done.pop(state["next"]))
+            state["next"] += 1
+        top_up()
     return acc if reduce is not None else results

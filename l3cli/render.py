@@ -18,6 +18,7 @@ SIMD multiply-add.
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -31,7 +32,8 @@ from l3cli.table import TransformTable
 if TYPE_CHECKING:
     from l3cli.io.raw import RawImage
 
-__all__ = ["check_fits", "pack_kernels", "render_mosaic", "render_raw", "render_file"]
+__all__ = ["check_fits", "pack_kernels", "render_mosaic", "render_raw", "render_file",
+           "render_task", "render_files", "table_for_task"]
 
 
 def pack_kernels(table: TransformTable) -> np.ndarray:
@@ -134,3 +136,76 @@ def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: st
     del raw
     return write_image(out_path, img, space=table.output_space,
                        attributes={"l3:table": str(table_name)})
+
+
+# ------------------------------------------------------- many files (map tasks)
+@functools.lru_cache(maxsize=2)
+def _cached_table(path: str, mtime_ns: int, size: int) -> TransformTable:
+    from l3cli.table import load_table
+
+    return load_table(path)
+
+
+def table_for_task(path: str | os.PathLike) -> TransformTable:
+    """The table at ``path``, loaded once per process (reloaded when the file changes)."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        from l3cli.table import load_table
+
+        return load_table(p)  # raises the usual one-line TableError
+    return _cached_table(str(p), st.st_mtime_ns, st.st_size)
+
+
+def render_task(item: tuple[str, str, str, str]) -> str:
+    """Render one file (a map task): ``(table_path, raw_path, out_path, table_name)``.
+
+    The task reads the table (once per process) and the raw itself and writes
+    the output atomically; it returns the output path.
+    """
+    table_path, raw_path, out_path, table_name = item
+    table = table_for_task(table_path)
+    return str(render_file(table, raw_path, out_path, table_name=table_name))
+
+
+def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLike,
+                                                                str | os.PathLike]], *,
+                 workers: int | None = None, scheduler: str | None = None,
+                 show_progress: bool | None = False) -> list[Path]:
+    """Render ``(raw, output)`` pairs with the table at ``table_path``.
+
+    One :func:`render_task` per file, in process or on a dask cluster
+    (:func:`l3cli.parallel.map_reduce`). The table is checked here first, so a
+    bad table fails before any work. Each output is written atomically by its
+    task: a failed job leaves the outputs already finished, and no partial file.
+
+    Parameters
+    ----------
+    table_path
+        The table ``.npz``.
+    jobs
+        ``(raw path, output path)`` pairs.
+    workers, scheduler
+        Local cluster size or running scheduler address (default: in process).
+    show_progress
+        Progress bar on stderr.
+
+    Returns
+    -------
+    list of Path
+        The outputs, in input order.
+    """
+    from l3cli.parallel import map_reduce
+
+    table_for_task(table_path)  # a bad table fails now, with its one-line message
+    name = Path(table_path).name
+    remote = workers is not None or scheduler is not None
+
+    def sent(p: str | os.PathLike) -> str:
+        return str(Path(p).absolute()) if remote else str(p)
+
+    items = [(sent(table_path), sent(raw), sent(out), name) for raw, out in jobs]
+    done = map_reduce(render_task, items, workers=workers, scheduler=scheduler,
+                      label="render", show_progress=show_progress)
+    return [Path(p) for p in done]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from l3cli.cli.options import output_opt, quiet
+from l3cli.cli.options import output_opt, quiet, scheduler_opt, workers_opt
 
 _FORMATS = {"exr": ".exr", "tiff": ".tif", "png": ".png", "jpg": ".jpg"}
 _ALIASES = {".tiff": ".tif", ".jpeg": ".jpg"}
@@ -19,19 +19,22 @@ _ALIASES = {".tiff": ".tif", ".jpeg": ".jpg"}
 @click.option("--format", "fmt", type=click.Choice(sorted(_FORMATS)), default=None,
               help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
                    "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
-def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None) -> None:
+@workers_opt
+@scheduler_opt
+def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
+           workers: int | None, scheduler: str | None) -> None:
     """Render RAW files with TABLE.npz into OUT (-o).
 
     OUT is a file for one input, a folder for several (created if missing;
     outputs are named after the inputs' stems). Each output has the raw's
-    full size, pixel-aligned with it.
+    full size, pixel-aligned with it. With --workers or --scheduler the files
+    are rendered by dask.distributed workers, each reading its raw and writing
+    its output itself (docs/distributed.md).
     """
     from l3cli.errors import OutputError
-    from l3cli.progress import progress
-    from l3cli.render import render_file
-    from l3cli.table import load_table
+    from l3cli.render import render_files, table_for_task
 
-    table = load_table(table_path)
+    table_for_task(table_path)  # a bad table fails before anything is created
     out = Path(output)
     targets: list[tuple[str, Path]] = []
     if len(raws) == 1 and not out.is_dir():
@@ -56,6 +59,5 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None)
                 raise click.BadParameter(f"two inputs share the stem {stem!r}", param_hint="RAW")
             stems.add(stem)
             targets.append((r, out / f"{stem}{suffix}"))
-    name = Path(table_path).name
-    for raw_path, dst in progress(targets, label="render", enabled=not quiet()):
-        render_file(table, raw_path, dst, table_name=name)
+    render_files(table_path, targets, workers=workers, scheduler=scheduler,
+                 show_progress=not quiet())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from l3cli.cli.options import quiet, seed_opt
+from l3cli.cli.options import quiet, scheduler_opt, seed_opt, workers_opt
 
 
 def _size(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[int, int] | None:
@@ -59,14 +59,19 @@ def _print_list(ctx: click.Context, param: click.Parameter, value: bool) -> None
 @click.option("--list", is_flag=True, is_eager=True, expose_value=False, callback=_print_list,
               help="List scenes, illuminants, QE presets and IR filters, then exit.")
 @seed_opt
+@workers_opt
+@scheduler_opt
 def simulate(camera: str, output: str, scenes: tuple[str, ...], illuminant: str | None,
              lux: tuple[float, ...], size: tuple[int, int] | None, exposure_s: float | None,
-             oversample: int, no_blur: bool, no_noise: bool, seed: int) -> None:
+             oversample: int, no_blur: bool, no_noise: bool, seed: int, workers: int | None,
+             scheduler: str | None) -> None:
     """Simulate captures of CAMERA.toml into SIM_DIR (-o).
 
     For each scene and light level it writes STEM.dng (or STEM.tif +
     STEM.tif.toml where DNG cannot describe the CFA), STEM.target.exr (ideal
     CIE XYZ, pixel-aligned), STEM.noisefree.exr and one manifest.json.
+    With --workers or --scheduler the captures are simulated by
+    dask.distributed workers; the files are the same as in process.
     """
     import logging
 
@@ -78,25 +83,11 @@ def simulate(camera: str, output: str, scenes: tuple[str, ...], illuminant: str 
             raise click.BadParameter(f"{x:g} lux: light levels must be > 0", param_hint="--lux")
     cam = load_camera(camera)
     show = not quiet()
-    state = {"bar": None}
-
-    def on_capture(i: int, n: int, stem: str) -> None:
-        if not show:
-            return
-        if state["bar"] is None:
-            import sys
-
-            state["bar"] = click.progressbar(length=n, label="simulate", file=sys.stderr)
-            state["bar"].__enter__()
-        state["bar"].update(1)
-        if i == n:
-            state["bar"].__exit__(None, None, None)
-
     manifest = run_simulation(cam, output, scenes=list(scenes) or None, illuminant=illuminant,
                               lux=list(lux) or None, seed=seed, size=size,
                               blur=not no_blur, noise=not no_noise, exposure_s=exposure_s,
-                              oversample=oversample,
-                              on_capture=on_capture)
+                              oversample=oversample, workers=workers, scheduler=scheduler,
+                              show_progress=show)
     logging.getLogger(__name__).info("wrote %d captures to %s", len(manifest["captures"]), output)
     if show:
         click.echo(f"{output}: {len(manifest['captures'])} captures", err=True)

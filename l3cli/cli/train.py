@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from l3cli.cli.options import output_opt, quiet, seed_opt
+from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, workers_opt
 
 
 @click.command(short_help="Learn a transform table from simulate or pairs folders.")
@@ -42,21 +42,27 @@ from l3cli.cli.options import output_opt, quiet, seed_opt
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
 @seed_opt
+@workers_opt
+@scheduler_opt
 def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing: str,
           level_range: tuple[float, float] | None, contrast_bins: int,
           contrast_threshold: float | None, saturation: float, merge_positions: bool,
           target_space: str, sample_fraction: float, min_samples_factor: float,
-          seed: int, scaled_renders: bool = False) -> None:
+          seed: int, scaled_renders: bool = False, workers: int | None = None,
+          scheduler: str | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
     folder (each raw file with a same-stem rendered image). Per class, an
     affine kernel is fitted by ridge regression with λ chosen by generalised
     cross-validation from per-class sufficient statistics.
+
+    With --workers or --scheduler each input is read and reduced to
+    statistics by a dask.distributed worker; the table is the same as in
+    process (docs/distributed.md).
     """
     import logging
 
-    from l3cli.progress import progress
     from l3cli.table import save_table
     from l3cli.train import TrainOptions, find_pairs
     from l3cli.train import train as train_table
@@ -73,11 +79,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         target_space=target_space, sample_fraction=sample_fraction, seed=seed,
                         min_samples_factor=min_samples_factor)
     show = not quiet()
-
-    def bar(items, label):
-        return progress(items, label=f"{label:<10}", enabled=show)
-
-    table = train_table(pairs, opts, progress=bar)
+    table = train_table(pairs, opts, workers=workers, scheduler=scheduler, show_progress=show)
     save_table(output, table)
     n_tr = int((~table.empty).sum())
     logging.getLogger(__name__).info("wrote %s", output)

@@ -1,6 +1,8 @@
 """Write a simulation directory: raw mosaics, ideal targets, noise-free responses, manifest.
 
-Everything is first written into a temporary folder next to ``SIM_DIR`` and
+Each capture is one map task (:func:`capture_task`: build the scene, simulate,
+write the files), run in process or on a dask.distributed cluster
+(:func:`l3cli.parallel.map_reduce`). Everything is first written into a temporary folder next to ``SIM_DIR`` and
 moved into place only when every capture succeeded, the manifest last; on any
 error the temporary folder is removed and ``SIM_DIR`` is left as it was.
 """
@@ -14,6 +16,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +25,7 @@ import numpy as np
 from l3cli import spectral
 from l3cli.camera import Camera
 from l3cli.errors import ConfigError, OutputError
+from l3cli.parallel import map_reduce
 from l3cli.simulate.core import (
     TARGET_SCALE_DOC,
     CameraModel,
@@ -34,7 +38,7 @@ from l3cli.simulate.core import (
 from l3cli.simulate.scenes import check_scene_name, expand_scene_names, make_scene
 
 __all__ = ["run_simulation", "DEFAULT_SCENES", "DEFAULT_SIZE", "MANIFEST_FORMAT",
-           "MANIFEST_VERSION", "dng_colour_matrix", "write_capture"]
+           "MANIFEST_VERSION", "dng_colour_matrix", "write_capture", "CaptureJob", "capture_task"]
 
 log = logging.getLogger(__name__)
 
@@ -165,6 +169,9 @@ def run_simulation(
     exposure_s: float | None = None,
     oversample: int = 1,
     on_capture: Callable[[int, int, str], None] | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    show_progress: bool | None = False,
 ) -> dict[str, Any]:
     """Simulate every (scene, light level) capture of a camera into ``out_dir``.
 
@@ -192,7 +199,16 @@ def run_simulation(
         Scene samples per pixel and axis (1-8) for the optics; the pixel
         aperture then averages them. 1 applies the OTF at the pixel grid.
     on_capture
-        Progress callback ``(index, total, stem)`` called after each capture.
+        Progress callback ``(index, total, stem)`` called after each capture
+        (in capture order).
+    workers, scheduler
+        Simulate the captures on a local dask cluster of this many workers, or
+        on the running scheduler at this address (default: in process). Each
+        capture is one :func:`capture_task`; its noise depends only on
+        ``(seed, stem)``, so the files and the manifest are the same whichever
+        way the captures run.
+    show_progress
+        Progress bar on stderr.
 
     Returns
     -------
@@ -233,22 +249,23 @@ def run_simulation(
 
     tmp = Path(tempfile.mkdtemp(prefix=f".l3-tmp-{out_dir.name}-", dir=parent))
     try:
+        remote = workers is not None or scheduler is not None
+        folder = str(tmp.absolute()) if remote else str(tmp)
+        jobs = [CaptureJob(camera=camera, folder=folder, scene=n, height=height, width=width,
+                           oversample=oversample, illuminant=ill, lux=x, seed=int(seed),
+                           stem=capture_stem(_scene_label(n), ill, x), blur=blur, noise=noise,
+                           exposure_s=exposure_s)
+                for n in names for x in levels]
         captures: list[dict[str, Any]] = []
-        total = len(stems)
-        i = 0
-        for n in names:
-            scene = make_scene(n, height, width, model.wavelengths, oversample=oversample)
-            if scene.name != _scene_label(n):
-                scene.name = _scene_label(n)
-            for x in levels:
-                stem = capture_stem(scene.name, ill, x)
-                cap = simulate_capture(model, scene, illuminant=ill, lux=x, seed=seed, stem=stem,
-                                       blur=blur, noise=noise, exposure_s=exposure_s)
-                captures.append(write_capture(tmp, cap, model))
-                log.info("simulated %s (exposure %.4g s)", stem, cap.exposure_s)
-                i += 1
-                if on_capture is not None:
-                    on_capture(i, total, stem)
+        total = len(jobs)
+
+        def collect(acc: None, entry: dict[str, Any]) -> None:
+            captures.append(entry)
+            if on_capture is not None:
+                on_capture(len(captures), total, entry["stem"])
+
+        map_reduce(capture_task, jobs, reduce=collect, workers=workers, scheduler=scheduler,
+                   label="simulate", show_progress=show_progress)
         manifest = {
             "format": MANIFEST_FORMAT,
             "version": MANIFEST_VERSION,
@@ -282,3 +299,48 @@ def _scene_label(name: str) -> str:
     from l3cli.simulate.scenes import _stem_name
 
     return _stem_name(Path(name))
+
+
+@dataclass(frozen=True)
+class CaptureJob:
+    """One capture to simulate (a small, picklable description; no pixels).
+
+    ``folder`` is where the task writes the capture's files (the run's
+    temporary folder); the other fields are the arguments of
+    :func:`~l3cli.simulate.scenes.make_scene` and
+    :func:`~l3cli.simulate.core.simulate_capture`.
+    """
+
+    camera: Camera
+    folder: str
+    scene: str
+    height: int
+    width: int
+    oversample: int
+    illuminant: str
+    lux: float
+    seed: int
+    stem: str
+    blur: bool = True
+    noise: bool = True
+    exposure_s: float | None = None
+
+
+def capture_task(job: CaptureJob) -> dict[str, Any]:
+    """Simulate one capture and write its files into ``job.folder`` (a map task).
+
+    Returns
+    -------
+    dict
+        The capture's manifest entry.
+    """
+    model = prepare_camera(job.camera)
+    scene = make_scene(job.scene, job.height, job.width, model.wavelengths,
+                       oversample=job.oversample)
+    scene.name = _scene_label(job.scene)
+    cap = simulate_capture(model, scene, illuminant=job.illuminant, lux=job.lux, seed=job.seed,
+                           stem=job.stem, blur=job.blur, noise=job.noise,
+                           exposure_s=job.exposure_s)
+    entry = write_capture(Path(job.folder), cap, model)
+    log.info("simulated %s (exposure %.4g s)", job.stem, cap.exposure_s)
+    return entry

@@ -8,6 +8,12 @@ Two passes over the inputs:
 2. per-class sufficient statistics (:mod:`l3cli.train.stats`), then ridge +
    GCV per class (:mod:`l3cli.train.ridge`).
 
+Both passes are maps over the inputs (:func:`l3cli.parallel.map_reduce`): a
+task (:func:`histogram_task`, :func:`stats_task`) reads one input itself and
+returns its histogram or statistics, and the results are summed in input
+order -- in process, or on a dask.distributed cluster with the same result
+bit for bit (``l3 train --workers/--scheduler``, ``docs/distributed.md``).
+
 Classes with fewer than ``min_samples_factor`` x (S*S + 1) samples are marked
 empty and use the kernel of the nearest trained class of the same position
 group (same saturation pattern and contrast first, nearest level).
@@ -17,7 +23,9 @@ from __future__ import annotations
 
 import logging
 import platform
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -31,8 +39,8 @@ from l3cli.train.data import Pair, load_pair
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
-__all__ = ["TrainOptions", "sample_mask", "define_classes", "collect_stats", "table_from_stats",
-           "fallback_sources", "train"]
+__all__ = ["TrainOptions", "sample_mask", "histogram_task", "stats_task", "define_classes",
+           "collect_stats", "table_from_stats", "fallback_sources", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -92,42 +100,129 @@ def sample_mask(shape: tuple[int, int], fraction: float, seed: int, index: int,
     return rng.random(shape, dtype=np.float32) < fraction
 
 
-def _progress(items, label, progress):
-    if progress is None:
-        return items
-    return progress(items, label)
+def _need_histogram(opts: TrainOptions) -> bool:
+    return opts.level_range is None or (opts.contrast_bins > 1 and
+                                        opts.contrast_threshold is None)
 
 
-def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *,
-                   progress: Callable | None = None) -> ClassDefinition:
-    """Class definition for the data: CFA from the raws, cut points from pass 1."""
+def _for_workers(pairs: Sequence[Pair], client) -> list[Pair]:
+    """Pairs as sent to the tasks: absolute paths on a cluster (workers may run
+    elsewhere or in another folder), unchanged in process."""
+    if client is None:
+        return list(pairs)
+    return [replace(p, raw=Path(p.raw).absolute(), target=Path(p.target).absolute())
+            for p in pairs]
+
+
+def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
+                   ) -> tuple[int, CFA, ContrastHistogram | None]:
+    """Pass 1 on one input (a map task): its CFA and (level, contrast) histogram.
+
+    Parameters
+    ----------
+    item
+        ``(index, pair, opts, with_histogram)``; ``index`` numbers the image for
+        the sampling seed.
+
+    Returns
+    -------
+    tuple
+        ``(index, cfa, histogram or None)``; histograms add.
+    """
     from l3cli.io.raw import read_raw
 
-    need_hist = opts.level_range is None or (opts.contrast_bins > 1 and
-                                             opts.contrast_threshold is None)
+    i, pair, opts, with_hist = item
+    raw = read_raw(pair.raw)
+    if not with_hist:
+        return i, raw.cfa, None
     hist = ContrastHistogram.empty()
-    cfa: CFA | None = None
-    first = None
-    items = list(enumerate(pairs))
-    if need_hist:
-        items_it = _progress(items, "classes", progress)
-    else:
-        items_it = items[:1]
-    for i, pair in items_it:
-        raw = read_raw(pair.raw)
-        if cfa is None:
-            cfa, first = raw.cfa, pair.raw
-        elif raw.cfa.spec != cfa.spec:
+    frac = min(opts.sample_fraction, 0.25)
+    mask = sample_mask(raw.mosaic.shape, frac, opts.seed, i, stream=1)
+    hist.add_mosaic(raw.mosaic, raw.cfa, patch=opts.patch,
+                    saturation_threshold=opts.saturation, mask=mask)
+    return i, raw.cfa, hist
+
+
+def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> ClassStats:
+    """Pass 2 on one input (a map task): the sufficient statistics of one pair.
+
+    Parameters
+    ----------
+    item
+        ``(index, pair, definition, opts)``; ``index`` numbers the image for the
+        sampling seed (:func:`sample_mask`).
+
+    Returns
+    -------
+    ClassStats
+        The statistics of this pair alone; they add.
+    """
+    i, pair, definition, opts = item
+    raw, target, valid = load_pair(pair, target_space=opts.target_space, with_mask=True)
+    if raw.cfa.spec != definition.cfa.spec:
+        raise InputError(
+            f"{pair.raw}: CFA {raw.cfa.spec} differs from the table's {definition.cfa.spec}"
+        )
+    mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
+    if valid is not None:
+        mask = valid if mask is None else mask & valid
+    stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
+    accumulate(stats, raw.mosaic, target, mask=mask)
+    return stats
+
+
+def _add_stats(acc: ClassStats | None, s: ClassStats) -> ClassStats:
+    if acc is None:
+        return s
+    acc += s
+    return acc
+
+
+def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
+                   show_progress: bool | None = False) -> ClassDefinition:
+    """Class definition for the data: CFA from the raws, cut points from pass 1.
+
+    Pass 1 maps :func:`histogram_task` over the raws (only the first one when
+    both the level range and the contrast thresholds are given) and sums the
+    histograms in input order (:func:`l3cli.parallel.map_reduce`).
+
+    Parameters
+    ----------
+    pairs
+        Training pairs.
+    opts
+        Training options.
+    client
+        A dask client (:func:`l3cli.parallel.dask_client`), or None for in process.
+    show_progress
+        Progress bar on stderr.
+    """
+    from l3cli.parallel import map_reduce
+
+    pairs = list(pairs)
+    need_hist = _need_histogram(opts)
+    sent = _for_workers(pairs, client)
+    items = [(i, p, opts, need_hist) for i, p in enumerate(sent)]
+    if not need_hist:
+        items = items[:1]
+    first: dict = {}
+
+    def fold(acc: ContrastHistogram | None, res) -> ContrastHistogram | None:
+        i, cfa, hist = res
+        if not first:
+            first.update(cfa=cfa, path=pairs[i].raw)
+        elif cfa.spec != first["cfa"].spec:
             raise InputError(
-                f"{pair.raw}: CFA {raw.cfa.spec} differs from {cfa.spec} of {first}; "
-                "train one table per CFA"
+                f"{pairs[i].raw}: CFA {cfa.spec} differs from {first['cfa'].spec} of "
+                f"{first['path']}; train one table per CFA"
             )
-        if need_hist:
-            frac = min(opts.sample_fraction, 0.25)
-            mask = sample_mask(raw.mosaic.shape, frac, opts.seed, i, stream=1)
-            hist.add_mosaic(raw.mosaic, raw.cfa, patch=opts.patch,
-                            saturation_threshold=opts.saturation, mask=mask)
-    assert cfa is not None
+        if hist is None:
+            return acc
+        return hist if acc is None else acc + hist
+
+    hist = map_reduce(histogram_task, items, reduce=fold, client=client,
+                      label="classes   ", show_progress=show_progress and need_hist)
+    cfa = first["cfa"]
     if opts.level_range is not None:
         lo, hi = opts.level_range
     else:
@@ -147,20 +242,23 @@ def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *,
 
 
 def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: TrainOptions, *,
-                  index_offset: int = 0, progress: Callable | None = None) -> ClassStats:
-    """Sufficient statistics of ``pairs`` (pass 2). ``index_offset`` numbers the images
-    for the sampling seed, so splitting a list gives the same samples as one run."""
-    stats = ClassStats.zeros(definition, 3, target_space=opts.target_space)
-    for i, pair in _progress(list(enumerate(pairs)), "statistics", progress):
-        raw, target, valid = load_pair(pair, target_space=opts.target_space, with_mask=True)
-        if raw.cfa.spec != definition.cfa.spec:
-            raise InputError(
-                f"{pair.raw}: CFA {raw.cfa.spec} differs from the table's {definition.cfa.spec}"
-            )
-        mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i + index_offset)
-        if valid is not None:
-            mask = valid if mask is None else mask & valid
-        accumulate(stats, raw.mosaic, target, mask=mask)
+                  index_offset: int = 0, client=None,
+                  show_progress: bool | None = False) -> ClassStats:
+    """Sufficient statistics of ``pairs`` (pass 2).
+
+    Maps :func:`stats_task` over the pairs (one task per pair) and sums the
+    per-pair statistics in input order, so the result is the same bit for bit
+    in process and on any cluster. ``index_offset`` numbers the images for the
+    sampling seed, so splitting a list gives the same samples as one run.
+    """
+    from l3cli.parallel import map_reduce
+
+    sent = _for_workers(pairs, client)
+    items = [(i + index_offset, p, definition, opts) for i, p in enumerate(sent)]
+    stats = map_reduce(stats_task, items, reduce=_add_stats, client=client,
+                       label="statistics", show_progress=show_progress)
+    if stats is None:  # no pairs
+        stats = ClassStats.zeros(definition, 3, target_space=opts.target_space)
     return stats
 
 
@@ -231,8 +329,13 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
 
 
 def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
-          progress: Callable | None = None) -> TransformTable:
-    """Train a table from pairs (both passes, single process).
+          workers: int | None = None, scheduler: str | None = None,
+          show_progress: bool | None = False) -> TransformTable:
+    """Train a table from pairs: both passes, in process or on a dask cluster.
+
+    Each pass is a map over the inputs (one task reads one pair and returns
+    its histogram or statistics) folded in input order; the solve runs here.
+    The table is the same bit for bit whichever way the passes run.
 
     Parameters
     ----------
@@ -240,15 +343,30 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
         Training pairs (:func:`l3cli.train.data.find_pairs`).
     opts
         Options; defaults when ``None``.
-    progress
-        ``progress(items, label) -> iterable`` wrapper (a progress bar), or None.
+    workers
+        Run the passes on a local dask cluster of this many worker processes.
+    scheduler
+        Run them on the running dask scheduler at this address.
+    show_progress
+        Progress bars on stderr.
+
+    Raises
+    ------
+    InputError, TableError
+        Bad inputs, or not enough data.
+    l3cli.parallel.ParallelError
+        The cluster cannot be reached or a task failed on every attempt.
     """
+    from l3cli.parallel import dask_client
+
     opts = opts or TrainOptions()
     pairs = list(pairs)
     if not pairs:
         raise InputError("no training pairs")
-    definition = define_classes(pairs, opts, progress=progress)
-    stats = collect_stats(pairs, definition, opts, progress=progress)
+    with dask_client(workers, scheduler) as client:
+        definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
+        stats = collect_stats(pairs, definition, opts, client=client,
+                              show_progress=show_progress)
     prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
             "seed": opts.seed}
     return table_from_stats(stats, opts, provenance=prov)

@@ -1,0 +1,245 @@
+"""`l3 train/render/simulate --workers/--scheduler`: same results as in process.
+
+The cluster tests share one local dask cluster (module fixture) reached with
+``--scheduler``; ``--workers`` (a cluster started by the command) is exercised
+with one worker, as on a small machine.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from l3cli.cli.main import cli
+from l3cli.io.image import read_image, write_image
+from l3cli.io.raw import write_raw
+from l3cli.train import ClassStats, TrainOptions, accumulate, find_pairs, load_pair
+from l3cli.train.fit import (
+    _add_stats,
+    collect_stats,
+    define_classes,
+    sample_mask,
+    stats_task,
+)
+from tests.test_align import scene
+from tests.test_train import _sim_dir
+
+REPO = Path(__file__).resolve().parents[1]
+BAYER = str(REPO / "sample_configs" / "bayer.toml")
+SIM_ARGS = ["--scene", "macbeth", "--scene", "natural:coffee", "--lux", "40", "--lux", "400",
+            "--size", "96x64", "--seed", "7"]
+
+
+def no_leftovers(folder: Path) -> bool:
+    return not any(p.name.startswith(".l3-tmp") for p in folder.iterdir())
+
+
+def npz_equal(a: Path, b: Path) -> None:
+    """Every array of two NPZ files is identical (provenance text included)."""
+    with np.load(a, allow_pickle=False) as za, np.load(b, allow_pickle=False) as zb:
+        assert sorted(za.files) == sorted(zb.files)
+        for k in za.files:
+            np.testing.assert_array_equal(za[k], zb[k], err_msg=k)
+
+
+def ran_on(address: str, task: str) -> bool:
+    """Whether the scheduler at ``address`` has run tasks of the function ``task``."""
+    from distributed import Client
+
+    with Client(address, timeout="5s") as c:
+        return c.run_on_scheduler(lambda dask_scheduler: task in dask_scheduler.task_prefixes)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Address of a two-worker local dask cluster (one thread each)."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=":0", silence_logs=logging.ERROR,
+                      env={"NUMBA_NUM_THREADS": "1"}) as c:
+        yield c.scheduler_address
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory) -> Path:
+    """Four simulated captures (macbeth, coffee x 40, 400 lux), made in process."""
+    from click.testing import CliRunner
+
+    out = tmp_path_factory.mktemp("dist") / "sim"
+    r = CliRunner().invoke(cli, ["-q", "simulate", BAYER, "-o", str(out), *SIM_ARGS])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def _train(runner, inputs, out, *extra):
+    r = runner.invoke(cli, ["-q", "train", *map(str, inputs), "-o", str(out), "--levels", "6",
+                            *extra])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+# ------------------------------------------------------------- in process
+def test_statistics_are_the_ordered_sum_of_per_input_tasks(tmp_path):
+    """collect_stats == fold of stats_task in input order (bit for bit), and the
+    per-input sum equals one running accumulation to float64 rounding."""
+    sim = _sim_dir(tmp_path, n=3, shape=(40, 48), seed=4)
+    pairs = find_pairs([sim])
+    opts = TrainOptions(levels=4, sample_fraction=0.6, seed=9)
+    d = define_classes(pairs, opts)
+    got = collect_stats(pairs, d, opts)
+    folded = None
+    for i, p in enumerate(pairs):
+        folded = _add_stats(folded, stats_task((i, p, d, opts)))
+    for k in ("n", "xtx", "xty", "yy"):
+        np.testing.assert_array_equal(getattr(got, k), getattr(folded, k))
+    running = ClassStats.zeros(d, 3)
+    for i, p in enumerate(pairs):
+        raw, target = load_pair(p)
+        accumulate(running, raw.mosaic, target,
+                   mask=sample_mask(raw.mosaic.shape, 0.6, 9, i))
+    np.testing.assert_array_equal(got.n, running.n)
+    np.testing.assert_allclose(got.xtx, running.xtx, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got.xty, running.xty, rtol=1e-12, atol=1e-12)
+    # and a split list with index_offset adds up to the whole
+    part = collect_stats(pairs[:1], d, opts) + collect_stats(pairs[1:], d, opts, index_offset=1)
+    np.testing.assert_array_equal(part.n, got.n)
+    np.testing.assert_allclose(part.xtx, got.xtx, rtol=1e-12, atol=1e-12)
+
+
+# ------------------------------------------------------------- on a cluster
+@pytest.mark.slow
+def test_simulate_on_cluster_is_identical(runner, sim, cluster, tmp_path):
+    out = tmp_path / "sim"
+    r = runner.invoke(cli, ["-q", "simulate", BAYER, "-o", str(out), *SIM_ARGS,
+                            "--scheduler", cluster])
+    assert r.exit_code == 0, r.output
+    assert ran_on(cluster, "capture_task")
+    assert (out / "manifest.json").read_text() == (sim / "manifest.json").read_text()
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in sim.iterdir())
+    caps = json.loads((sim / "manifest.json").read_text())["captures"]
+    assert len(caps) == 4
+    for c in caps:
+        assert (out / c["raw"]).read_bytes() == (sim / c["raw"]).read_bytes()
+        for k in ("target", "noise_free"):  # EXR headers carry the write time: compare pixels
+            a, sa = read_image(out / c[k])
+            b, sb = read_image(sim / c[k])
+            assert sa == sb
+            np.testing.assert_array_equal(a, b)
+    assert no_leftovers(tmp_path)
+
+
+@pytest.mark.slow
+def test_simulate_failure_on_cluster_leaves_nothing(runner, cluster, tmp_path):
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(b"not a png at all")
+    out = tmp_path / "sim"
+    r = runner.invoke(cli, ["simulate", BAYER, "-o", str(out), "--scene", "macbeth",
+                            "--scene", str(bad), "--lux", "100", "--size", "64x48",
+                            "--scheduler", cluster])
+    assert r.exit_code == 1
+    assert "broken.png" in r.output and "Traceback" not in r.output
+    assert len(r.output.strip().splitlines()) == 1
+    assert not out.exists() and no_leftovers(tmp_path)
+
+
+@pytest.mark.slow
+def test_train_on_cluster_equals_in_process_simulate_folder(runner, sim, cluster, tmp_path):
+    extra = ["--sample-fraction", "0.5", "--seed", "3"]  # histogram pass + sampled pixels
+    local = _train(runner, [sim], tmp_path / "local.npz", *extra)
+    dist = _train(runner, [sim], tmp_path / "dist.npz", *extra, "--scheduler", cluster)
+    assert ran_on(cluster, "histogram_task") and ran_on(cluster, "stats_task")
+    npz_equal(local, dist)
+
+
+@pytest.mark.slow
+def test_train_with_one_local_worker_equals_in_process_pairs_folder(runner, tmp_path):
+    from l3cli.colourspace import srgb_encode
+    from tests.test_pairs import H, W, _mosaic_dn
+
+    d = tmp_path / "pairs"
+    d.mkdir()
+    for stem, seed, crop in (("x", 41, 0), ("y", 42, 4)):
+        lin = scene(H, W, seed=seed)
+        write_raw(d / f"{stem}.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
+        write_image(d / f"{stem}.png", srgb_encode(lin)[crop:H - crop, crop:W - crop],
+                    space="srgb")
+    extra = ["--patch", "3", "--levels", "4"]
+    local = _train(runner, [d], tmp_path / "local.npz", *extra)
+    dist = _train(runner, [d], tmp_path / "dist.npz", *extra, "--workers", "1")
+    npz_equal(local, dist)
+
+
+@pytest.mark.slow
+def test_render_on_cluster_is_identical(runner, sim, cluster, tmp_path):
+    table = _train(runner, [sim], tmp_path / "t.npz")
+    raws = sorted(map(str, sim.glob("*.dng")))
+    outs = {}
+    for name, extra in (("local", []), ("dist", ["--scheduler", cluster])):
+        r = runner.invoke(cli, ["-q", "render", str(table), *raws, "-o",
+                                str(tmp_path / name), *extra])
+        assert r.exit_code == 0, r.output
+        outs[name] = tmp_path / name
+    names = sorted(p.name for p in outs["local"].iterdir())
+    assert names == sorted(p.name for p in outs["dist"].iterdir()) and len(names) == 4
+    assert ran_on(cluster, "render_task")
+    for n in names:
+        a, sa = read_image(outs["local"] / n)
+        b, sb = read_image(outs["dist"] / n)
+        assert sa == sb == "xyz"
+        np.testing.assert_array_equal(a, b)
+    assert no_leftovers(outs["dist"])
+
+
+@pytest.mark.slow
+def test_failing_train_job_leaves_no_table(runner, cluster, tmp_path):
+    sim = _sim_dir(tmp_path, n=3, nan=True)  # the last target holds a NaN
+    out = tmp_path / "t.npz"
+    r = runner.invoke(cli, ["train", str(sim), "-o", str(out), "--levels", "4",
+                            "--scheduler", cluster])
+    assert r.exit_code == 1
+    assert "cap2.target.exr" in r.output and "NaN" in r.output
+    assert "Traceback" not in r.output and len(r.output.strip().splitlines()) == 1
+    assert not out.exists() and no_leftovers(tmp_path)
+
+
+@pytest.mark.slow
+def test_unreachable_scheduler_leaves_no_table(runner, tmp_path):
+    sim = _sim_dir(tmp_path, n=1)
+    out = tmp_path / "t.npz"
+    r = runner.invoke(cli, ["train", str(sim), "-o", str(out), "--scheduler",
+                            "tcp://127.0.0.1:1"])
+    assert r.exit_code == 1 and "cannot reach dask scheduler tcp://127.0.0.1:1" in r.output
+    assert not out.exists()
+
+
+# ------------------------------------------------------------- faults
+def _stats_or_die(arg):
+    """stats_task, except that the worker running input 1 dies the first time."""
+    marker, item = arg
+    if item[0] == 1 and not Path(marker).exists():
+        Path(marker).write_text("killed")
+        os._exit(1)
+    return stats_task(item)
+
+
+@pytest.mark.slow
+def test_training_statistics_survive_a_killed_worker(tmp_path):
+    from l3cli.parallel import map_reduce
+
+    sim = _sim_dir(tmp_path, n=4, shape=(40, 48), seed=5)
+    pairs = find_pairs([sim])
+    opts = TrainOptions(levels=4)
+    d = define_classes(pairs, opts)
+    expect = collect_stats(pairs, d, opts)
+    marker = str(tmp_path / "killed")
+    items = [(marker, (i, p, d, opts)) for i, p in enumerate(pairs)]
+    got = map_reduce(_stats_or_die, items, reduce=_add_stats, workers=2)
+    assert Path(marker).exists()  # a worker really died mid-task
+    for k in ("n", "xtx", "xty", "yy"):
+        np.testing.assert_array_equal(getattr(got, k), getattr(expect, k))
