@@ -170,9 +170,10 @@ def map_reduce(
 
     Notes
     -----
-    On a cluster at most ``WINDOW_PER_THREAD`` tasks per worker thread are in
-    flight (submitted and not yet folded), so the results waiting for an
-    earlier one to fold stay bounded whatever the number of items.
+    On a cluster at most ``WINDOW_PER_THREAD`` tasks per worker thread (at
+    least 8) are in flight: submitted and not yet folded. A result that
+    finishes before its turn stays on its worker; the client fetches results
+    in input order, so it holds one at a time whatever the number of items.
 
     Raises
     ------
@@ -208,8 +209,8 @@ def map_reduce(
 
     n = len(items)
     index: dict[str, int] = {}
-    live: dict[int, Any] = {}
-    done: dict[int, R] = {}
+    live: dict[int, Any] = {}  # submitted, not yet folded
+    finished: set[int] = set()
     ac = as_completed()
     state = {"submitted": 0, "next": 0, "window": 0, "refresh": 0}
 
@@ -230,35 +231,42 @@ def map_reduce(
             ac.add(fut)
             state["submitted"] += 1
 
-    def abandon() -> None:
-        client.cancel(list(live.values()))
+    def step(fut: Any) -> None:
+        """A task finished: check it; fetch and fold every result now in order.
+
+        Results that finish early stay on their workers until their turn, so
+        the client holds one result at a time."""
+        i = index.pop(fut.key)
+        state["current"] = i
+        if fut.status != "finished":
+            fut.result()  # raises the task's error
+        finished.add(i)
+        while state["next"] in finished:
+            k = state["next"]
+            state["current"] = k
+            f = live.pop(k)
+            r = f.result()
+            f.release()
+            finished.discard(k)
+            fold(r)
+            state["next"] += 1
 
     top_up()
-    for fut in _progress(ac, label=label, length=n, enabled=show_progress):
-        i = index.pop(fut.key)
-        try:
-            done[i] = fut.result()
-        except L3Error:
-            abandon()
+    try:
+        for fut in _progress(ac, label=label, length=n, enabled=show_progress):
+            step(fut)
+            top_up()
+    except BaseException as exc:
+        client.cancel(list(live.values()))
+        what = _describe(items[state.get("current", state["next"])])
+        if isinstance(exc, (L3Error, KeyboardInterrupt)) or not isinstance(exc, Exception):
             raise
-        except KilledWorker as exc:
-            abandon()
-            raise ParallelError(
-                f"{_describe(items[i])}: workers kept dying on this input; job abandoned"
-            ) from exc
-        except FutureCancelledError as exc:
-            abandon()
-            raise ParallelError(f"{_describe(items[i])}: task was cancelled") from exc
-        except Exception as exc:  # noqa: BLE001 - task errors become one line
-            abandon()
-            raise ParallelError(
-                f"{_describe(items[i])}: task failed after {retries + 1} attempts: "
-                f"{type(exc).__name__}: {exc}"
-            ) from exc
-        del live[i]
-        fut.release()
-        while state["next"] in done:
-            fold(done.pop(state["next"]))
-            state["next"] += 1
-        top_up()
+        if isinstance(exc, KilledWorker):
+            raise ParallelError(f"{what}: workers kept dying on this input; job abandoned") \
+                from exc
+        if isinstance(exc, FutureCancelledError):
+            raise ParallelError(f"{what}: task was cancelled") from exc
+        raise ParallelError(  # a task's own error becomes one line
+            f"{what}: task failed after {retries + 1} attempts: {type(exc).__name__}: {exc}"
+        ) from exc
     return acc if reduce is not None else results

@@ -31,6 +31,18 @@ def _die_once(arg: tuple[str, int]) -> int:
     return value * value
 
 
+def _slow_first(x: int) -> int:
+    import time
+
+    if x == 0:
+        time.sleep(1.0)  # every later task finishes first
+    return x
+
+
+def _append(acc, r):
+    return [r] if acc is None else [*acc, r]
+
+
 def _always_die(_: int) -> int:
     os._exit(1)
 
@@ -51,6 +63,12 @@ def test_local_cluster_equals_in_process_bit_for_bit():
     seq = map_reduce(_square_sum, list(range(6)), reduce=_add)
     dist = map_reduce(_square_sum, list(range(6)), reduce=_add, workers=2)
     np.testing.assert_array_equal(seq, dist)  # folded in input order: identical
+
+
+@pytest.mark.slow
+def test_results_fold_in_input_order_beyond_the_window():
+    # 30 items > the in-flight window (8 on a small cluster); item 0 finishes last
+    assert map_reduce(_slow_first, list(range(30)), reduce=_append, workers=2) == list(range(30))
 
 
 @pytest.mark.slow
