@@ -19,13 +19,7 @@ from l3cli.cli.main import cli
 from l3cli.io.image import read_image, write_image
 from l3cli.io.raw import write_raw
 from l3cli.train import ClassStats, TrainOptions, accumulate, find_pairs, load_pair
-from l3cli.train.fit import (
-    _add_stats,
-    collect_stats,
-    define_classes,
-    sample_mask,
-    stats_task,
-)
+from l3cli.train.fit import collect_stats, define_classes, sample_mask, stats_task
 from tests.test_align import scene
 from tests.test_train import _sim_dir
 
@@ -86,23 +80,28 @@ def _train(runner, inputs, out, *extra):
 
 # ------------------------------------------------------------- in process
 def test_statistics_are_the_ordered_sum_of_per_input_tasks(tmp_path):
-    """collect_stats == fold of stats_task in input order (bit for bit), and the
-    per-input sum equals one running accumulation to float64 rounding."""
+    """collect_stats == the per-input statistics (full arrays) added in input order,
+    bit for bit, although each task returns only its classes with samples; and
+    it equals one running accumulation over all inputs to float64 rounding."""
     sim = _sim_dir(tmp_path, n=3, shape=(40, 48), seed=4)
     pairs = find_pairs([sim])
     opts = TrainOptions(levels=4, sample_fraction=0.6, seed=9)
     d = define_classes(pairs, opts)
     got = collect_stats(pairs, d, opts)
-    folded = None
-    for i, p in enumerate(pairs):
-        folded = _add_stats(folded, stats_task((i, p, d, opts)))
-    for k in ("n", "xtx", "xty", "yy"):
-        np.testing.assert_array_equal(getattr(got, k), getattr(folded, k))
-    running = ClassStats.zeros(d, 3)
+    per_input, running = [], ClassStats.zeros(d, 3)
     for i, p in enumerate(pairs):
         raw, target = load_pair(p)
-        accumulate(running, raw.mosaic, target,
-                   mask=sample_mask(raw.mosaic.shape, 0.6, 9, i))
+        mask = sample_mask(raw.mosaic.shape, 0.6, 9, i)
+        one = ClassStats.zeros(d, 3)
+        accumulate(one, raw.mosaic, target, mask=mask)
+        per_input.append(one)
+        accumulate(running, raw.mosaic, target, mask=mask)
+        part = stats_task((i, p, d, opts))
+        assert 0 < part.classes.size < d.n_classes  # only the classes this input reaches
+        np.testing.assert_array_equal(part.classes, np.flatnonzero(one.n))
+    dense = (per_input[0] + per_input[1]) + per_input[2]
+    for k in ("n", "xtx", "xty", "yy"):
+        np.testing.assert_array_equal(getattr(got, k), getattr(dense, k))
     np.testing.assert_array_equal(got.n, running.n)
     np.testing.assert_allclose(got.xtx, running.xtx, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(got.xty, running.xty, rtol=1e-12, atol=1e-12)
@@ -239,7 +238,8 @@ def test_training_statistics_survive_a_killed_worker(tmp_path):
     expect = collect_stats(pairs, d, opts)
     marker = str(tmp_path / "killed")
     items = [(marker, (i, p, d, opts)) for i, p in enumerate(pairs)]
-    got = map_reduce(_stats_or_die, items, reduce=_add_stats, workers=2)
+    got = ClassStats.zeros(d, 3)
+    map_reduce(_stats_or_die, items, reduce=lambda acc, part: part.add_to(got), workers=2)
     assert Path(marker).exists()  # a worker really died mid-task
     for k in ("n", "xtx", "xty", "yy"):
         np.testing.assert_array_equal(getattr(got, k), getattr(expect, k))

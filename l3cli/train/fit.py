@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import platform
 from collections.abc import Iterable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +39,8 @@ from l3cli.train.data import Pair, load_pair
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
-__all__ = ["TrainOptions", "sample_mask", "histogram_task", "stats_task", "define_classes",
+__all__ = ["TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
+           "define_classes",
            "collect_stats", "table_from_stats", "fallback_sources", "train"]
 
 log = logging.getLogger(__name__)
@@ -143,7 +144,46 @@ def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
     return i, raw.cfa, hist
 
 
-def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> ClassStats:
+@dataclass
+class PartialStats:
+    """Sufficient statistics of one input, kept only for its classes with samples.
+
+    What :func:`stats_task` returns: one image reaches a small part of the
+    classes, so this is much smaller to send from a worker than a full
+    :class:`~l3cli.train.stats.ClassStats`. :meth:`add_to` adds it into full
+    statistics (the classes it lacks have zero statistics, so the sum is the
+    same bit for bit as adding the full statistics).
+    """
+
+    classes: np.ndarray  # int64 (k,) class indices with samples
+    n: np.ndarray  # int64 (k,)
+    xtx: np.ndarray  # float64 (k, q, q)
+    xty: np.ndarray  # float64 (k, q, n_out)
+    yy: np.ndarray  # float64 (k, n_out)
+    target_space: str
+
+    @classmethod
+    def of(cls, stats: ClassStats) -> PartialStats:
+        """The classes of ``stats`` with at least one sample."""
+        c = np.flatnonzero(stats.n)
+        return cls(c, stats.n[c], stats.xtx[c], stats.xty[c], stats.yy[c], stats.target_space)
+
+    def add_to(self, stats: ClassStats) -> ClassStats:
+        """Add into ``stats`` in place and return it."""
+        if self.target_space != stats.target_space or self.yy.shape[1] != stats.n_out:
+            raise TableError(
+                f"cannot add statistics for {self.yy.shape[1]} {self.target_space} outputs "
+                f"to {stats.n_out} {stats.target_space} outputs"
+            )
+        c = self.classes
+        stats.n[c] += self.n
+        stats.xtx[c] += self.xtx
+        stats.xty[c] += self.xty
+        stats.yy[c] += self.yy
+        return stats
+
+
+def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> PartialStats:
     """Pass 2 on one input (a map task): the sufficient statistics of one pair.
 
     Parameters
@@ -154,8 +194,8 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> ClassSt
 
     Returns
     -------
-    ClassStats
-        The statistics of this pair alone; they add.
+    PartialStats
+        The statistics of this pair alone (its classes with samples); they add.
     """
     i, pair, definition, opts = item
     raw, target, valid = load_pair(pair, target_space=opts.target_space, with_mask=True)
@@ -168,14 +208,7 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> ClassSt
         mask = valid if mask is None else mask & valid
     stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
     accumulate(stats, raw.mosaic, target, mask=mask)
-    return stats
-
-
-def _add_stats(acc: ClassStats | None, s: ClassStats) -> ClassStats:
-    if acc is None:
-        return s
-    acc += s
-    return acc
+    return PartialStats.of(stats)
 
 
 def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
@@ -255,10 +288,9 @@ def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: Trai
 
     sent = _for_workers(pairs, client)
     items = [(i + index_offset, p, definition, opts) for i, p in enumerate(sent)]
-    stats = map_reduce(stats_task, items, reduce=_add_stats, client=client,
-                       label="statistics", show_progress=show_progress)
-    if stats is None:  # no pairs
-        stats = ClassStats.zeros(definition, 3, target_space=opts.target_space)
+    stats = ClassStats.zeros(definition, 3, target_space=opts.target_space)
+    map_reduce(stats_task, items, reduce=lambda acc, part: part.add_to(stats), client=client,
+               label="statistics", show_progress=show_progress)
     return stats
 
 
