@@ -110,6 +110,10 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     dlog = logging.getLogger("distributed")
     old_level = dlog.level
     dlog.setLevel(root if root <= logging.DEBUG else max(root, logging.WARNING))
+    # a local cluster's worker processes log a task's error with its traceback
+    # ("Compute Failed"); the client reports it as one line: show those logs
+    # only with --debug / -vv
+    worker_logs = logging.DEBUG if root <= logging.DEBUG else logging.CRITICAL
     cluster = None
     try:
         if scheduler is not None:
@@ -124,7 +128,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
                 with dask.config.set({_TRIM: None}):
                     cluster = LocalCluster(
                         n_workers=n, threads_per_worker=1, processes=True,
-                        dashboard_address=":0", silence_logs=logging.ERROR,
+                        dashboard_address=":0", silence_logs=worker_logs,
                         env={"NUMBA_NUM_THREADS": str(threads)},
                     )
             except (OSError, TimeoutError, RuntimeError) as exc:

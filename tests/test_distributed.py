@@ -243,3 +243,22 @@ def test_training_statistics_survive_a_killed_worker(tmp_path):
     assert Path(marker).exists()  # a worker really died mid-task
     for k in ("n", "xtx", "xty", "yy"):
         np.testing.assert_array_equal(getattr(got, k), getattr(expect, k))
+
+
+@pytest.mark.slow
+def test_failing_job_on_local_workers_prints_one_line(tmp_path):
+    """In a real process (the workers' stderr is the terminal too): a bad input
+    stops `l3 train --workers 2` with one line and no traceback, and no table."""
+    import subprocess
+    import sys
+
+    sim = _sim_dir(tmp_path, n=3, nan=True)
+    out = tmp_path / "t.npz"
+    res = subprocess.run([sys.executable, "-m", "l3cli.cli.main", "train", str(sim), "-o",
+                          str(out), "--levels", "4", "--workers", "2"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 1
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: "), res.stderr
+    assert "cap2.target.exr" in lines[0] and "NaN" in lines[0]
+    assert not out.exists() and no_leftovers(tmp_path)
