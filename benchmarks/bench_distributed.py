@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_distributed.py [--size 640x480] [--repeat 3]
+    .venv/bin/python benchmarks/bench_distributed.py [--size 1280x960] [--repeat 3]
         [--memory-size 192x128]
 
 1. Simulates 16 captures of ``sample_configs/bayer.toml`` (macbeth,
@@ -116,7 +116,7 @@ def _same(a, b) -> bool:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", default="640x480")
+    ap.add_argument("--size", default="1280x960")
     ap.add_argument("--memory-size", default="192x128")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
