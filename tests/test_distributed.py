@@ -54,10 +54,16 @@ def cluster():
     """Address of a two-worker local dask cluster (one thread each)."""
     from distributed import LocalCluster
 
+    # this scheduler lives in the test process, where the CLI's log handler is:
+    # keep its INFO chatter (it outlives each command's client) out of the output
+    dlog = logging.getLogger("distributed")
+    old = dlog.level
+    dlog.setLevel(logging.ERROR)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=":0", silence_logs=logging.ERROR,
                       env={"NUMBA_NUM_THREADS": "1"}) as c:
         yield c.scheduler_address
+    dlog.setLevel(old)
 
 
 @pytest.fixture(scope="module")

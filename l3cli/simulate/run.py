@@ -285,10 +285,28 @@ def run_simulation(
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
         _commit(tmp, out_dir)
     except BaseException:
-        with contextlib.suppress(OSError):
-            shutil.rmtree(tmp)
+        _remove_folder(tmp)
         raise
     return manifest
+
+
+def _remove_folder(folder: Path, attempts: int = 20) -> None:
+    """Remove the run's temporary folder, again while something still writes into it.
+
+    On a running cluster a capture task cancelled by a failed job may still be
+    executing (dask does not interrupt running tasks) and create a file while
+    the folder is being removed; once the folder is gone its writes fail
+    (:func:`l3cli.io.atomic.atomic_path` needs the folder), so a few attempts
+    leave nothing behind.
+    """
+    import time
+
+    for _ in range(attempts):
+        with contextlib.suppress(OSError):
+            shutil.rmtree(folder)
+        if not folder.exists():
+            return
+        time.sleep(0.05)
 
 
 def _scene_label(name: str) -> str:
