@@ -643,6 +643,8 @@ def _tile_kernel(S: int):
             satr = np.empty(tw, dtype=np.int32)
             clsr = np.empty(tw, dtype=np.int32)
             lbr = np.empty(tw, dtype=np.int32)
+            kbr = np.empty(tw, dtype=np.int32)
+            ccr = np.empty(tw, dtype=np.float32)
             rows_c = np.empty(S, dtype=np.int64)
             for k in range(nbr):
                 slot = k % S
@@ -712,19 +714,25 @@ def _tile_kernel(S: int):
                         out_con[i0 + i, x0 + x] = spr[x]
                         out_sat[i0 + i, x0 + x] = satr[x]
                     continue
+                # level bin: a lookup on the float's leading bits, then at most two
+                # comparisons with the cut points of the bucket (see _level_lookup);
+                # the table reads cannot vectorise (gathers), the rest does
                 for x in range(tw):
-                    # level bin: a lookup on the float's leading bits, then at most
-                    # two comparisons with the cut points (see _level_lookup);
-                    # branch-free, so the loop vectorises (gathers)
                     kb = (levi[x] >> lut_shift) - lut_base
-                    kb = min(max(kb, 0), nlut - 1)
+                    kbr[x] = min(max(kb, 0), nlut - 1)
+                for x in range(tw):
+                    kb = kbr[x]
                     lv = lev[x]
-                    lb = lut[kb] + np.int32(cuts[kb, 0] <= lv) + np.int32(cuts[kb, 1] <= lv)
-                    clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lb) * (ncc + 1)
-                    lbr[x] = lb * ncc
+                    lbr[x] = lut[kb] + np.int32(cuts[kb, 0] <= lv) + np.int32(cuts[kb, 1] <= lv)
+                for x in range(tw):
+                    clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lbr[x]) * (ncc + 1)
                 for j in range(ncc):  # contrast bin
                     for x in range(tw):
-                        clsr[x] += np.int32(spr[x] >= ccf[lbr[x] + j])
+                        kbr[x] = lbr[x] * ncc + j
+                    for x in range(tw):
+                        ccr[x] = ccf[kbr[x]]
+                    for x in range(tw):
+                        clsr[x] += np.int32(spr[x] >= ccr[x])
                 if mode == 0:
                     for x in range(tw):
                         out_cls[i0 + i, x0 + x] = clsr[x]
