@@ -291,7 +291,6 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
         Unreadable files, a render that is not RGB, or a render that does not
         align with its raw (with ``scaled``: not even as a resized copy).
     """
-    from l3cli.colourspace import check_space, convert
     from l3cli.io.image import read_image
 
     raw = read_raw(files.raw)
@@ -328,26 +327,33 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
     mask = weight_mask(encoded, margin=margin,
                        clip_low=None if is_float else clip_low,
                        clip_high=None if is_float else clip_high)
-    dst = space if target_space is None else check_space(target_space)
-    target = encoded if dst == space else convert(encoded, space, dst)
-    target = np.ascontiguousarray(np.nan_to_num(target, nan=0.0), dtype=np.float32)
-    kept = float(mask.mean())
     log.info("%s: %s; %.1f%% of pixels train (margin %d, clipped excluded)",
-             files.name, a.describe(), 100 * kept, margin)
+             files.name, a.describe(), 100 * float(mask.mean()), margin)
+    return _make_pair(files, crop, encoded, mask, a, space, target_space, margin)
+
+
+def _make_pair(files: PairFiles, crop: RawImage, encoded: np.ndarray, mask: np.ndarray,
+               alignment: Alignment | ScaledAlignment, space: str, target_space: str | None,
+               margin: int) -> Pair:
+    """The :class:`Pair` of an aligned crop: target converted to ``target_space``."""
+    from l3cli.colourspace import check_space, convert
+
     if not mask.any():
         raise InputError(
             f"{files.render}: no pixel left to train after excluding clipped values and a "
             f"{margin}-pixel margin"
         )
-    return Pair(name=files.name, raw=crop, target=target, weight_mask=mask, alignment=a,
-                space=dst, files=files)
+    dst = space if target_space is None else check_space(target_space)
+    target = encoded if dst == space else convert(encoded, space, dst)
+    target = np.ascontiguousarray(np.nan_to_num(target, nan=0.0), dtype=np.float32)
+    return Pair(name=files.name, raw=crop, target=target, weight_mask=mask,
+                alignment=alignment, space=dst, files=files)
 
 
 def _load_scaled(files: PairFiles, raw: RawImage, img: np.ndarray, space: str, *,
                  target_space: str | None, margin: int, clip_low: float | None,
                  clip_high: float | None, flips: Sequence[str], min_score: float) -> Pair:
     """:func:`load_pair` for a resized render (``scaled=True``)."""
-    from l3cli.colourspace import check_space, convert
 
     a = align_scaled(raw, img, space=space, raw_name=files.raw, render_name=files.render,
                      flips=tuple(flips), min_score=min_score)
@@ -358,20 +364,11 @@ def _load_scaled(files: PairFiles, raw: RawImage, img: np.ndarray, space: str, *
         mask[mask.shape[0] - margin:] = False
         mask[:, :margin] = False
         mask[:, mask.shape[1] - margin:] = False
-    dst = space if target_space is None else check_space(target_space)
-    target = encoded if dst == space else convert(encoded, space, dst)
-    target = np.ascontiguousarray(np.nan_to_num(target, nan=0.0), dtype=np.float32)
     log.info("%s: %s; trains at the render's reduced resolution on the raw's %dx%d pixels "
              "from (y=%d, x=%d); %.1f%% of them train (margin %d, clipped excluded)",
              files.name, a.describe(), crop.width, crop.height, crop.metadata["crop"][0],
              crop.metadata["crop"][1], 100 * float(mask.mean()), margin)
-    if not mask.any():
-        raise InputError(
-            f"{files.render}: no pixel left to train after excluding clipped values and a "
-            f"{margin}-pixel margin"
-        )
-    return Pair(name=files.name, raw=crop, target=target, weight_mask=mask, alignment=a,
-                space=dst, files=files)
+    return _make_pair(files, crop, encoded, mask, a, space, target_space, margin)
 
 
 def iter_pairs(paths: Iterable[str | os.PathLike], *, target_space: str | None = None,
