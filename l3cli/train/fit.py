@@ -34,8 +34,8 @@ from l3cli.cfa import CFA
 from l3cli.classify import ClassDefinition, ContrastHistogram, level_cuts_between
 from l3cli.colourspace import check_space
 from l3cli.errors import ConfigError, InputError, TableError
+from l3cli.pairs import Pair, load_pair
 from l3cli.table import TransformTable
-from l3cli.train.data import Pair, load_pair
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
@@ -198,7 +198,8 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
         The statistics of this pair alone (its classes with samples); they add.
     """
     i, pair, definition, opts = item
-    raw, target, valid = load_pair(pair, target_space=opts.target_space, with_mask=True)
+    loaded = load_pair(pair, target_space=opts.target_space)
+    raw, target, valid = loaded.raw, loaded.target, loaded.weight_mask
     if raw.cfa.spec != definition.cfa.spec:
         raise InputError(
             f"{pair.raw}: CFA {raw.cfa.spec} differs from the table's {definition.cfa.spec}"
@@ -372,7 +373,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     Parameters
     ----------
     pairs
-        Training pairs (:func:`l3cli.train.data.find_pairs`).
+        Training pairs (:func:`l3cli.pairs.find_pairs`).
     opts
         Options; defaults when ``None``.
     workers
