@@ -195,10 +195,10 @@ def is_pairs_dir(path: str | os.PathLike) -> bool:
 
 
 def _render_for(raw: Path) -> Path:
-    stem = raw.name[: -len(raw.suffix)] if raw.suffix else raw.name
+    stem = raw.stem
     found = [f for f in raw.parent.iterdir()
              if f.is_file() and f != raw and f.suffix.lower() in RENDER_SUFFIXES
-             and f.name[: -len(f.suffix)] == stem and not sidecar_path(f).exists()]
+             and f.stem == stem and not sidecar_path(f).exists()]
     if not found:
         allowed = "/".join(s.lstrip(".") for s in RENDER_SUFFIXES)
         raise InputError(
@@ -271,7 +271,7 @@ def _rendered_pairs(p: Path, seen: dict[str, Path], scaled: bool) -> list[Pair]:
     for raw in raws:
         render = _render_for(raw)
         renders.discard(render)
-        name = render.name[: -len(render.suffix)]
+        name = render.stem
         if name in seen:
             raise InputError(f"{raw}: pair name {name!r} also comes from {seen[name]}")
         seen[name] = raw

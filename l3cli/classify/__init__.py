@@ -70,6 +70,7 @@ from l3cli.classify.definition import (
     DEFAULT_CONTRAST_EPS,
     SATURATION_RULE,
     ClassDefinition,
+    check_patch,
     describe_difference,
     position_groups,
 )
@@ -103,6 +104,7 @@ __all__ = [
     "LevelLookup",
     "band_rows",
     "check_mosaic",
+    "check_patch",
     "classify",
     "describe_difference",
     "kernel_tables",

@@ -13,13 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from l3cli import defaults
 from l3cli.cfa import CFA
 from l3cli.classify.levels import SPACINGS
 from l3cli.classify.padding import mirror_indices
 from l3cli.errors import ConfigError
 
 __all__ = ["CONTRAST_RULE", "SATURATION_RULE", "DEFAULT_CONTRAST_EPS", "ClassDefinition",
-           "describe_difference", "position_groups"]
+           "check_patch", "describe_difference", "position_groups"]
 
 #: Name of the contrast rule implemented here (stored in tables).
 CONTRAST_RULE = "relative-std-v1"
@@ -27,6 +28,23 @@ CONTRAST_RULE = "relative-std-v1"
 SATURATION_RULE = "any-pixel-per-channel-v1"
 #: ``eps`` in the contrast denominator (normalised raw units).
 DEFAULT_CONTRAST_EPS = 1e-4
+
+
+def check_patch(patch: int, name: str = "patch size") -> int:
+    """``patch`` if it is an allowed patch size (odd, >= 1); else raise :class:`ConfigError`.
+
+    Examples
+    --------
+    >>> check_patch(5)
+    5
+    >>> check_patch(4, "--patch")
+    Traceback (most recent call last):
+    ...
+    l3cli.errors.ConfigError: --patch 4 is not allowed; use an odd size >= 1
+    """
+    if patch < 1 or patch % 2 == 0:
+        raise ConfigError(f"{name} {patch} is not allowed; use an odd size >= 1")
+    return int(patch)
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,8 +85,7 @@ class ClassDefinition:
     _tables: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if self.patch < 1 or self.patch % 2 == 0:
-            raise ConfigError(f"patch size {self.patch} is not allowed; use an odd size >= 1")
+        check_patch(self.patch)
         cuts = np.asarray(self.level_cuts, dtype=np.float64)
         if cuts.ndim != 1 or cuts.size < 1 or np.any(np.diff(cuts) <= 0) or not np.all(np.isfinite(cuts)):
             raise ConfigError("level cut points must be a finite increasing 1-D list")
@@ -117,12 +134,12 @@ class ClassDefinition:
         cls,
         cfa: CFA | str,
         *,
-        patch: int = 5,
+        patch: int = defaults.PATCH,
         level_cuts: np.ndarray,
         level_spacing: str = "log",
         contrast_cuts: np.ndarray | float | None = None,
-        saturation_threshold: float = 0.95,
-        merge_positions: bool = True,
+        saturation_threshold: float = defaults.SATURATION,
+        merge_positions: bool = defaults.MERGE_POSITIONS,
         contrast_eps: float = DEFAULT_CONTRAST_EPS,
     ) -> ClassDefinition:
         """Build a definition; ``contrast_cuts`` may be one threshold for all levels.

@@ -26,6 +26,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numba as nb  # noqa: E402
 import numpy as np  # noqa: E402
 
+from l3cli import defaults  # noqa: E402
 from l3cli.cfa import CFA  # noqa: E402
 from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # noqa: E402
 from l3cli.classify.levels import level_lookup  # noqa: E402
@@ -409,8 +410,8 @@ def classify(mosaic: np.ndarray, definition: ClassDefinition, *,
     return out
 
 
-def patch_features(mosaic: np.ndarray, cfa: CFA | str, *, patch: int = 5,
-                   saturation_threshold: float = 0.95,
+def patch_features(mosaic: np.ndarray, cfa: CFA | str, *, patch: int = defaults.PATCH,
+                   saturation_threshold: float = defaults.SATURATION,
                    contrast_eps: float = DEFAULT_CONTRAST_EPS
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Response level, relative contrast and saturation bits of every pixel's patch.
