@@ -58,11 +58,9 @@ as ``float32(c)``.
 
 References
 ----------
-.. [1] Q. Tian, S. Lansel, J. E. Farrell, B. A. Wandell, "Automating the design
-   of image processing pipelines for novel color filter arrays: Local, Linear,
-   Learned (L3) method", Proc. SPIE 9023, Digital Photography X (2014).
-.. [2] H. Jiang, Q. Tian, J. Farrell, B. A. Wandell, "Learning the image
-   processing pipeline", IEEE Trans. Image Processing 26(10), 5032-5042 (2017).
+The L3 method's classes: Tian et al., Proc. SPIE 9023 (2014), and Jiang et
+al., IEEE Trans. Image Processing 26(10) (2017); full citations in
+``docs/training.md``.
 """
 
 from l3cli.classify.definition import (
