@@ -70,6 +70,16 @@ class ClassDefinition:
         int64 (n_positions,): group index of each CFA position.
     contrast_eps
         ``eps`` of the contrast rule.
+
+    Examples
+    --------
+    >>> d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.01, 0.1], contrast_cuts=0.2)
+    >>> d.shape  # position groups, saturation patterns, levels, contrast bins
+    (4, 8, 3, 2)
+    >>> d.n_classes, d.n_coeffs
+    (192, 26)
+    >>> int(d.class_index(1, 0, 2, 1))  # ((1 * 8 + 0) * 3 + 2) * 2 + 1
+    53
     """
 
     cfa: CFA

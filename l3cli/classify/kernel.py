@@ -401,6 +401,17 @@ def classify(mosaic: np.ndarray, definition: ClassDefinition, *,
     -------
     numpy.ndarray
         int32 (H, W) (or (y1 - y0, W)) flat class indices (see :class:`ClassDefinition`).
+
+    Examples
+    --------
+    A flat mosaic at level 0.05: unsaturated, the middle of three levels, flat.
+
+    >>> d = ClassDefinition.build("RGGB", level_cuts=[0.01, 0.1], contrast_cuts=0.2)
+    >>> cls = classify(np.full((8, 8), 0.05, np.float32), d)
+    >>> [int(v) for v in d.class_tuple(cls[4, 4])]  # (group, saturation, level, contrast)
+    [0, 0, 1, 0]
+    >>> [int(v) for v in d.class_tuple(cls[4, 5])]  # the G next to R: group 1
+    [1, 0, 1, 0]
     """
     mosaic = check_mosaic(mosaic, definition.cfa, definition.patch)
     h, w = mosaic.shape
