@@ -27,6 +27,16 @@ MIN_SAMPLES_FACTOR = 3.0
 #: Spline smoothing strength over response levels (λ of the Whittaker smoother).
 SPLINE_STRENGTH = 0.02
 
+# l3 evaluate (S-CIELAB viewing conditions and colour path)
+#: Display resolution, dots per inch.
+DPI = 96.0
+#: Viewing distance, metres.
+VIEWING_DISTANCE_M = 1.0
+#: S-CIELAB filter set (``"distribution"``: ISETCam's; ``"original"``: the 1997 paper's).
+SCIELAB_FILTERS = "distribution"
+#: S-CIELAB XYZ -> opponent matrix (ISETCam's xyz2opp for the 10° observer).
+SCIELAB_OPPONENT = "xyz10"
+
 # every command with --seed
 #: Random seed.
 SEED = 0

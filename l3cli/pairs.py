@@ -86,6 +86,7 @@ __all__ = [
     "Pair",
     "LoadedPair",
     "is_pairs_dir",
+    "read_simulation_manifest",
     "find_pairs",
     "load_pair",
     "iter_pairs",
@@ -214,11 +215,17 @@ def _render_for(raw: Path) -> Path:
 _CAPTURE_FACTS = ("scene", "illuminant", "lux", "exposure_s")
 
 
-def _read_simulation_manifest(folder: Path) -> dict:
-    """The manifest of a ``simulate`` folder, checked to be one.
+def read_simulation_manifest(folder: Path) -> dict:
+    """The manifest of a ``simulate`` folder, checked to be one (with a list of captures).
 
-    The one place this module reads a manifest (to be served by the
-    versioned manifest reader of :mod:`l3cli.io` once it exists).
+    The one reader of simulation manifests outside :mod:`l3cli.simulate`
+    (training, the baseline and evaluation come through here; to be served
+    by the versioned manifest reader of :mod:`l3cli.io` once it exists).
+
+    Raises
+    ------
+    InputError
+        An unreadable file, or not an l3 simulation manifest.
     """
     mpath = folder / "manifest.json"
     try:
@@ -227,6 +234,8 @@ def _read_simulation_manifest(folder: Path) -> dict:
         raise InputError(f"{mpath}: cannot read the simulation manifest ({exc})") from exc
     if not isinstance(manifest, dict) or manifest.get("format") != "l3-simulation":
         raise InputError(f"{mpath}: not an l3 simulation manifest (format must be 'l3-simulation')")
+    if not isinstance(manifest.get("captures"), list):
+        raise InputError(f"{mpath}: 'captures' must be a list")
     return manifest
 
 
@@ -234,14 +243,11 @@ def _simulation_pairs(folder: Path) -> list[Pair]:
     """The captures of a ``simulate`` folder, in manifest order."""
     from l3cli.colourspace import check_space
 
-    manifest = _read_simulation_manifest(folder)
+    manifest = read_simulation_manifest(folder)
     mpath = folder / "manifest.json"
     space = (manifest.get("target") or {}).get("space", "xyz")
-    captures = manifest.get("captures")
-    if not isinstance(captures, list):
-        raise InputError(f"{mpath}: 'captures' must be a list")
     pairs = []
-    for i, cap in enumerate(captures):
+    for i, cap in enumerate(manifest["captures"]):
         try:
             facts = {k: cap[k] for k in _CAPTURE_FACTS if k in cap}
             pairs.append(Pair(str(cap["stem"]), folder / cap["raw"], folder / cap["target"],

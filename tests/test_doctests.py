@@ -26,6 +26,7 @@ MODULES = {
     "l3cli.metrics.mtf": 1,
     "l3cli.metrics.psnr": 3,
     "l3cli.metrics.scielab": 1,
+    "l3cli.evaluate.options": 2,
 }
 
 
