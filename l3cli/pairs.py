@@ -95,8 +95,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Suffixes of rendered images (lower case), in order of preference.
-RENDER_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".exr")
+#: Suffixes of rendered images (lower case), in order of preference (training
+#: and evaluation alike).
+RENDER_SUFFIXES: tuple[str, ...] = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
 #: Encoded values at or below this are treated as clipped to black.
 CLIP_LOW = 0.5 / 255
 #: Encoded values at or above this are treated as clipped to white.

@@ -14,13 +14,15 @@ from pathlib import Path
 import numpy as np
 
 from l3cli.errors import ConfigError, InputError
+from l3cli.pairs import RENDER_SUFFIXES
 
 __all__ = ["IMAGE_SUFFIXES", "EvalItem", "find_items", "load_xyz", "load_image"]
 
 log = logging.getLogger("l3cli.evaluate")
 
-#: Suffixes of rendered images looked for in a render folder, in order of preference.
-IMAGE_SUFFIXES = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
+#: Suffixes of rendered images looked for in a render folder, in order of
+#: preference: the input layer's (:data:`l3cli.pairs.RENDER_SUFFIXES`).
+IMAGE_SUFFIXES = RENDER_SUFFIXES
 
 
 @dataclass(frozen=True)
