@@ -86,6 +86,8 @@ __all__ = [
     "Pair",
     "LoadedPair",
     "is_pairs_dir",
+    "is_simulation_dir",
+    "manifest_path",
     "read_simulation_manifest",
     "find_pairs",
     "load_pair",
@@ -191,7 +193,7 @@ def _is_raw(path: Path) -> bool:
 def is_pairs_dir(path: str | os.PathLike) -> bool:
     """True for a folder without a simulation ``manifest.json`` holding at least one raw file."""
     p = Path(path)
-    if not p.is_dir() or (p / "manifest.json").exists():
+    if not p.is_dir() or is_simulation_dir(p):
         return False
     return any(f.is_file() and _is_raw(f) for f in p.iterdir())
 
@@ -216,6 +218,17 @@ def _render_for(raw: Path) -> Path:
 _CAPTURE_FACTS = ("scene", "illuminant", "lux", "exposure_s")
 
 
+def manifest_path(folder: str | os.PathLike) -> Path:
+    """The path of a ``simulate`` folder's manifest (whether or not it exists)."""
+    return Path(folder) / "manifest.json"
+
+
+def is_simulation_dir(path: str | os.PathLike) -> bool:
+    """True for a folder with a simulation manifest (an ``l3 simulate`` output)."""
+    p = Path(path)
+    return p.is_dir() and manifest_path(p).exists()
+
+
 def read_simulation_manifest(folder: Path) -> dict:
     """The manifest of a ``simulate`` folder, checked to be one (with a list of captures).
 
@@ -228,7 +241,7 @@ def read_simulation_manifest(folder: Path) -> dict:
     InputError
         An unreadable file, or not an l3 simulation manifest.
     """
-    mpath = folder / "manifest.json"
+    mpath = manifest_path(folder)
     try:
         manifest = json.loads(mpath.read_text())
     except (OSError, json.JSONDecodeError) as exc:
@@ -245,7 +258,7 @@ def _simulation_pairs(folder: Path) -> list[Pair]:
     from l3cli.colourspace import check_space
 
     manifest = read_simulation_manifest(folder)
-    mpath = folder / "manifest.json"
+    mpath = manifest_path(folder)
     space = (manifest.get("target") or {}).get("space", "xyz")
     pairs = []
     for i, cap in enumerate(manifest["captures"]):
@@ -320,7 +333,7 @@ def find_pairs(paths: Iterable[str | os.PathLike], *,
         p = Path(item)
         if not p.exists():
             raise InputError(f"{p}: no such file or folder")
-        if p.is_dir() and (p / "manifest.json").exists():
+        if is_simulation_dir(p):
             out.extend(_simulation_pairs(p))
         else:
             out.extend(_rendered_pairs(p, seen, scaled_renders))

@@ -14,7 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from l3cli.errors import ConfigError, InputError
-from l3cli.pairs import RENDER_SUFFIXES
+from l3cli.pairs import (
+    RENDER_SUFFIXES,
+    is_simulation_dir,
+    manifest_path,
+    read_simulation_manifest,
+)
 
 __all__ = ["IMAGE_SUFFIXES", "EvalItem", "find_items", "load_xyz", "load_image"]
 
@@ -103,7 +108,7 @@ def find_items(
 
     if len(references) == 1 and references[0].is_dir():
         ref_dir = references[0]
-        if (ref_dir / "manifest.json").exists():
+        if is_simulation_dir(ref_dir):
             return _simulation_items(rendered, ref_dir)
         ref_images = {p.stem: p for p in _images_in(ref_dir)}
         renders = _expand_renders(rendered)
@@ -141,15 +146,13 @@ def _expand_renders(rendered: list[Path]) -> list[Path]:
 
 
 def _simulation_items(rendered: list[Path], sim_dir: Path) -> list[EvalItem]:
-    from l3cli.pairs import read_simulation_manifest
-
     manifest = read_simulation_manifest(sim_dir)
     camera = manifest.get("camera") or {}
     space = (manifest.get("target") or {}).get("space", "xyz")
     captures = {}
     for i, cap in enumerate(manifest["captures"]):
         if not isinstance(cap, dict) or "stem" not in cap or "target" not in cap:
-            raise InputError(f"{sim_dir / 'manifest.json'}: capture {i} lacks 'stem' or 'target'")
+            raise InputError(f"{manifest_path(sim_dir)}: capture {i} lacks 'stem' or 'target'")
         captures[str(cap["stem"])] = cap
     items = []
     if len(rendered) == 1 and rendered[0].is_dir():
