@@ -201,7 +201,7 @@ def fit_baseline(
         No usable pixels, non-Bayer raws, or unreadable training data.
     """
     from l3cli.colourspace import check_space
-    from l3cli.train.data import find_pairs, load_pair
+    from l3cli.pairs import find_pairs, load_pair
 
     method = _check_method(method)
     target_space = check_space(target_space)
@@ -213,7 +213,8 @@ def fit_baseline(
     btb = np.zeros(3)
     n_total = 0
     for pair in pairs:
-        raw, target = load_pair(pair, target_space=fit_space)
+        loaded = load_pair(pair, target_space=fit_space)
+        raw, target = loaded.raw, loaded.target
         rgb = demosaic(raw, method=method)
         h, w = rgb.shape[:2]
         b = min(border, (h - 1) // 2, (w - 1) // 2)
@@ -229,7 +230,7 @@ def fit_baseline(
         atb += x.T @ y
         btb += (y * y).sum(axis=0)
         n_total += len(x)
-        log.info("%s: %d pixels for the colour matrix", pair.stem, len(x))
+        log.info("%s: %d pixels for the colour matrix", pair.name, len(x))
     if n_total < 3 or np.linalg.matrix_rank(ata) < 3:
         raise InputError("no usable (unclipped, non-degenerate) training pixels for the colour matrix")
     m = np.linalg.solve(ata, atb)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from dataclasses import asdict, dataclass
+from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -302,6 +302,14 @@ class _Section:
 _SECTIONS = ("optics", "pixel", "readout", "cfa", "spectrum", "exposure")
 
 
+def _default(cls: type, name: str) -> Any:
+    """The default of field ``name`` of dataclass ``cls``: the one place a default is written."""
+    for f in fields(cls):
+        if f.name == name and f.default is not MISSING:
+            return f.default
+    raise KeyError(f"{cls.__name__}.{name} has no default")
+
+
 def _sub(top: _Section, name: str) -> _Section:
     top.used.add(name)
     return _Section(top.data.get(name, {}), name, top.file)
@@ -437,8 +445,8 @@ def _spectrum(sec: _Section, cfa: CFAConfig) -> Spectrum:
 def _exposure(sec: _Section) -> Exposure:
     from l3cli import spectral
 
-    mode = sec.string("mode", "auto", choices=("auto", "fixed"))
-    ill = sec.string("illuminant", "D65")
+    mode = sec.string("mode", _default(Exposure, "mode"), choices=("auto", "fixed"))
+    ill = sec.string("illuminant", _default(Exposure, "illuminant"))
     if ill not in spectral.ILLUMINANTS:
         raise sec.err("illuminant", f"= {ill!r} is not an illuminant; valid: {', '.join(spectral.ILLUMINANTS)}")
     levels = sec.raw("light_levels_lux")
@@ -467,9 +475,9 @@ def _exposure(sec: _Section) -> Exposure:
         levels_t = tuple(float(x) for x in levels)
     return Exposure(
         mode=mode,
-        target_fraction=sec.number("target_fraction", 0.95, lo=0.0, hi=1.0, lo_open=True),
-        max_time_s=sec.number("max_time_s", 1.0, lo=0.0, hi=3600.0, lo_open=True),
-        time_s=sec.number("time_s", 0.01, lo=0.0, hi=3600.0, lo_open=True),
+        target_fraction=sec.number("target_fraction", _default(Exposure, "target_fraction"), lo=0.0, hi=1.0, lo_open=True),
+        max_time_s=sec.number("max_time_s", _default(Exposure, "max_time_s"), lo=0.0, hi=3600.0, lo_open=True),
+        time_s=sec.number("time_s", _default(Exposure, "time_s"), lo=0.0, hi=3600.0, lo_open=True),
         illuminant=ill,
         light_levels_lux=levels_t,
     )
@@ -494,21 +502,22 @@ def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera
 
     s = _sub(top, "optics")
     optics = Optics(
-        f_number=s.number("f_number", 4.0, lo=0.5, hi=64.0),
-        focal_length_mm=s.number("focal_length_mm", 4.0, lo=0.0, hi=5000.0, lo_open=True),
-        transmittance=s.number("transmittance", 1.0, lo=0.0, hi=1.0, lo_open=True),
-        cos4=s.boolean("cos4", False),
+        f_number=s.number("f_number", _default(Optics, "f_number"), lo=0.5, hi=64.0),
+        focal_length_mm=s.number("focal_length_mm", _default(Optics, "focal_length_mm"), lo=0.0, hi=5000.0, lo_open=True),
+        transmittance=s.number("transmittance", _default(Optics, "transmittance"), lo=0.0, hi=1.0, lo_open=True),
+        cos4=s.boolean("cos4", _default(Optics, "cos4")),
     )
     s.finish()
     s = _sub(top, "pixel")
     pixel = _pixel(s)
     s.finish()
     s = _sub(top, "readout")
-    bits = s.number("bit_depth", 10, lo=8, hi=16, integer=True)
+    bits = s.number("bit_depth", _default(Readout, "bit_depth"), lo=8, hi=16, integer=True)
     readout = Readout(
-        analog_gain=s.number("analog_gain", 1.0, lo=0.0, hi=1000.0, lo_open=True),
+        analog_gain=s.number("analog_gain", _default(Readout, "analog_gain"), lo=0.0, hi=1000.0, lo_open=True),
         bit_depth=bits,
-        black_level_dn=s.number("black_level_dn", 64 if bits >= 10 else 16, lo=0,
+        black_level_dn=s.number("black_level_dn",
+                                _default(Readout, "black_level_dn") if bits >= 10 else 16, lo=0,
                                 hi=(1 << bits) - 2, integer=True),
     )
     s.finish()

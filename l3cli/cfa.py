@@ -213,7 +213,14 @@ class CFA:
         return np.stack([cmap == i for i in range(self.n_channels)])
 
     def neighbourhood(self, position: int, size: int) -> np.ndarray:
-        """(size, size) channel indices of the patch centred on ``position``."""
+        """(size, size) channel indices of the patch centred on ``position``.
+
+        Examples
+        --------
+        >>> cfa = CFA.from_spec("RGGB")  # channels R=0, G=1, B=2
+        >>> cfa.neighbourhood(0, 3).tolist()  # a 3x3 patch centred on R
+        [[2, 1, 2], [1, 0, 1], [2, 1, 2]]
+        """
         if size < 1 or size % 2 == 0:
             raise ConfigError(f"patch size {size} is not allowed; use an odd size >= 1")
         ph, pw = self.period
@@ -224,7 +231,20 @@ class CFA:
         return self.index_pattern[np.ix_(ys, xs)]
 
     def equivalent_positions(self, size: int) -> list[list[int]]:
-        """Groups of positions whose ``size`` x ``size`` neighbourhood layouts coincide."""
+        """Groups of positions whose ``size`` x ``size`` neighbourhood layouts coincide.
+
+        Examples
+        --------
+        In a Bayer CFA every position sees its own layout:
+
+        >>> CFA.from_spec("RGGB").equivalent_positions(5)
+        [[0], [1], [2], [3]]
+
+        Nor in this 4x4 RGBW CFA (each of its 16 positions has its own 5x5 layout):
+
+        >>> len(CFA.from_spec("RGBW/GWRB/BRWG/WBGR").equivalent_positions(5))
+        16
+        """
         groups: dict[bytes, list[int]] = {}
         for p in range(self.n_positions):
             key = self.neighbourhood(p, size).tobytes()
@@ -233,7 +253,15 @@ class CFA:
 
     # ---------------------------------------------------------- transformations
     def shifted(self, dy: int, dx: int) -> CFA:
-        """The CFA of the image cropped by ``dy`` rows and ``dx`` columns at the top-left."""
+        """The CFA of the image cropped by ``dy`` rows and ``dx`` columns at the top-left.
+
+        Examples
+        --------
+        >>> CFA.from_spec("RGGB").shifted(0, 1).spec
+        'GR/BG'
+        >>> CFA.from_spec("RGGB").shifted(1, 1).spec
+        'BG/GR'
+        """
         ph, pw = self.period
         rows = [
             tuple(self.pattern[(y + dy) % ph][(x + dx) % pw] for x in range(pw))

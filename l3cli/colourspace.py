@@ -79,31 +79,37 @@ def _linear_srgb_to_xyz(rgb: np.ndarray) -> np.ndarray:
     return np.asarray(rgb @ np.asarray(cs.matrix_RGB_to_XYZ, dtype=np.float64).T, dtype=np.float32)
 
 
-def _to_xyz(img: np.ndarray, src: str) -> np.ndarray:
+def _as_f32(img: np.ndarray) -> np.ndarray:
+    return np.asarray(img, dtype=np.float32)
+
+
+def _lab_white() -> np.ndarray:
+    """xy chromaticity of l3's L*a*b* white (D65, Y = 1)."""
     import colour
 
-    if src == "xyz":
-        return np.asarray(img, dtype=np.float32)
-    if src == "linear-srgb":
-        return _linear_srgb_to_xyz(img)
-    if src == "srgb":
-        return _linear_srgb_to_xyz(srgb_decode(img))
-    # lab
-    xy = colour.XYZ_to_xy(D65_XYZ)
-    return np.asarray(colour.Lab_to_XYZ(img, illuminant=xy), dtype=np.float32)
+    return colour.XYZ_to_xy(D65_XYZ)
 
 
-def _from_xyz(xyz: np.ndarray, dst: str) -> np.ndarray:
+def _lab_to_xyz(lab: np.ndarray) -> np.ndarray:
     import colour
 
-    if dst == "xyz":
-        return np.asarray(xyz, dtype=np.float32)
-    if dst == "linear-srgb":
-        return _xyz_to_linear_srgb(xyz)
-    if dst == "srgb":
-        return srgb_encode(_xyz_to_linear_srgb(xyz))
-    xy = colour.XYZ_to_xy(D65_XYZ)
-    return np.asarray(colour.XYZ_to_Lab(xyz, illuminant=xy), dtype=np.float32)
+    return _as_f32(colour.Lab_to_XYZ(lab, illuminant=_lab_white()))
+
+
+def _xyz_to_lab(xyz: np.ndarray) -> np.ndarray:
+    import colour
+
+    return _as_f32(colour.XYZ_to_Lab(xyz, illuminant=_lab_white()))
+
+
+#: Per space: (to XYZ, from XYZ).
+_VIA_XYZ = {
+    "xyz": (_as_f32, _as_f32),
+    "linear-srgb": (_linear_srgb_to_xyz, _xyz_to_linear_srgb),
+    "srgb": (lambda x: _linear_srgb_to_xyz(srgb_decode(x)),
+             lambda x: srgb_encode(_xyz_to_linear_srgb(x))),
+    "lab": (_lab_to_xyz, _xyz_to_lab),
+}
 
 
 def convert(img: np.ndarray, src: str, dst: str) -> np.ndarray:
@@ -120,6 +126,14 @@ def convert(img: np.ndarray, src: str, dst: str) -> np.ndarray:
     -------
     numpy.ndarray
         float32 (..., 3) in ``dst``. Conversion to ``srgb`` clips to [0, 1].
+
+    Examples
+    --------
+    >>> xyz = convert(np.array([1.0, 1.0, 1.0]), "linear-srgb", "xyz")  # the sRGB white
+    >>> [round(float(v), 4) for v in xyz]
+    [0.9505, 1.0, 1.089]
+    >>> [abs(round(float(v), 3)) for v in convert(D65_XYZ, "xyz", "lab")]  # L* = 100, neutral
+    [100.0, 0.0, 0.0]
     """
     src, dst = check_space(src), check_space(dst)
     img = np.asarray(img)
@@ -129,4 +143,4 @@ def convert(img: np.ndarray, src: str, dst: str) -> np.ndarray:
         return np.asarray(img, dtype=np.float32)
     if {src, dst} == {"linear-srgb", "srgb"}:
         return srgb_encode(img) if dst == "srgb" else srgb_decode(img)
-    return _from_xyz(_to_xyz(img, src), dst)
+    return _VIA_XYZ[dst][1](_VIA_XYZ[src][0](img))

@@ -1,16 +1,27 @@
-"""Pairs directories: raw files and the images a camera or converter rendered from them.
+"""The input layer: (raw, target) pairs from ``simulate`` folders and pairs folders.
 
-A *pairs directory* holds raw files (any :data:`l3cli.io.raw.RAW_SUFFIXES`,
-including headerless ``NAME.raw`` with ``NAME.raw.toml``, and l3's TIFF/PNG
-mosaics with a ``.toml`` sidecar) each with one rendered image of the same
-stem (:data:`RENDER_SUFFIXES`): ``a.dng`` + ``a.jpg``, ``b.raw`` +
-``b.raw.toml`` + ``b.png``. Training learns the mapping from the raw to the
-render (see ``docs/real-camera.md``).
+Training (``l3 train``) and the conventional baseline (``l3 baseline``) read
+their inputs through here; one :class:`Pair` describes one capture whatever
+folder it comes from, and :func:`find_pairs` lists them:
 
-For every pair :func:`iter_pairs` yields a :class:`Pair`: the raw cropped to
-the render's area (:mod:`l3cli.align` finds the offset and flip and refuses
-renders that do not align), the render in the raw's orientation converted to
-the requested target space, and a weight mask of the pixels that may train:
+* a ``simulate`` output folder (``manifest.json`` with ``"format":
+  "l3-simulation"``): each capture's raw and its ideal, pixel-aligned target
+  (CIE XYZ EXR);
+* a *pairs directory*: raw files (any :data:`l3cli.io.raw.RAW_SUFFIXES`,
+  including headerless ``NAME.raw`` with ``NAME.raw.toml``, and l3's TIFF/PNG
+  mosaics with a ``.toml`` sidecar) each with one rendered image of the same
+  stem (:data:`RENDER_SUFFIXES`): ``a.dng`` + ``a.jpg``, ``b.raw`` +
+  ``b.raw.toml`` + ``b.png``. Training learns the mapping from the raw to the
+  render (see ``docs/real-camera.md``). Images other than EXR are display
+  sRGB; EXR carries its space in the ``l3:space`` attribute.
+
+A :class:`Pair` holds paths and small per-capture facts only (cheap and
+picklable, so distributed workers read the files themselves);
+:func:`load_pair` reads one into a :class:`LoadedPair`. A simulated target is
+pixel-aligned already. A rendered image is registered on its raw first: the
+raw is cropped to the render's area (:mod:`l3cli.align` finds the offset and
+flip and refuses renders that do not align), the render is put in the raw's
+orientation, and a weight mask marks the pixels that may train:
 
 Clipped pixels
     A pixel of the render with any channel at or above ``clip_high``
@@ -43,11 +54,13 @@ References
 
 from __future__ import annotations
 
+import json
 import logging
 import os
-from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -70,9 +83,12 @@ __all__ = [
     "CLIP_LOW",
     "CLIP_HIGH",
     "DEFAULT_MARGIN",
-    "PairFiles",
     "Pair",
+    "LoadedPair",
     "is_pairs_dir",
+    "is_simulation_dir",
+    "manifest_path",
+    "read_simulation_manifest",
     "find_pairs",
     "load_pair",
     "iter_pairs",
@@ -81,8 +97,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Suffixes of rendered images (lower case), in order of preference.
-RENDER_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".exr")
+#: Suffixes of rendered images (lower case), in order of preference (training
+#: and evaluation alike).
+RENDER_SUFFIXES: tuple[str, ...] = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
 #: Encoded values at or below this are treated as clipped to black.
 CLIP_LOW = 0.5 / 255
 #: Encoded values at or above this are treated as clipped to white.
@@ -92,46 +109,77 @@ DEFAULT_MARGIN = 4
 
 
 @dataclass(frozen=True)
-class PairFiles:
-    """A raw file and its rendered image."""
-
-    name: str
-    raw: Path
-    render: Path
-
-
-@dataclass
 class Pair:
-    """One aligned training pair.
+    """One capture to train on: a raw file and its target image (paths only).
 
     Attributes
     ----------
     name
-        The common stem.
+        Name of the capture (the simulation stem, or the common file stem).
     raw
-        The raw cropped to the render's area, with the full raw's CFA phase: a
-        render whose top-left lies at an odd row or column (of a period-2 CFA)
-        is trimmed by that row or column, here and in ``target``.
+        Raw file path.
     target
-        float32 (H, W, 3): the render in the raw's orientation, in ``space``.
+        Target image path: a simulation's ideal target, or a rendered image.
+    space
+        Colour space of the target file's values, or ``None`` to take it from
+        the file (EXR attribute / display sRGB).
+    align
+        True for pairs-folder renders: :func:`load_pair` registers the render
+        on the raw (crop, flips) and masks clipped pixels and the border.
+    scaled
+        For pairs-folder renders: a render that is a resized copy of the raw
+        is accepted and trained at its reduced resolution.
+    metadata
+        Per-capture facts that are not pixels, read when the pair is found
+        (from a simulation manifest: ``scene``, ``illuminant``, ``lux``,
+        ``exposure_s``). The place for white balance, ISO, exposure and
+        orientation read from raw files; not compared between pairs.
+    """
+
+    name: str
+    raw: Path
+    target: Path
+    space: str | None = None
+    align: bool = False
+    scaled: bool = False
+    metadata: Mapping[str, Any] = field(default_factory=dict, compare=False)
+
+
+@dataclass
+class LoadedPair:
+    """One pair read into memory, ready to train on.
+
+    Attributes
+    ----------
+    name
+        The pair's name.
+    raw
+        The raw; for a rendered pair cropped to the render's area, with the
+        full raw's CFA phase: a render whose top-left lies at an odd row or
+        column (of a period-2 CFA) is trimmed by that row or column, here and
+        in ``target``.
+    target
+        float32 (H, W, 3): the target (a render in the raw's orientation), in ``space``.
     weight_mask
-        bool (H, W): pixels that may train (not clipped, not in the margin).
+        bool (H, W): pixels that may train (not clipped, not in the margin), or
+        ``None`` where every pixel may (simulated targets).
     alignment
-        Where the render lies on the full raw (:class:`~l3cli.align.ScaledAlignment`
-        for a resized render trained with ``scaled=True``).
+        Where a render lies on the full raw (:class:`~l3cli.align.Alignment`, or
+        :class:`~l3cli.align.ScaledAlignment` for a resized render trained with
+        ``scaled``); ``None`` for simulated targets.
     space
         Colour space of ``target``.
-    files
-        The source files.
+    pair
+        The :class:`Pair` it was read from.
     """
 
     name: str
     raw: RawImage
     target: np.ndarray
-    weight_mask: np.ndarray
-    alignment: Alignment | ScaledAlignment
+    weight_mask: np.ndarray | None
+    alignment: Alignment | ScaledAlignment | None
     space: str
-    files: PairFiles
+    pair: Pair
 
 
 def _is_raw(path: Path) -> bool:
@@ -145,16 +193,16 @@ def _is_raw(path: Path) -> bool:
 def is_pairs_dir(path: str | os.PathLike) -> bool:
     """True for a folder without a simulation ``manifest.json`` holding at least one raw file."""
     p = Path(path)
-    if not p.is_dir() or (p / "manifest.json").exists():
+    if not p.is_dir() or is_simulation_dir(p):
         return False
     return any(f.is_file() and _is_raw(f) for f in p.iterdir())
 
 
 def _render_for(raw: Path) -> Path:
-    stem = raw.name[: -len(raw.suffix)] if raw.suffix else raw.name
+    stem = raw.stem
     found = [f for f in raw.parent.iterdir()
              if f.is_file() and f != raw and f.suffix.lower() in RENDER_SUFFIXES
-             and f.name[: -len(f.suffix)] == stem and not sidecar_path(f).exists()]
+             and f.stem == stem and not sidecar_path(f).exists()]
     if not found:
         allowed = "/".join(s.lstrip(".") for s in RENDER_SUFFIXES)
         raise InputError(
@@ -166,57 +214,129 @@ def _render_for(raw: Path) -> Path:
     return found[0]
 
 
-def find_pairs(paths: Iterable[str | os.PathLike]) -> list[PairFiles]:
-    """List the (raw, render) pairs in pairs directories.
+#: What a simulation manifest tells of each capture beside its files (:attr:`Pair.metadata`).
+_CAPTURE_FACTS = ("scene", "illuminant", "lux", "exposure_s")
 
-    Parameters
-    ----------
-    paths
-        Pairs directories, or raw files whose render lies next to them.
 
-    Returns
-    -------
-    list of PairFiles
-        Sorted by name within each directory, directories in the order given.
+def manifest_path(folder: str | os.PathLike) -> Path:
+    """The path of a ``simulate`` folder's manifest (whether or not it exists)."""
+    return Path(folder) / "manifest.json"
+
+
+def is_simulation_dir(path: str | os.PathLike) -> bool:
+    """True for a folder with a simulation manifest (an ``l3 simulate`` output)."""
+    p = Path(path)
+    return p.is_dir() and manifest_path(p).exists()
+
+
+def read_simulation_manifest(folder: Path) -> dict:
+    """The manifest of a ``simulate`` folder, checked to be one (with a list of captures).
+
+    The one reader of simulation manifests outside :mod:`l3cli.simulate`
+    (training, the baseline and evaluation come through here; to be served
+    by the versioned manifest reader of :mod:`l3cli.io` once it exists).
 
     Raises
     ------
     InputError
-        A path is missing, a folder holds no raw file, a raw has no render
-        (or several), or a name occurs twice.
+        An unreadable file, or not an l3 simulation manifest.
     """
-    out: list[PairFiles] = []
+    mpath = manifest_path(folder)
+    try:
+        manifest = json.loads(mpath.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"{mpath}: cannot read the simulation manifest ({exc})") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != "l3-simulation":
+        raise InputError(f"{mpath}: not an l3 simulation manifest (format must be 'l3-simulation')")
+    if not isinstance(manifest.get("captures"), list):
+        raise InputError(f"{mpath}: 'captures' must be a list")
+    return manifest
+
+
+def _simulation_pairs(folder: Path) -> list[Pair]:
+    """The captures of a ``simulate`` folder, in manifest order."""
+    from l3cli.colourspace import check_space
+
+    manifest = read_simulation_manifest(folder)
+    mpath = manifest_path(folder)
+    space = (manifest.get("target") or {}).get("space", "xyz")
+    pairs = []
+    for i, cap in enumerate(manifest["captures"]):
+        try:
+            facts = {k: cap[k] for k in _CAPTURE_FACTS if k in cap}
+            pairs.append(Pair(str(cap["stem"]), folder / cap["raw"], folder / cap["target"],
+                              check_space(space), metadata=facts))
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"{mpath}: capture {i} lacks 'raw', 'target' or 'stem'") from exc
+    return pairs
+
+
+def _rendered_pairs(p: Path, seen: dict[str, Path], scaled: bool) -> list[Pair]:
+    """The (raw, render) pairs of a pairs directory, or of one raw file."""
+    if p.is_dir():
+        raws = sorted(f for f in p.iterdir() if f.is_file() and _is_raw(f))
+        if not raws:
+            allowed = ", ".join(sorted(RAW_SUFFIXES))
+            raise InputError(
+                f"{p}: no training pairs: no manifest.json and no raw files in this folder "
+                f"(a pairs folder holds raw files [{allowed}] each with a rendered image of "
+                "the same stem)"
+            )
+        renders = {f for f in p.iterdir() if f.is_file() and f.suffix.lower() in RENDER_SUFFIXES}
+    elif _is_raw(p):
+        raws, renders = [p], set()
+    else:
+        raise InputError(f"{p}: not a simulate folder, a pairs folder or a raw file")
+    out = []
+    for raw in raws:
+        render = _render_for(raw)
+        renders.discard(render)
+        name = render.stem
+        if name in seen:
+            raise InputError(f"{raw}: pair name {name!r} also comes from {seen[name]}")
+        seen[name] = raw
+        out.append(Pair(name, raw, render, None, align=True, scaled=scaled))
+    for extra in sorted(renders):
+        if not sidecar_path(extra).exists():
+            log.warning("%s: rendered image without a raw file of the same stem; ignored", extra)
+    return out
+
+
+def find_pairs(paths: Iterable[str | os.PathLike], *,
+               scaled_renders: bool = False) -> list[Pair]:
+    """List the pairs of ``simulate`` folders, pairs directories and raw files.
+
+    Parameters
+    ----------
+    paths
+        ``simulate`` output folders, pairs directories, or raw files whose
+        render lies next to them.
+    scaled_renders
+        Accept renders that are resized copies of their raws (see
+        :attr:`Pair.scaled`).
+
+    Returns
+    -------
+    list of Pair
+        Captures in manifest order, rendered pairs sorted by name within each
+        directory; inputs in the order given.
+
+    Raises
+    ------
+    InputError
+        A path is missing, a folder holds no pairs, a raw has no render (or
+        several), or a rendered pair's name occurs twice.
+    """
+    out: list[Pair] = []
     seen: dict[str, Path] = {}
     for item in paths:
         p = Path(item)
         if not p.exists():
             raise InputError(f"{p}: no such file or folder")
-        if p.is_dir():
-            raws = sorted(f for f in p.iterdir() if f.is_file() and _is_raw(f))
-            if not raws:
-                allowed = ", ".join(sorted(RAW_SUFFIXES))
-                raise InputError(
-                    f"{p}: no raw files in this folder (a pairs folder holds raw files "
-                    f"[{allowed}] each with a rendered image of the same stem)"
-                )
-            renders = {f for f in p.iterdir()
-                       if f.is_file() and f.suffix.lower() in RENDER_SUFFIXES}
-        elif _is_raw(p):
-            raws, renders = [p], set()
+        if is_simulation_dir(p):
+            out.extend(_simulation_pairs(p))
         else:
-            raise InputError(f"{p}: not a pairs folder or a raw file")
-        for raw in raws:
-            render = _render_for(raw)
-            renders.discard(render)
-            name = render.name[: -len(render.suffix)]
-            if name in seen:
-                raise InputError(f"{raw}: pair name {name!r} also comes from {seen[name]}")
-            seen[name] = raw
-            out.append(PairFiles(name=name, raw=raw, render=render))
-        for extra in sorted(renders):
-            if not sidecar_path(extra).exists():
-                log.warning("%s: rendered image without a raw file of the same stem; ignored",
-                            extra)
+            out.extend(_rendered_pairs(p, seen, scaled_renders))
     return out
 
 
@@ -257,52 +377,104 @@ def weight_mask(encoded: np.ndarray, *, margin: int = DEFAULT_MARGIN,
     return mask
 
 
-def load_pair(files: PairFiles, *, target_space: str | None = None,
+def load_pair(pair: Pair, *, target_space: str | None = None,
               margin: int = DEFAULT_MARGIN, clip_low: float = CLIP_LOW,
               clip_high: float = CLIP_HIGH, flips: Sequence[str] = FLIPS,
               min_score: float = MIN_SCORE, min_sharpness: float = MIN_SHARPNESS,
-              scaled: bool = False) -> Pair:
-    """Read, align and mask one pair.
+              scaled: bool | None = None) -> LoadedPair:
+    """Read one pair; register and mask a rendered one.
 
     Parameters
     ----------
-    files
+    pair
         From :func:`find_pairs`.
     target_space
-        Colour space of :attr:`Pair.target` (:data:`l3cli.colourspace.SPACES`);
-        ``None`` keeps the render's own encoding (``srgb`` for TIFF, PNG and
-        JPEG; the recorded space for EXR).
+        Colour space of :attr:`LoadedPair.target`
+        (:data:`l3cli.colourspace.SPACES`); ``None`` keeps the target's own
+        (the simulation's, or the render's encoding: ``srgb`` for TIFF, PNG and
+        JPEG, the recorded space for EXR).
     margin, clip_low, clip_high
-        See :func:`weight_mask`.
+        Rendered pairs: see :func:`weight_mask`.
     flips, min_score, min_sharpness
-        See :func:`l3cli.align.align`.
+        Rendered pairs: see :func:`l3cli.align.align`.
     scaled
-        Accept a render that is a resized copy of the raw (or of a crop of it)
-        and train at its reduced resolution (see the module notes). Renders
-        that align pixel for pixel are used as they are either way.
+        Rendered pairs: accept a render that is a resized copy of the raw (or
+        of a crop of it) and train at its reduced resolution (see the module
+        notes); ``None`` takes :attr:`Pair.scaled`. Renders that align pixel
+        for pixel are used as they are either way.
 
     Returns
     -------
-    Pair
+    LoadedPair
 
     Raises
     ------
     InputError
-        Unreadable files, a render that is not RGB, or a render that does not
-        align with its raw (with ``scaled``: not even as a resized copy).
+        Unreadable files, a raw holding NaN or Inf, a target that is not RGB or
+        holds NaN or Inf, a simulated target of another size than its raw, or a
+        render that does not align with its raw (with ``scaled``: not even as a
+        resized copy).
     """
+    if not pair.align:
+        return _load_simulated(pair, target_space)
+    loaded = _load_rendered(pair, target_space=target_space, margin=margin, clip_low=clip_low,
+                            clip_high=clip_high, flips=flips, min_score=min_score,
+                            min_sharpness=min_sharpness,
+                            scaled=pair.scaled if scaled is None else scaled)
+    if not np.all(np.isfinite(loaded.raw.mosaic)):
+        raise InputError(f"{pair.raw}: raw mosaic holds NaN or Inf")
+    return loaded
+
+
+def _load_simulated(pair: Pair, target_space: str | None) -> LoadedPair:
+    """:func:`load_pair` for a pixel-aligned target (a simulation's)."""
+    from l3cli.colourspace import check_space, convert
     from l3cli.io.image import read_image
 
-    raw = read_raw(files.raw)
-    img, space = read_image(files.render)
+    raw = read_raw(pair.raw)
+    img, file_space = read_image(pair.target)
+    space = pair.space or file_space
+    if img.shape[:2] != raw.mosaic.shape:
+        raise InputError(
+            f"{pair.target}: target is {img.shape[1]}x{img.shape[0]} but raw {pair.raw.name} is "
+            f"{raw.width}x{raw.height}; a pair must be pixel-aligned"
+        )
+    if img.shape[2] == 4:
+        img = img[:, :, :3]
+    if img.shape[2] != 3:
+        raise InputError(f"{pair.target}: target has {img.shape[2]} channels, expected 3")
+    bad = ~np.isfinite(img)
+    if bad.any():
+        y, x, _ = np.argwhere(bad)[0]
+        raise InputError(
+            f"{pair.target}: target holds {int(bad.any(axis=2).sum())} pixels with NaN or Inf "
+            f"(first at x={x}, y={y})"
+        )
+    if not np.all(np.isfinite(raw.mosaic)):
+        raise InputError(f"{pair.raw}: raw mosaic holds NaN or Inf")
+    dst = space if target_space is None else check_space(target_space)
+    target = convert(img, space, dst)
+    target = np.ascontiguousarray(target, dtype=np.float32)
+    return LoadedPair(name=pair.name, raw=raw, target=target, weight_mask=None, alignment=None,
+                      space=dst, pair=pair)
+
+
+def _load_rendered(pair: Pair, *, target_space: str | None, margin: int, clip_low: float,
+                   clip_high: float, flips: Sequence[str], min_score: float,
+                   min_sharpness: float, scaled: bool) -> LoadedPair:
+    """:func:`load_pair` for a render: registered on its raw, cropped and masked."""
+    from l3cli.io.image import read_image
+
+    raw = read_raw(pair.raw)
+    img, space = read_image(pair.target)
     if img.shape[2] not in (3, 4):
         raise InputError(
-            f"{files.render}: a rendered image must be RGB, got {img.shape[2]} channel(s)"
+            f"{pair.target}: a rendered image must be RGB, got {img.shape[2]} channel(s)"
         )
     img = img[:, :, :3]
-    is_float = files.render.suffix.lower() == ".exr"
+    is_float = pair.target.suffix.lower() == ".exr"
     try:
-        a = align(raw, img, space=space, raw_name=files.raw, render_name=files.render,
+        a = align(raw, img, space=space, raw_name=pair.raw, render_name=pair.target,
                   flips=tuple(flips), min_score=min_score, min_sharpness=min_sharpness)
     except InputError as exc:
         smaller = img.shape[0] * img.shape[1] < raw.height * raw.width
@@ -310,7 +482,7 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
             hint = (" (if the render is a resized copy of the raw, `l3 train --scaled-renders` "
                     "trains at its reduced resolution)") if smaller and not scaled else ""
             raise InputError(f"{exc}{hint}") from None
-        return _load_scaled(files, raw, img, space, target_space=target_space, margin=margin,
+        return _load_scaled(pair, raw, img, space, target_space=target_space, margin=margin,
                             clip_low=None if is_float else clip_low,
                             clip_high=None if is_float else clip_high, flips=flips,
                             min_score=min_score)
@@ -328,34 +500,34 @@ def load_pair(files: PairFiles, *, target_space: str | None = None,
                        clip_low=None if is_float else clip_low,
                        clip_high=None if is_float else clip_high)
     log.info("%s: %s; %.1f%% of pixels train (margin %d, clipped excluded)",
-             files.name, a.describe(), 100 * float(mask.mean()), margin)
-    return _make_pair(files, crop, encoded, mask, a, space, target_space, margin)
+             pair.name, a.describe(), 100 * float(mask.mean()), margin)
+    return _make_pair(pair, crop, encoded, mask, a, space, target_space, margin)
 
 
-def _make_pair(files: PairFiles, crop: RawImage, encoded: np.ndarray, mask: np.ndarray,
+def _make_pair(pair: Pair, crop: RawImage, encoded: np.ndarray, mask: np.ndarray,
                alignment: Alignment | ScaledAlignment, space: str, target_space: str | None,
-               margin: int) -> Pair:
-    """The :class:`Pair` of an aligned crop: target converted to ``target_space``."""
+               margin: int) -> LoadedPair:
+    """The :class:`LoadedPair` of an aligned crop: target converted to ``target_space``."""
     from l3cli.colourspace import check_space, convert
 
     if not mask.any():
         raise InputError(
-            f"{files.render}: no pixel left to train after excluding clipped values and a "
+            f"{pair.target}: no pixel left to train after excluding clipped values and a "
             f"{margin}-pixel margin"
         )
     dst = space if target_space is None else check_space(target_space)
     target = encoded if dst == space else convert(encoded, space, dst)
     target = np.ascontiguousarray(np.nan_to_num(target, nan=0.0), dtype=np.float32)
-    return Pair(name=files.name, raw=crop, target=target, weight_mask=mask,
-                alignment=alignment, space=dst, files=files)
+    return LoadedPair(name=pair.name, raw=crop, target=target, weight_mask=mask,
+                      alignment=alignment, space=dst, pair=pair)
 
 
-def _load_scaled(files: PairFiles, raw: RawImage, img: np.ndarray, space: str, *,
+def _load_scaled(pair: Pair, raw: RawImage, img: np.ndarray, space: str, *,
                  target_space: str | None, margin: int, clip_low: float | None,
-                 clip_high: float | None, flips: Sequence[str], min_score: float) -> Pair:
+                 clip_high: float | None, flips: Sequence[str], min_score: float) -> LoadedPair:
     """:func:`load_pair` for a resized render (``scaled=True``)."""
 
-    a = align_scaled(raw, img, space=space, raw_name=files.raw, render_name=files.render,
+    a = align_scaled(raw, img, space=space, raw_name=pair.raw, render_name=pair.target,
                      flips=tuple(flips), min_score=min_score)
     valid = weight_mask(img, margin=margin, clip_low=clip_low, clip_high=clip_high)
     crop, encoded, mask = scaled_pair(raw, img, a, valid=valid, space=space)
@@ -366,17 +538,17 @@ def _load_scaled(files: PairFiles, raw: RawImage, img: np.ndarray, space: str, *
         mask[:, mask.shape[1] - margin:] = False
     log.info("%s: %s; trains at the render's reduced resolution on the raw's %dx%d pixels "
              "from (y=%d, x=%d); %.1f%% of them train (margin %d, clipped excluded)",
-             files.name, a.describe(), crop.width, crop.height, crop.metadata["crop"][0],
+             pair.name, a.describe(), crop.width, crop.height, crop.metadata["crop"][0],
              crop.metadata["crop"][1], 100 * float(mask.mean()), margin)
-    return _make_pair(files, crop, encoded, mask, a, space, target_space, margin)
+    return _make_pair(pair, crop, encoded, mask, a, space, target_space, margin)
 
 
 def iter_pairs(paths: Iterable[str | os.PathLike], *, target_space: str | None = None,
                margin: int = DEFAULT_MARGIN, clip_low: float = CLIP_LOW,
                clip_high: float = CLIP_HIGH, flips: Sequence[str] = FLIPS,
                min_score: float = MIN_SCORE, min_sharpness: float = MIN_SHARPNESS,
-               scaled: bool = False) -> Iterator[Pair]:
-    """Aligned, masked training pairs from pairs directories.
+               scaled: bool = False) -> Iterator[LoadedPair]:
+    """Loaded pairs of ``simulate`` folders, pairs directories and raw files.
 
     All pairs are found (and missing renders reported) before the first is
     read; each pair is then read and aligned when the iterator reaches it.
@@ -384,15 +556,15 @@ def iter_pairs(paths: Iterable[str | os.PathLike], *, target_space: str | None =
     Parameters
     ----------
     paths
-        Pairs directories (or raw files with their render alongside).
+        As :func:`find_pairs`.
     target_space, margin, clip_low, clip_high, flips, min_score, min_sharpness, scaled
         See :func:`load_pair`.
 
     Yields
     ------
-    Pair
+    LoadedPair
     """
-    for files in find_pairs(paths):
-        yield load_pair(files, target_space=target_space, margin=margin, clip_low=clip_low,
+    for pair in find_pairs(paths, scaled_renders=scaled):
+        yield load_pair(pair, target_space=target_space, margin=margin, clip_low=clip_low,
                         clip_high=clip_high, flips=flips, min_score=min_score,
                         min_sharpness=min_sharpness, scaled=scaled)

@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from l3cli.classify import MODE_RENDER, RENDER_LANES, _check_mosaic, run_tiles
+from l3cli.classify import MODE_RENDER, check_mosaic, run_tiles
 from l3cli.errors import TableError
+from l3cli.render_rows import RENDER_LANES
 from l3cli.table import TransformTable
 
 if TYPE_CHECKING:
@@ -96,7 +97,7 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
         float32 (H, W, n_out) in ``table.output_space``.
     """
     d = table.definition
-    mosaic = _check_mosaic(mosaic, d.cfa, d.patch)
+    mosaic = check_mosaic(mosaic, d.cfa, d.patch)
     h, w = mosaic.shape
     y0, y1 = rows if rows is not None else (0, h)
     shape = (y1 - y0, w, table.n_out)

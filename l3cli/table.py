@@ -94,6 +94,23 @@ class TransformTable:
         Colour space of the output (:data:`l3cli.colourspace.SPACES`).
     provenance
         JSON-serialisable training record.
+
+    Examples
+    --------
+    A table whose kernels are all zero (it renders black) and its round trip
+    through a file:
+
+    >>> import pathlib, tempfile
+    >>> d = ClassDefinition.build("RGGB", patch=3, level_cuts=[0.1])
+    >>> n = d.n_classes
+    >>> t = TransformTable(d, np.zeros((n, d.n_coeffs, 3)), np.full(n, 100),
+    ...                    np.zeros((n, 3)), np.zeros(n, bool), np.arange(n))
+    >>> t.n_out, t.patch, t.cfa.spec
+    (3, 3, 'RG/GB')
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     back = load_table(save_table(pathlib.Path(tmp) / "t.npz", t))
+    >>> back.definition.same_as(d), back.kernels.shape
+    (True, (64, 10, 3))
     """
 
     definition: ClassDefinition

@@ -11,6 +11,7 @@ from l3cli.classify import (
     ContrastHistogram,
     classify,
     level_cuts_between,
+    level_lookup,
     mirror_indices,
     pad_mosaic,
     patch_features,
@@ -116,7 +117,7 @@ def test_classes_match_reference(spec):
 def test_level_lookup_bins_like_searchsorted(spacing, n):
     cuts = level_cuts_between(1e-4, 0.95, n, spacing)
     d = ClassDefinition.build("RGGB", level_cuts=cuts)
-    lut, shift, base, inside = d.kernel_args()[4:8]
+    lut, shift, base, inside = level_lookup(d.level_cuts)
     c32 = cuts.astype(np.float32)
     rng = np.random.default_rng(7)
     v = np.concatenate([
@@ -228,3 +229,15 @@ def test_bad_definitions():
         ClassDefinition.build("RGGB", level_cuts=[0.0, 0.1])
     with pytest.raises(InputError, match="too small"):
         classify(np.zeros((1, 1), np.float32), ClassDefinition.build("RGGB", level_cuts=[0.1]))
+
+
+def test_kernel_tables_follow_the_kernel_arguments():
+    """KernelTables is the documented layout of the kernel's definition arguments."""
+    import inspect
+
+    from l3cli.classify.kernel import KernelTables, _tile_kernel, kernel_tables
+
+    names = list(inspect.signature(_tile_kernel(5).py_func).parameters)
+    assert names[names.index("tc") + 1 : names.index("mode")] == list(KernelTables._fields)
+    t = kernel_tables(ClassDefinition.build("RGGB", level_cuts=[0.01, 0.1]))
+    assert t.n_sat == 8 and t.group.tolist() == [0, 1, 2, 3] and t.idx_pattern.shape == (2, 2)

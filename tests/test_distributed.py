@@ -96,7 +96,8 @@ def test_statistics_are_the_ordered_sum_of_per_input_tasks(tmp_path):
     got = collect_stats(pairs, d, opts)
     per_input, running = [], ClassStats.zeros(d, 3)
     for i, p in enumerate(pairs):
-        raw, target = load_pair(p)
+        loaded = load_pair(p)
+        raw, target = loaded.raw, loaded.target
         mask = sample_mask(raw.mosaic.shape, 0.6, 9, i)
         one = ClassStats.zeros(d, 3)
         accumulate(one, raw.mosaic, target, mask=mask)

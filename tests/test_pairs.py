@@ -62,7 +62,7 @@ def pairs_dir(tmp_path: Path) -> Path:
 
 def test_find_pairs(pairs_dir: Path):
     pairs = find_pairs([pairs_dir])
-    assert [(p.name, p.raw.name, p.render.name) for p in pairs] == [
+    assert [(p.name, p.raw.name, p.target.name) for p in pairs] == [
         ("a", "a.raw", "a.png"), ("b", "b.dng", "b.tif")]
     assert is_pairs_dir(pairs_dir)
 
@@ -269,3 +269,23 @@ def test_render_to_jpeg_and_evaluate_against_the_camera_jpeg(dng_pairs: Path, tm
     assert res.exit_code == 0, res.output
     got = json.loads(rep.read_text())["images"][0]
     assert got["scielab_mean"] < 1.0 and got["psnr_db"] > 28  # measured 0.28 and 33.4 dB
+
+
+def test_one_input_layer_for_simulate_and_pairs_folders(pairs_dir: Path):
+    """find_pairs lists simulation captures and rendered pairs alike, as one Pair type;
+    simulation captures carry their manifest's per-capture facts."""
+    import json
+
+    import l3cli.train
+    from tests.conftest import DATA
+
+    sim = DATA / "golden" / "train"
+    pairs = find_pairs([sim, pairs_dir])
+    assert l3cli.train.Pair is type(pairs[0]) is type(pairs[-1])
+    caps = json.loads((sim / "manifest.json").read_text())["captures"]
+    assert [p.name for p in pairs] == [c["stem"] for c in caps] + ["a", "b"]
+    assert [p.align for p in pairs] == [False] * len(caps) + [True, True]
+    for p, c in zip(pairs[: len(caps)], caps, strict=True):
+        assert p.raw == sim / c["raw"] and p.target == sim / c["target"]
+        assert p.metadata == {k: c[k] for k in ("scene", "illuminant", "lux", "exposure_s")}
+    assert pairs[-1].metadata == {}

@@ -295,8 +295,11 @@ def _sim_dir(tmp_path, n=2, shape=(40, 48), seed=0, nan=False, bad_size=False):
 def test_find_pairs_simulation_and_pairs_folders(tmp_path):
     sim = _sim_dir(tmp_path)
     pairs = find_pairs([sim])
-    assert [p.stem for p in pairs] == ["cap0", "cap1"]
-    raw, target = load_pair(pairs[0])
+    assert [p.name for p in pairs] == ["cap0", "cap1"]
+    assert pairs[0].metadata == {} and not pairs[0].align
+    loaded = load_pair(pairs[0])
+    raw, target = loaded.raw, loaded.target
+    assert loaded.space == "xyz" and loaded.weight_mask is None
     assert target.shape == (40, 48, 3) and raw.cfa.spec == "RG/GB"
     pf = tmp_path / "pairs"
     pf.mkdir()
@@ -307,7 +310,7 @@ def test_find_pairs_simulation_and_pairs_folders(tmp_path):
     write_image(pf / "a.png", np.full((40, 48, 3), 0.5, np.float32), space="srgb")
     pp = find_pairs([pf])
     assert len(pp) == 1 and pp[0].target.name == "a.png"
-    _, t = load_pair(pp[0], target_space="srgb")
+    t = load_pair(pp[0], target_space="srgb").target
     np.testing.assert_allclose(t, 0.5, atol=1 / 255)
 
 
@@ -319,8 +322,8 @@ def test_targets_are_converted_to_the_training_space(tmp_path, space):
 
     sim = _sim_dir(tmp_path, n=2, seed=13)
     pairs = find_pairs([sim])
-    xyz = load_pair(pairs[0], target_space="xyz")[1].astype(np.float64)
-    got = load_pair(pairs[0], target_space=space)[1]
+    xyz = load_pair(pairs[0], target_space="xyz").target.astype(np.float64)
+    got = load_pair(pairs[0], target_space=space).target
     from l3cli.colourspace import D65_XYZ  # l3's documented Lab white (D65, Y = 1)
 
     d65 = colour.XYZ_to_xy(D65_XYZ)
@@ -338,7 +341,7 @@ def test_bad_inputs(tmp_path):
     empty.mkdir()
     with pytest.raises(InputError, match="no training pairs"):
         find_pairs([empty])
-    with pytest.raises(InputError, match="no such folder"):
+    with pytest.raises(InputError, match="no such file or folder"):
         find_pairs([tmp_path / "missing"])
     nan = _sim_dir(tmp_path, seed=1, nan=True)
     with pytest.raises(InputError, match="NaN or Inf.*x=4, y=3"):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from l3cli import defaults
+
 
 def _numbers(count: int, *, integers: bool = False):
     def convert(ctx, param, value):
@@ -53,14 +55,15 @@ class _GreedyOption(click.Option):
                    "or a `l3 simulate` folder.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Write the report as JSON (atomically).")
-@click.option("--dpi", type=float, default=96.0, show_default=True,
+@click.option("--dpi", type=float, default=defaults.DPI, show_default=True,
               help="Display resolution for S-CIELAB (dots per inch).")
-@click.option("--distance", type=float, default=1.0, show_default=True,
+@click.option("--distance", type=float, default=defaults.VIEWING_DISTANCE_M, show_default=True,
               help="Viewing distance for S-CIELAB (metres).")
-@click.option("--filters", type=click.Choice(["distribution", "original"]), default="distribution",
+@click.option("--filters", type=click.Choice(["distribution", "original"]),
+              default=defaults.SCIELAB_FILTERS,
               show_default=True, help="S-CIELAB filter set (ISETCam's default, or the 1997 paper's).")
 @click.option("--opponent", type=click.Choice(["xyz10", "xyz2", "hpe", "isetcam-10deg", "isetcam-2deg"]),
-              default="xyz10", show_default=True,
+              default=defaults.SCIELAB_OPPONENT, show_default=True,
               help="S-CIELAB XYZ -> opponent matrix: ISETCam's xyz2opp for the 10° (as the paper) or "
                    "2° observer, or HPE LMS then Poirson-Wandell (l3's former default). "
                    "isetcam-10deg/-2deg: old names of xyz10/xyz2.")
@@ -98,9 +101,8 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
     """
     from pathlib import Path
 
+    from l3cli.evaluate import EvalOptions, format_table, report_dict, write_report
     from l3cli.evaluate import evaluate as run_evaluate
-    from l3cli.evaluate import format_table, report_dict, write_report
-    from l3cli.metrics.scielab import samples_per_degree
 
     if dpi <= 0:
         raise click.BadParameter(f"{dpi}: must be positive", param_hint="--dpi")
@@ -108,22 +110,15 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
         raise click.BadParameter(f"{distance}: must be positive", param_hint="--distance")
     if plots_dir:
         Path(plots_dir).mkdir(parents=True, exist_ok=True)
-    reports, summary = run_evaluate(
-        list(rendered), list(references), dpi=dpi, distance=distance, filters=filters,
-        opponent=opponent,
-        chart_corners=chart, edge_roi=edge, pixel_pitch_um=pixel_pitch,
-        exclude_border=exclude_border, keep_images=bool(plots_dir), align=align,
-    )
-    settings = {
-        "dpi": dpi, "distance_m": distance, "samples_per_degree": samples_per_degree(dpi, distance),
-        "filters": filters, "opponent": opponent, "exclude_border": exclude_border, "align": align,
-        "delta_e": "CIE 1976 (extra: CIE 2000)",
-    }
-    report = report_dict(reports, summary, settings=settings)
+    options = EvalOptions(dpi=dpi, distance=distance, filters=filters, opponent=opponent,
+                          chart_corners=chart, edge_roi=edge, pixel_pitch_um=pixel_pitch,
+                          exclude_border=exclude_border, keep_images=bool(plots_dir), align=align)
+    reports, summary = run_evaluate(list(rendered), list(references), options)
+    report = report_dict(reports, summary, settings=options.settings())
     if json_path:
         write_report(json_path, report)
     if plots_dir:
-        from l3cli.plots import plot_report
+        from l3cli.evaluate.plots import plot_report
 
         for r in reports:
             plot_report(r, plots_dir)

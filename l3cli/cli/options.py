@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from l3cli import defaults
+
 #: ``-o/--output`` for a single output path.
 output_opt = click.option(
     "-o", "--output", "output", required=True, type=click.Path(dir_okay=True),
@@ -12,7 +14,7 @@ output_opt = click.option(
 
 #: ``--seed`` for bit-identical runs.
 seed_opt = click.option(
-    "--seed", type=int, default=0, show_default=True,
+    "--seed", type=int, default=defaults.SEED, show_default=True,
     help="Random seed; the same seed gives bit-identical results.",
 )
 

@@ -4,11 +4,8 @@ from __future__ import annotations
 
 import click
 
+from l3cli import defaults
 from l3cli.cli.options import output_opt
-
-#: Default spline λ (kept equal to l3cli.smooth.spline.DEFAULT_STRENGTH; not imported so
-#: that `l3 --help` stays fast).
-DEFAULT_STRENGTH = 0.02
 
 
 def _strength(ctx, param, value):
@@ -34,7 +31,7 @@ def _strength(ctx, param, value):
                    "fills empty classes.")
 @click.option("--uniformity/--no-uniformity", default=True, show_default=True,
               help="Make a uniform scene render uniform (minimum-norm change of the kernels).")
-@click.option("--spline-strength", default=str(DEFAULT_STRENGTH), show_default=True,
+@click.option("--spline-strength", default=str(defaults.SPLINE_STRENGTH), show_default=True,
               callback=_strength, metavar="auto|LAMBDA",
               help="Spline penalty λ (data weight = samples per coefficient, abscissa ln "
                    "level; larger = smoother); 'auto' picks λ per series by generalised "

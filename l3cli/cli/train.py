@@ -4,37 +4,52 @@ from __future__ import annotations
 
 import click
 
+from l3cli import defaults
 from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, workers_opt
+
+
+def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
+    """--patch: an odd size >= 1 (the rule of :func:`l3cli.classify.check_patch`)."""
+    from l3cli.classify import check_patch
+    from l3cli.errors import ConfigError
+
+    try:
+        return check_patch(value, "")
+    except ConfigError as exc:
+        raise click.BadParameter(str(exc).strip()) from None
 
 
 @click.command(short_help="Learn a transform table from simulate or pairs folders.")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @output_opt
-@click.option("--patch", type=int, default=5, show_default=True,
+@click.option("--patch", type=int, default=defaults.PATCH, show_default=True, callback=_odd,
               help="Patch size (odd): the kernel sees PATCH x PATCH raw pixels.")
-@click.option("--levels", type=click.IntRange(min=2), default=24, show_default=True,
+@click.option("--levels", type=click.IntRange(min=2), default=defaults.LEVELS, show_default=True,
               help="Number of response-level bins.")
-@click.option("--spacing", type=click.Choice(["log", "linear"]), default="log",
+@click.option("--spacing", type=click.Choice(["log", "linear"]), default=defaults.LEVEL_SPACING,
               show_default=True, help="Spacing of the level cut points.")
 @click.option("--level-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
               help="First and last level cut (normalised raw units); default: from the data "
                    "(just above its noise floor to near saturation).")
-@click.option("--contrast-bins", type=click.IntRange(min=1), default=2, show_default=True,
+@click.option("--contrast-bins", type=click.IntRange(min=1), default=defaults.CONTRAST_BINS,
+              show_default=True,
               help="Contrast bins per level (2 = flat / textured).")
 @click.option("--contrast-threshold", type=float, default=None,
               help="Fixed relative-contrast threshold; default: the median of the data per level.")
-@click.option("--saturation", type=float, default=0.95, show_default=True,
+@click.option("--saturation", type=float, default=defaults.SATURATION, show_default=True,
               help="Normalised value at or above which a pixel counts as saturated.")
-@click.option("--merge-positions/--no-merge-positions", default=True, show_default=True,
+@click.option("--merge-positions/--no-merge-positions", default=defaults.MERGE_POSITIONS,
+              show_default=True,
               help="Share classes between CFA positions whose patch layouts coincide.")
 @click.option("--target", "target_space",
               type=click.Choice(["xyz", "linear-srgb", "srgb", "lab"]), default=None,
               help="Colour space the table renders into [default: srgb (the renders' own "
                    "encoding) when every input is a pairs folder, else xyz].")
 @click.option("--sample-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
-              default=1.0, show_default=True,
+              default=defaults.SAMPLE_FRACTION, show_default=True,
               help="Use this random fraction of the pixels of each image (fixed by --seed).")
-@click.option("--min-samples", "min_samples_factor", type=float, default=3.0,
+@click.option("--min-samples", "min_samples_factor", type=float,
+              default=defaults.MIN_SAMPLES_FACTOR,
               show_default=True,
               help="A class needs at least this many samples per coefficient to be trained.")
 @click.option("--scaled-renders", is_flag=True, default=False,
@@ -67,8 +82,6 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     from l3cli.train import TrainOptions, find_pairs
     from l3cli.train import train as train_table
 
-    if patch < 1 or patch % 2 == 0:
-        raise click.BadParameter(f"{patch} is not an odd size >= 1", param_hint="--patch")
     pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
     if target_space is None:  # pairs folders reproduce their renders' encoding
         target_space = "srgb" if all(p.align for p in pairs) else "xyz"

@@ -70,6 +70,14 @@ def xyz_to_lab(xyz: ArrayLike, white_xyz: ArrayLike) -> NDArray:
     ndarray
         (..., 3) L*, a*, b*; L* = 100 for the white.
 
+    Examples
+    --------
+    >>> white = np.array([95.047, 100.0, 108.883])  # D65 on a scale of 100
+    >>> [abs(round(float(v), 6)) for v in xyz_to_lab(white, white)]
+    [100.0, 0.0, 0.0]
+    >>> round(float(xyz_to_lab(white * 0.18, white)[0]), 2)  # 18 % grey
+    49.5
+
     References
     ----------
     CIE 015:2018 Colorimetry, 4th ed., section 8.2.1 (CIE 1976 L*a*b*).
@@ -84,7 +92,15 @@ def xyz_to_lab(xyz: ArrayLike, white_xyz: ArrayLike) -> NDArray:
 
 
 def delta_e(lab_a: ArrayLike, lab_b: ArrayLike, *, method: str = "CIE 1976") -> NDArray:
-    """ΔE between two CIELAB arrays through :func:`colour.delta_E` (``"CIE 1976"`` or ``"CIE 2000"``)."""
+    """ΔE between two CIELAB arrays through :func:`colour.delta_E` (``"CIE 1976"`` or ``"CIE 2000"``).
+
+    Examples
+    --------
+    ΔE*ab (CIE 1976) is the Euclidean distance in L*a*b*:
+
+    >>> float(delta_e([50.0, 0.0, 0.0], [50.0, 3.0, 4.0]))
+    5.0
+    """
     import colour
 
     return np.asarray(colour.delta_E(lab_a, lab_b, method=method))

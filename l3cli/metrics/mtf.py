@@ -282,6 +282,11 @@ def slanted_edge_mtf(
 def mtf50(frequencies: ArrayLike, mtf: ArrayLike) -> float:
     """First frequency where ``mtf`` drops below 0.5, linearly interpolated.
 
+    Examples
+    --------
+    >>> mtf50([0.0, 0.25, 0.5], [1.0, 0.75, 0.25])  # 0.5 lies half way from 0.25 to 0.5
+    0.375
+
     Raises
     ------
     InputError

@@ -31,6 +31,13 @@ ENCODING_DATA_RANGE = {"srgb": 1.0, "display": 1.0}
 def data_range_for(encoding: str, *, white_level: float | None = None) -> float:
     """Data range for PSNR from an image encoding.
 
+    Examples
+    --------
+    >>> data_range_for("srgb")
+    1.0
+    >>> data_range_for("linear", white_level=0.5)
+    0.5
+
     Parameters
     ----------
     encoding

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from l3cli import defaults
 from l3cli.errors import ConfigError, InputError
 from l3cli.metrics._common import as_image, check_same_shape, delta_e, xyz_to_lab
 
@@ -100,7 +101,7 @@ XYZ_TO_OPPONENT: dict[str, np.ndarray] = {
 OPPONENT_ALIASES: dict[str, str] = {"isetcam-10deg": "xyz10", "isetcam-2deg": "xyz2"}
 
 #: The opponent matrix used unless another is asked for: ISETCam's default.
-DEFAULT_OPPONENT = "xyz10"
+DEFAULT_OPPONENT = defaults.SCIELAB_OPPONENT
 
 #: Edge handling of the filters: ``symmetric`` padding (default; a uniform image
 #: stays uniform) or ``wrap`` (circular, as ISETCam's FFT filtering).
@@ -126,7 +127,8 @@ SCIELAB_FILTER_PARAMETERS: dict[str, tuple[tuple[tuple[float, float], ...], ...]
 }
 
 
-def samples_per_degree(dpi: float = 96.0, distance: float = 1.0) -> int:
+def samples_per_degree(dpi: float = defaults.DPI,
+                       distance: float = defaults.VIEWING_DISTANCE_M) -> int:
     """Display samples per degree of visual angle.
 
     Parameters
@@ -192,7 +194,7 @@ def _gaussian_1d(hwhm_samples: float, support: int) -> NDArray:
 
 
 def scielab_filter_1d(
-    samples_per_deg: int, *, version: str = "distribution"
+    samples_per_deg: int, *, version: str = defaults.SCIELAB_FILTERS
 ) -> list[list[tuple[float, NDArray]]]:
     """The S-CIELAB filters as separable parts: per channel, (weight, 1-D kernel) pairs.
 
@@ -217,7 +219,7 @@ def scielab_filter_1d(
     return out
 
 
-def scielab_filters(samples_per_deg: int, *, version: str = "distribution") -> list[NDArray]:
+def scielab_filters(samples_per_deg: int, *, version: str = defaults.SCIELAB_FILTERS) -> list[NDArray]:
     """The three 2-D S-CIELAB filters (luminance, red-green, blue-yellow).
 
     Parameters
@@ -310,7 +312,7 @@ def spatial_filter_xyz(
     xyz: ArrayLike,
     *,
     samples_per_deg: int,
-    version: str = "distribution",
+    version: str = defaults.SCIELAB_FILTERS,
     opponent: str = DEFAULT_OPPONENT,
     edges: str = "symmetric",
 ) -> NDArray:
@@ -401,9 +403,9 @@ def scielab(
     *,
     white_point: ArrayLike = SRGB_WHITE_XYZ,
     samples_per_deg: int | None = None,
-    dpi: float = 96.0,
-    distance: float = 1.0,
-    version: str = "distribution",
+    dpi: float = defaults.DPI,
+    distance: float = defaults.VIEWING_DISTANCE_M,
+    version: str = defaults.SCIELAB_FILTERS,
     opponent: str = DEFAULT_OPPONENT,
     edges: str = "symmetric",
     clip: bool = True,

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from l3cli import defaults
 from l3cli.classify import ClassDefinition
 from l3cli.errors import ConfigError
 
@@ -61,7 +62,7 @@ __all__ = ["level_abscissa", "second_difference", "whittaker", "smooth_levels", 
 #: chosen on simulated Bayer data (docs/smoothing.md): it lowers the Macbeth
 #: ΔE*ab of tables trained on one small image by ~12 % and costs < 1 % on
 #: plentiful data.
-DEFAULT_STRENGTH = 0.02
+DEFAULT_STRENGTH = defaults.SPLINE_STRENGTH
 #: λ grid searched by GCV (``strength="auto"``).
 DEFAULT_STRENGTH_GRID = np.logspace(-4, 6, 41)
 

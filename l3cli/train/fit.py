@@ -29,13 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
-from l3cli import __version__
+from l3cli import __version__, defaults
 from l3cli.cfa import CFA
-from l3cli.classify import ClassDefinition, ContrastHistogram, level_cuts_between
+from l3cli.classify import ClassDefinition, ContrastHistogram, check_patch, level_cuts_between
 from l3cli.colourspace import check_space
 from l3cli.errors import ConfigError, InputError, TableError
+from l3cli.pairs import Pair, load_pair
 from l3cli.table import TransformTable
-from l3cli.train.data import Pair, load_pair
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
@@ -45,22 +45,19 @@ __all__ = ["TrainOptions", "sample_mask", "histogram_task", "PartialStats", "sta
 
 log = logging.getLogger(__name__)
 
-#: Default number of response levels.
-DEFAULT_LEVELS = 24
-
-
 class TrainOptions:
     """Options of :func:`train` (keyword-only; see ``l3 train --help``)."""
 
-    def __init__(self, *, patch: int = 5, levels: int = DEFAULT_LEVELS, spacing: str = "log",
-                 contrast_bins: int = 2, saturation: float = 0.95,
+    def __init__(self, *, patch: int = defaults.PATCH, levels: int = defaults.LEVELS,
+                 spacing: str = defaults.LEVEL_SPACING,
+                 contrast_bins: int = defaults.CONTRAST_BINS,
+                 saturation: float = defaults.SATURATION,
                  level_range: tuple[float, float] | None = None,
-                 contrast_threshold: float | None = None, merge_positions: bool = True,
-                 target_space: str = "xyz", sample_fraction: float = 1.0, seed: int = 0,
-                 min_samples_factor: float = 3.0,
+                 contrast_threshold: float | None = None,
+                 merge_positions: bool = defaults.MERGE_POSITIONS,
+                 target_space: str = "xyz", sample_fraction: float = defaults.SAMPLE_FRACTION,
+                 seed: int = defaults.SEED, min_samples_factor: float = defaults.MIN_SAMPLES_FACTOR,
                  lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID)) -> None:
-        if patch < 1 or patch % 2 == 0:
-            raise ConfigError(f"--patch {patch} is not allowed; use an odd size >= 1")
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
@@ -71,7 +68,7 @@ class TrainOptions:
             raise ConfigError(f"saturation threshold {saturation} is not allowed; use (0, 1.5]")
         if min_samples_factor <= 1.0:
             raise ConfigError(f"min samples factor {min_samples_factor} must be > 1")
-        self.patch = int(patch)
+        self.patch = check_patch(patch, "--patch")
         self.levels = int(levels)
         self.spacing = spacing
         self.contrast_bins = int(contrast_bins)
@@ -198,7 +195,8 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
         The statistics of this pair alone (its classes with samples); they add.
     """
     i, pair, definition, opts = item
-    raw, target, valid = load_pair(pair, target_space=opts.target_space, with_mask=True)
+    loaded = load_pair(pair, target_space=opts.target_space)
+    raw, target, valid = loaded.raw, loaded.target, loaded.weight_mask
     if raw.cfa.spec != definition.cfa.spec:
         raise InputError(
             f"{pair.raw}: CFA {raw.cfa.spec} differs from the table's {definition.cfa.spec}"
@@ -372,7 +370,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     Parameters
     ----------
     pairs
-        Training pairs (:func:`l3cli.train.data.find_pairs`).
+        Training pairs (:func:`l3cli.pairs.find_pairs`).
     opts
         Options; defaults when ``None``.
     workers

@@ -321,10 +321,10 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
     visited in a fixed order, so the statistics are bit-identical whatever
     the number of threads.
     """
-    from l3cli.classify import _check_mosaic, classify
+    from l3cli.classify import check_mosaic, classify
 
     d = stats.definition
-    mosaic = _check_mosaic(mosaic, d.cfa, d.patch)
+    mosaic = check_mosaic(mosaic, d.cfa, d.patch)
     target = np.asarray(target, dtype=np.float32)
     if target.ndim == 2:
         target = target[:, :, None]

@@ -24,7 +24,7 @@ import numpy as np
 from l3cli.io.atomic import atomic_path, check_writable_dir
 
 if TYPE_CHECKING:
-    from l3cli.evaluate import ImageReport
+    from l3cli.evaluate.metrics import ImageReport
 
 __all__ = ["plot_report", "xyz_to_display"]
 

@@ -1,0 +1,449 @@
+"""The tile kernel: the one implementation of the classification rule.
+
+Render and train both come through :func:`run_tiles`. Per tile of pixels the
+numba kernel computes S-tap horizontal then vertical sums of each channel's
+``x`` and ``x²`` and an OR of the saturated-channel bits, then level,
+contrast and class per pixel; in render mode it hands each row's classes to
+the render loops (:mod:`l3cli.render_rows`) while the tile is in cache.
+
+The kernel's inputs that depend on the class definition only are built in
+one place, :func:`kernel_tables`, as a :class:`KernelTables` whose field
+order is the kernel's argument order.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+from typing import NamedTuple
+
+# OpenMP threads that wait passively instead of spinning: on a shared or busy
+# machine spinning workers steal the cores the kernels need (2x slower
+# training measured under load); set OMP_WAIT_POLICY yourself to override.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba as nb  # noqa: E402
+import numpy as np  # noqa: E402
+
+from l3cli import defaults  # noqa: E402
+from l3cli.cfa import CFA  # noqa: E402
+from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # noqa: E402
+from l3cli.classify.levels import level_lookup  # noqa: E402
+from l3cli.errors import InputError  # noqa: E402
+from l3cli.render_rows import render_row4, render_row_any  # noqa: E402
+
+__all__ = ["MODE_CLASSES", "MODE_FEATURES", "MODE_RENDER", "KernelTables", "kernel_tables",
+           "check_mosaic", "band_rows", "run_tiles", "classify", "patch_features"]
+
+#: Output rows and columns of one parallel tile. A tile's padded band, its
+#: ring of horizontal sums and its output rows stay in the core's L2 cache.
+_TILE_ROWS = 32
+_TILE_COLS = 512
+
+#: What the tile kernel does with each pixel's class (see :func:`run_tiles`).
+MODE_CLASSES, MODE_FEATURES, MODE_RENDER = 0, 1, 2
+
+
+class KernelTables(NamedTuple):
+    """What the tile kernel needs of a class definition, in its argument order."""
+
+    #: int64 (ph, pw): channel index of each CFA position.
+    idx_pattern: np.ndarray
+    #: float32 (n_positions, n_channels): 1 / pixels of each channel in a patch (0 if none).
+    cnt_inv: np.ndarray
+    #: float32 (n_positions, n_channels): 1 / channels present in a patch (0 if absent).
+    wc: np.ndarray
+    #: int64 (n_positions,): position group of each CFA position.
+    group: np.ndarray
+    #: int32 (n_buckets,): cuts below each level bucket (:class:`~l3cli.classify.levels.LevelLookup`).
+    lut: np.ndarray
+    #: Right shift of the float32 level bits that numbers the buckets.
+    lut_shift: int
+    #: Bucket number of the first cut.
+    lut_base: int
+    #: float32 (n_buckets, 2): level cuts inside each bucket, NaN where none.
+    cuts: np.ndarray
+    #: float32 (n_levels, n_contrast - 1): contrast thresholds per level.
+    ccuts: np.ndarray
+    #: float32 saturation threshold.
+    sat_thr: np.float32
+    #: float32 ``eps`` of the contrast rule.
+    eps: np.float32
+    #: Number of saturation patterns, ``2 ** n_channels``.
+    n_sat: int
+
+
+def kernel_tables(definition: ClassDefinition) -> KernelTables:
+    """The :class:`KernelTables` of a definition (built once, cached on it)."""
+    tables = definition._tables
+    if "kernel" not in tables:
+        cfa, s = definition.cfa, definition.patch
+        npos, nch = cfa.n_positions, cfa.n_channels
+        cnt_inv = np.zeros((npos, nch), dtype=np.float32)
+        wc = np.zeros((npos, nch), dtype=np.float32)
+        for p in range(npos):
+            counts = np.bincount(cfa.neighbourhood(p, s).ravel(), minlength=nch)
+            present = counts > 0
+            cnt_inv[p, present] = 1.0 / counts[present]
+            wc[p, present] = 1.0 / present.sum()
+        lut = level_lookup(definition.level_cuts)
+        tables["kernel"] = KernelTables(
+            idx_pattern=cfa.index_pattern.astype(np.int64), cnt_inv=cnt_inv, wc=wc,
+            group=definition.position_group.astype(np.int64), lut=lut.lut,
+            lut_shift=int(lut.shift), lut_base=int(lut.base), cuts=lut.cuts,
+            ccuts=np.ascontiguousarray(definition.contrast_cuts, dtype=np.float32),
+            sat_thr=np.float32(definition.saturation_threshold),
+            eps=np.float32(definition.contrast_eps), n_sat=int(definition.n_saturation),
+        )
+    return tables["kernel"]
+
+
+@contextlib.contextmanager
+def _slp_vectorize():
+    """Compile with LLVM's SLP vectoriser (numba leaves it off by default).
+
+    It turns the render kernel's per-output multiply-adds into one SIMD
+    multiply-add over the output lanes. Only the tile kernel is compiled
+    inside this context; the classification arithmetic has no fast-math
+    flags, so vectorised and scalar code give bit-identical features.
+    """
+    old = nb.config.SLP_VECTORIZE
+    nb.config.SLP_VECTORIZE = 1
+    try:
+        yield
+    finally:
+        nb.config.SLP_VECTORIZE = old
+
+
+@functools.cache
+def _tile_kernel(S: int):
+    """The classifier (and renderer) compiled for patch size ``S``.
+
+    ``S`` is a compile-time constant, so the S-tap loops unroll and the loops
+    along a row vectorise. Parallel over tiles of ``_TILE_ROWS`` x
+    ``_TILE_COLS`` output pixels; each tile copies its padded band from the
+    mosaic (mirror indices at the image borders), reduces every band row to
+    horizontal S-tap sums of ``x`` and ``x²`` per channel present in the row
+    (channel masks along the row) and an OR of saturated-channel bits, kept
+    in a ring of S rows, and finishes each output row from its S ring rows:
+    per channel mean and standard deviation, response level, relative
+    contrast, saturation pattern, class. Every sum runs in a fixed order in
+    float32 without fast-math, so a pixel's features and class depend on its
+    patch only, never on the tiling or on vectorisation.
+    """
+    r = S // 2
+    TR = _TILE_ROWS
+
+    @nb.njit(cache=True, parallel=True)
+    def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
+               lut_base, cuts, ccuts, sat_thr, eps, n_sat, mode, out_cls, out_lev, out_con,
+               out_sat, K, n_out, outf):
+        W = mosaic.shape[1]
+        ph, pw = idx_pattern.shape
+        nch = cnt_inv.shape[1]
+        nl = ccuts.shape[0]
+        ncc = ccuts.shape[1]
+        nlut = lut.shape[0]
+        ccf = ccuts.ravel()
+        twp_max = tc + S - 1
+        # along-row tables in tile coordinates (tile columns start at multiples of pw)
+        mask = np.zeros((ph, nch, twp_max), dtype=np.float32)
+        bitv = np.zeros((ph, twp_max), dtype=np.int32)
+        row_has = np.zeros((ph, nch), dtype=np.bool_)  # channel present in a row phase
+        for py in range(ph):
+            for xx in range(twp_max):
+                c = idx_pattern[py, (xx - r) % pw]
+                mask[py, c, xx] = 1.0
+                bitv[py, xx] = 1 << c
+                row_has[py, c] = True
+        ci_row = np.zeros((ph, nch, tc), dtype=np.float32)
+        wc_row = np.zeros((ph, nch, tc), dtype=np.float32)
+        g_row = np.zeros((ph, tc), dtype=np.int32)
+        for py in range(ph):
+            for x in range(tc):
+                pos = py * pw + x % pw
+                g_row[py, x] = group[pos]
+                for c in range(nch):
+                    ci_row[py, c, x] = cnt_inv[pos, c]
+                    wc_row[py, c, x] = wc[pos, c]
+        n_rt = (nrows + TR - 1) // TR
+        n_ct = (W + tc - 1) // tc
+        for t in nb.prange(n_rt * n_ct):
+            i0 = (t // n_ct) * TR
+            i1 = min(nrows, i0 + TR)
+            x0 = (t % n_ct) * tc
+            x1 = min(W, x0 + tc)
+            tw = x1 - x0
+            twp = tw + S - 1
+            nbr = i1 - i0 + S - 1
+            # padded band of the tile: row k is padded row y0 + i0 + k (image row - r)
+            pb = np.empty((nbr, twp), dtype=np.float32)
+            inner = x0 - r >= 0 and x0 - r + twp <= W
+            for k in range(nbr):
+                src = yi[y0 + i0 + k]
+                if inner:
+                    for xx in range(twp):
+                        pb[k, xx] = mosaic[src, x0 - r + xx]
+                else:
+                    for xx in range(twp):
+                        pb[k, xx] = mosaic[src, xi[x0 + xx]]
+            ring_s = np.empty((S, nch, tw), dtype=np.float32)
+            ring_q = np.empty((S, nch, tw), dtype=np.float32)
+            ring_b = np.empty((S, tw), dtype=np.int32)
+            mv = np.empty(twp, dtype=np.float32)
+            mq = np.empty(twp, dtype=np.float32)
+            bits = np.empty(twp, dtype=np.int32)
+            lev = np.empty(tw, dtype=np.float32)
+            levi = lev.view(np.int32)
+            spr = np.empty(tw, dtype=np.float32)
+            va = np.empty(tw, dtype=np.float32)
+            vq = np.empty(tw, dtype=np.float32)
+            satr = np.empty(tw, dtype=np.int32)
+            clsr = np.empty(tw, dtype=np.int32)
+            lbr = np.empty(tw, dtype=np.int32)
+            kbr = np.empty(tw, dtype=np.int32)
+            ccr = np.empty(tw, dtype=np.float32)
+            rows_c = np.empty(S, dtype=np.int64)
+            for k in range(nbr):
+                slot = k % S
+                py = (y0 + i0 + k - r) % ph
+                for c in range(nch):
+                    if not row_has[py, c]:
+                        continue  # the ring slot is never read for this channel
+                    for xx in range(twp):
+                        u = pb[k, xx] * mask[py, c, xx]
+                        mv[xx] = u
+                        mq[xx] = u * pb[k, xx]
+                    for x in range(tw):
+                        a = mv[x]
+                        q = mq[x]
+                        for dx in range(1, S):
+                            a += mv[x + dx]
+                            q += mq[x + dx]
+                        ring_s[slot, c, x] = a
+                        ring_q[slot, c, x] = q
+                for xx in range(twp):
+                    bits[xx] = bitv[py, xx] if pb[k, xx] >= sat_thr else 0
+                for x in range(tw):
+                    b = bits[x]
+                    for dx in range(1, S):
+                        b |= bits[x + dx]
+                    ring_b[slot, x] = b
+                i = k - (S - 1)  # tile output row whose window is now complete
+                if i < 0:
+                    continue
+                po = (y0 + i0 + i) % ph
+                for x in range(tw):
+                    lev[x] = 0.0
+                    spr[x] = 0.0
+                for c in range(nch):
+                    # rows of the window that hold channel c (others are all zero)
+                    nrow = 0
+                    for dy in range(S):
+                        if row_has[(y0 + i0 + i + dy - r) % ph, c]:
+                            rows_c[nrow] = (i + dy) % S
+                            nrow += 1
+                    if nrow == 0:
+                        continue
+                    sl = rows_c[0]
+                    for x in range(tw):
+                        va[x] = ring_s[sl, c, x]
+                        vq[x] = ring_q[sl, c, x]
+                    for kk in range(1, nrow):  # rows outside, pixels inside: vectorised
+                        sl = rows_c[kk]
+                        for x in range(tw):
+                            va[x] += ring_s[sl, c, x]
+                            vq[x] += ring_q[sl, c, x]
+                    for x in range(tw):
+                        ci = ci_row[po, c, x]
+                        m = va[x] * ci
+                        var = vq[x] * ci - m * m
+                        lev[x] += m * wc_row[po, c, x]
+                        spr[x] += np.sqrt(max(var, np.float32(0.0))) * wc_row[po, c, x]
+                for x in range(tw):
+                    b = ring_b[i % S, x]
+                    for dy in range(1, S):
+                        b |= ring_b[(i + dy) % S, x]
+                    satr[x] = b
+                    spr[x] = spr[x] / (max(lev[x], np.float32(0.0)) + eps)  # now the contrast
+                if mode == MODE_FEATURES:
+                    for x in range(tw):
+                        out_lev[i0 + i, x0 + x] = lev[x]
+                        out_con[i0 + i, x0 + x] = spr[x]
+                        out_sat[i0 + i, x0 + x] = satr[x]
+                    continue
+                # level bin: a lookup on the float's leading bits, then at most two
+                # comparisons with the cut points of the bucket (see levels.level_lookup);
+                # the table reads cannot vectorise (gathers), the rest does
+                for x in range(tw):
+                    kb = (levi[x] >> lut_shift) - lut_base
+                    kbr[x] = min(max(kb, 0), nlut - 1)
+                for x in range(tw):
+                    kb = kbr[x]
+                    lv = lev[x]
+                    lbr[x] = lut[kb] + np.int32(cuts[kb, 0] <= lv) + np.int32(cuts[kb, 1] <= lv)
+                for x in range(tw):
+                    clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lbr[x]) * (ncc + 1)
+                for j in range(ncc):  # contrast bin
+                    for x in range(tw):
+                        kbr[x] = lbr[x] * ncc + j
+                    for x in range(tw):
+                        ccr[x] = ccf[kbr[x]]
+                    for x in range(tw):
+                        clsr[x] += np.int32(spr[x] >= ccr[x])
+                if mode == MODE_CLASSES:
+                    for x in range(tw):
+                        out_cls[i0 + i, x0 + x] = clsr[x]
+                elif n_out <= 4:
+                    render_row4(pb, i, 0, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
+                                n_out)
+                else:
+                    render_row_any(pb, i, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
+                                   n_out)
+
+    return kernel
+
+
+def check_mosaic(mosaic: np.ndarray, cfa: CFA, patch: int) -> np.ndarray:
+    """``mosaic`` as a C-contiguous float32 (H, W) array; raise if it cannot be classified.
+
+    Raises
+    ------
+    InputError
+        When the mosaic is not 2-D or is smaller than the CFA period or half a patch.
+    """
+    mosaic = np.asarray(mosaic)
+    if mosaic.ndim != 2:
+        raise InputError(f"a raw mosaic must be 2-D (H, W), got shape {mosaic.shape}")
+    ph, pw = cfa.period
+    if mosaic.shape[0] < max(ph, patch // 2 + 1) or mosaic.shape[1] < max(pw, patch // 2 + 1):
+        raise InputError(
+            f"raw mosaic {mosaic.shape[1]}x{mosaic.shape[0]} is too small for a "
+            f"{patch}x{patch} patch and a {pw}x{ph} CFA"
+        )
+    return np.ascontiguousarray(mosaic, dtype=np.float32)
+
+
+def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tuple[int, int]]:
+    """Row bands ``(y0, y1)`` holding at most ``max_pixels`` pixels each."""
+    step = max(1, max_pixels // max(width, 1))
+    return [(y0, min(height, y0 + step)) for y0 in range(0, height, step)]
+
+
+_NO_F32 = np.zeros((1, 1), dtype=np.float32)
+_NO_I32 = np.zeros((1, 1), dtype=np.int32)
+_NO_OUT = np.zeros(1, dtype=np.float32)
+
+
+def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
+              rows: tuple[int, int] | None = None, out_cls: np.ndarray | None = None,
+              out_features: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+              kernels: np.ndarray | None = None, n_out: int = 0,
+              out: np.ndarray | None = None) -> None:
+    """Run the tile kernel over output rows ``rows`` (default: all) of a mosaic.
+
+    The one entry point to the classifier; :func:`classify`,
+    :func:`patch_features`, training and :func:`l3cli.render.render_mosaic`
+    all come through here.
+
+    Parameters
+    ----------
+    mosaic
+        float32 (H, W) normalised mosaic, C-contiguous, CFA phase as the definition.
+    definition
+        The class definition.
+    mode
+        ``MODE_CLASSES`` (int32 classes into ``out_cls``), ``MODE_FEATURES``
+        (float32 level, float32 contrast, int32 saturation bits into
+        ``out_features``) or ``MODE_RENDER`` (``out`` = affine kernels of the
+        classes applied to the patches).
+    rows
+        ``(y0, y1)``: output rows; the output arrays have ``y1 - y0`` rows.
+    kernels
+        Render only: float32 packed kernels (:func:`l3cli.render.pack_kernels`).
+    n_out
+        Render only: outputs per pixel.
+    out
+        Render only: float32 C-contiguous (y1 - y0, W, n_out).
+    """
+    S = definition.patch
+    h, w = mosaic.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    tables = kernel_tables(definition)
+    yi, xi = definition.mirror_maps(h, w)
+    pw = definition.cfa.period[1]
+    tc = pw * max(1, _TILE_COLS // pw)
+    cls_o = out_cls if out_cls is not None else _NO_I32
+    lev_o, con_o, sat_o = out_features if out_features is not None else (_NO_F32, _NO_F32,
+                                                                         _NO_I32)
+    K = kernels if kernels is not None else _NO_F32
+    outf = out.reshape(-1) if out is not None else _NO_OUT
+    with _slp_vectorize():
+        _tile_kernel(S)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, mode, cls_o, lev_o, con_o,
+                        sat_o, K, n_out, outf)
+
+
+def classify(mosaic: np.ndarray, definition: ClassDefinition, *,
+             rows: tuple[int, int] | None = None) -> np.ndarray:
+    """Class index of every pixel of a mosaic.
+
+    Parameters
+    ----------
+    mosaic
+        float32 (H, W) normalised raw mosaic whose CFA phase is ``definition.cfa``.
+    definition
+        The class definition.
+    rows
+        Optional ``(y0, y1)``: classify only these rows.
+
+    Returns
+    -------
+    numpy.ndarray
+        int32 (H, W) (or (y1 - y0, W)) flat class indices (see :class:`ClassDefinition`).
+
+    Examples
+    --------
+    A flat mosaic at level 0.05: unsaturated, the middle of three levels, flat.
+
+    >>> d = ClassDefinition.build("RGGB", level_cuts=[0.01, 0.1], contrast_cuts=0.2)
+    >>> cls = classify(np.full((8, 8), 0.05, np.float32), d)
+    >>> [int(v) for v in d.class_tuple(cls[4, 4])]  # (group, saturation, level, contrast)
+    [0, 0, 1, 0]
+    >>> [int(v) for v in d.class_tuple(cls[4, 5])]  # the G next to R: group 1
+    [1, 0, 1, 0]
+    """
+    mosaic = check_mosaic(mosaic, definition.cfa, definition.patch)
+    h, w = mosaic.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    out = np.empty((y1 - y0, w), dtype=np.int32)
+    run_tiles(mosaic, definition, MODE_CLASSES, rows=(y0, y1), out_cls=out)
+    return out
+
+
+def patch_features(mosaic: np.ndarray, cfa: CFA | str, *, patch: int = defaults.PATCH,
+                   saturation_threshold: float = defaults.SATURATION,
+                   contrast_eps: float = DEFAULT_CONTRAST_EPS
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Response level, relative contrast and saturation bits of every pixel's patch.
+
+    Returns
+    -------
+    level, contrast, sat
+        float32 (H, W), float32 (H, W), int32 (H, W) (bit ``c`` = channel
+        ``cfa.channels[c]`` saturated somewhere in the patch).
+    """
+    cfa = CFA.from_spec(cfa)
+    d = ClassDefinition.build(cfa, patch=patch, level_cuts=np.array([0.5]),
+                              saturation_threshold=saturation_threshold,
+                              contrast_eps=contrast_eps, merge_positions=False)
+    mosaic = check_mosaic(mosaic, cfa, patch)
+    h, w = mosaic.shape
+    lev = np.empty((h, w), dtype=np.float32)
+    con = np.empty((h, w), dtype=np.float32)
+    sat = np.empty((h, w), dtype=np.int32)
+    run_tiles(mosaic, d, MODE_FEATURES, out_features=(lev, con, sat))
+    return lev, con, sat
+
+
+# ---------------------------------------------------- data-driven cut points

@@ -1,0 +1,42 @@
+"""The defaults of l3's options: the one place each is written.
+
+The library's signatures and the command line's ``show_default`` both read
+them from here. The module imports nothing, so the CLI can use it without
+slowing ``l3 --help``.
+"""
+
+# l3 train (:class:`l3cli.train.TrainOptions`) and the class definition
+#: Patch size (odd): the kernel sees PATCH x PATCH raw pixels.
+PATCH = 5
+#: Number of response-level bins.
+LEVELS = 24
+#: Spacing of the level cut points (``"log"`` or ``"linear"``).
+LEVEL_SPACING = "log"
+#: Contrast bins per level (2 = flat / textured).
+CONTRAST_BINS = 2
+#: Normalised raw value at or above which a pixel counts as saturated.
+SATURATION = 0.95
+#: Share classes between CFA positions whose patch layouts coincide.
+MERGE_POSITIONS = True
+#: Random fraction of each image's pixels used in training.
+SAMPLE_FRACTION = 1.0
+#: A class needs at least this many samples per coefficient to be trained.
+MIN_SAMPLES_FACTOR = 3.0
+
+# l3 smooth
+#: Spline smoothing strength over response levels (λ of the Whittaker smoother).
+SPLINE_STRENGTH = 0.02
+
+# l3 evaluate (S-CIELAB viewing conditions and colour path)
+#: Display resolution, dots per inch.
+DPI = 96.0
+#: Viewing distance, metres.
+VIEWING_DISTANCE_M = 1.0
+#: S-CIELAB filter set (``"distribution"``: ISETCam's; ``"original"``: the 1997 paper's).
+SCIELAB_FILTERS = "distribution"
+#: S-CIELAB XYZ -> opponent matrix (ISETCam's xyz2opp for the 10° observer).
+SCIELAB_OPPONENT = "xyz10"
+
+# every command with --seed
+#: Random seed.
+SEED = 0

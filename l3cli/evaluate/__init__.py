@@ -1,0 +1,91 @@
+"""Evaluate rendered images against references: S-CIELAB, PSNR, Macbeth ΔE, MTF50.
+
+The library core of ``l3 evaluate`` (it knows nothing of click), one module a
+concern: :mod:`~l3cli.evaluate.inputs` (pairing, images read as XYZ),
+:mod:`~l3cli.evaluate.options` (:class:`EvalOptions`),
+:mod:`~l3cli.evaluate.metrics` (white point, registration, the metrics of
+each pair), :mod:`~l3cli.evaluate.report` (JSON and text) and
+:mod:`~l3cli.evaluate.plots` (figures, matplotlib imported lazily).
+
+Inputs
+------
+* Rendered images and reference images given as files, paired in order; or
+* a reference ``simulate`` folder (``manifest.json``), with the renders given as
+  a folder or as files, matched to the captures by stem (``RENDER_DIR/STEM.exr``,
+  ``.tif``, ``.tiff``, ``.png``, ``.jpg``, ``.jpeg``). The manifest then gives the
+  chart geometry and ideal patch XYZ, the slanted-edge region, and the pixel pitch.
+
+Images to CIE XYZ
+-----------------
+:func:`l3cli.io.image.read_image` returns each image with its colour space:
+
+* TIFF/PNG/JPEG are display sRGB: decoded with the sRGB transfer function and
+  converted to XYZ (D65) times 100, so the display white is (95.047, 100, 108.883)
+  (the sRGB display model of ISETCam and METRICS.md);
+* EXR holds linear values in the space named by its ``l3:space`` attribute, which
+  ``l3 render``/``l3 simulate`` write (``xyz``, ``linear-srgb``, ``srgb`` or ``lab``);
+  an EXR without the attribute is linear sRGB (the reader's rule), except a
+  ``simulate`` target, which the manifest declares (``target.space``, ``xyz``).
+
+Scale and white point
+---------------------
+The reference decides the white point used for CIELAB and S-CIELAB:
+
+* a display-encoded reference: the display white (95.047, 100, 108.883);
+* a linear reference from a ``simulate`` folder (targets on an arbitrary fixed
+  photometric scale): the capture's ``white_xyz`` if the manifest gives one; else
+  the chart's ideal white patch (``chart.reference_xyz[white_index]``, as the
+  Macbeth ΔE uses); else the illuminant's chromaticity (manifest ``illuminant``
+  if colour-science knows it, else D65) with Y = the 99th percentile of the
+  reference's Y;
+* another linear reference: D65 with Y = 1 (l3's linear convention: a display
+  white has Y = 1).
+
+A display-encoded render compared with a linear reference is taken as relative
+to the reference's white (its XYZ is scaled by white Y / 100); a linear render
+compared with a display-encoded reference is taken on l3's linear scale (display
+white Y = 1, so its XYZ is scaled by 100). XYZ is clipped to
+[0, white] before the S-CIELAB filtering, as ISETCam does.
+
+PSNR is computed on the encoded values (data range 1) when both images are
+display-encoded, and on linear XYZ with the white's Y as data range otherwise.
+
+``align`` registers each reference on its render first (:func:`align_reference`):
+a camera JPEG or raw-converter output is often a crop of the raw's area (and
+may be mirrored or rotated), while ``l3 render`` writes the raw's full area.
+The render is then cut to the reference's area and brought to its
+orientation, so chart corners and edge regions are in the reference's pixels.
+
+``exclude_border`` removes a margin of N pixels on every side from both images
+before S-CIELAB and PSNR (some camera ISPs corrupt the outer pixels); chart
+patches and edge regions keep their full-image coordinates.
+"""
+
+from l3cli.evaluate.inputs import IMAGE_SUFFIXES, EvalItem, find_items, load_xyz
+from l3cli.evaluate.metrics import (
+    ImageReport,
+    align_reference,
+    evaluate,
+    evaluate_item,
+    summarise,
+    white_point_for,
+)
+from l3cli.evaluate.options import EvalOptions
+from l3cli.evaluate.report import format_table, report_dict, write_report
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "EvalItem",
+    "EvalOptions",
+    "ImageReport",
+    "find_items",
+    "load_xyz",
+    "align_reference",
+    "white_point_for",
+    "evaluate_item",
+    "evaluate",
+    "summarise",
+    "report_dict",
+    "write_report",
+    "format_table",
+]

@@ -1,0 +1,235 @@
+"""Inputs of an evaluation: (rendered, reference) items, and images read as XYZ.
+
+See :mod:`l3cli.evaluate` for the pairing rules and the XYZ conventions.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from l3cli.errors import ConfigError, InputError
+from l3cli.pairs import (
+    RENDER_SUFFIXES,
+    is_simulation_dir,
+    manifest_path,
+    read_simulation_manifest,
+)
+
+__all__ = ["IMAGE_SUFFIXES", "EvalItem", "find_items", "load_xyz", "load_image"]
+
+log = logging.getLogger("l3cli.evaluate")
+
+#: Suffixes of rendered images looked for in a render folder, in order of
+#: preference: the input layer's (:data:`l3cli.pairs.RENDER_SUFFIXES`).
+IMAGE_SUFFIXES = RENDER_SUFFIXES
+
+
+@dataclass(frozen=True)
+class EvalItem:
+    """One (rendered, reference) pair to evaluate.
+
+    Attributes
+    ----------
+    name
+        Name in the report (the capture stem, or the rendered file name).
+    rendered, reference
+        Image paths.
+    capture
+        The manifest's capture record when the reference is a simulation.
+    camera
+        The manifest's camera record when the reference is a simulation.
+    reference_space
+        Colour space of the reference declared by the manifest (or None: from the file).
+    """
+
+    name: str
+    rendered: Path
+    reference: Path
+    capture: dict | None = None
+    camera: dict | None = None
+    reference_space: str | None = None
+
+
+
+def _images_in(folder: Path) -> list[Path]:
+    return sorted(
+        p for p in folder.iterdir()
+        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
+    )
+
+
+def _render_for(folder: Path, stem: str) -> Path | None:
+    for suf in IMAGE_SUFFIXES:
+        for cand in (folder / f"{stem}{suf}", folder / f"{stem}{suf.upper()}"):
+            if cand.is_file():
+                return cand
+    return None
+
+
+
+def find_items(
+    rendered: Sequence[str | os.PathLike], references: Sequence[str | os.PathLike]
+) -> list[EvalItem]:
+    """Pair rendered images with references.
+
+    Parameters
+    ----------
+    rendered
+        Rendered image files, or one folder of them.
+    references
+        Reference image files (one per rendered file, same order), one folder of
+        images (matched by stem), or one ``simulate`` folder (matched to the
+        captures by stem).
+
+    Returns
+    -------
+    list of EvalItem
+
+    Raises
+    ------
+    InputError
+        Missing paths, unequal counts, or a render that matches no capture.
+    """
+    rendered = [Path(p) for p in rendered]
+    references = [Path(p) for p in references]
+    if not rendered:
+        raise InputError("no rendered image given")
+    if not references:
+        raise InputError("no reference given (--reference)")
+    for p in (*rendered, *references):
+        if not p.exists():
+            raise InputError(f"{p}: no such file or folder")
+
+    if len(references) == 1 and references[0].is_dir():
+        ref_dir = references[0]
+        if is_simulation_dir(ref_dir):
+            return _simulation_items(rendered, ref_dir)
+        ref_images = {p.stem: p for p in _images_in(ref_dir)}
+        renders = _expand_renders(rendered)
+        items = []
+        for r in renders:
+            ref = ref_images.get(r.stem)
+            if ref is None:
+                raise InputError(f"{r}: no reference image {r.stem}.* in {ref_dir}")
+            items.append(EvalItem(r.stem, r, ref))
+        return items
+
+    for p in references:
+        if p.is_dir():
+            raise InputError(f"{p}: give one reference folder, or reference files only")
+    renders = _expand_renders(rendered)
+    if len(renders) != len(references):
+        raise InputError(
+            f"{len(renders)} rendered image(s) but {len(references)} reference(s); "
+            "give one reference per rendered image, in the same order"
+        )
+    return [EvalItem(r.name, r, ref) for r, ref in zip(renders, references, strict=True)]
+
+
+def _expand_renders(rendered: list[Path]) -> list[Path]:
+    out: list[Path] = []
+    for p in rendered:
+        if p.is_dir():
+            found = _images_in(p)
+            if not found:
+                raise InputError(f"{p}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+            out.extend(found)
+        else:
+            out.append(p)
+    return out
+
+
+def _simulation_items(rendered: list[Path], sim_dir: Path) -> list[EvalItem]:
+    manifest = read_simulation_manifest(sim_dir)
+    camera = manifest.get("camera") or {}
+    space = (manifest.get("target") or {}).get("space", "xyz")
+    captures = {}
+    for i, cap in enumerate(manifest["captures"]):
+        if not isinstance(cap, dict) or "stem" not in cap or "target" not in cap:
+            raise InputError(f"{manifest_path(sim_dir)}: capture {i} lacks 'stem' or 'target'")
+        captures[str(cap["stem"])] = cap
+    items = []
+    if len(rendered) == 1 and rendered[0].is_dir():
+        folder = rendered[0]
+        for stem, cap in captures.items():
+            r = _render_for(folder, stem)
+            if r is None:
+                log.info("%s: no render of capture %s; skipped", folder, stem)
+                continue
+            items.append(EvalItem(stem, r, sim_dir / cap["target"], cap, camera, space))
+        if not items:
+            raise InputError(
+                f"{folder}: no render matches a capture of {sim_dir} "
+                f"(expected files like {next(iter(captures), 'STEM')}.exr)"
+            )
+        return items
+    for r in _expand_renders(rendered):
+        stem = r.stem
+        cap = captures.get(stem)
+        if cap is None:
+            raise InputError(
+                f"{r}: its stem {stem!r} is not a capture of {sim_dir} "
+                f"(captures: {', '.join(sorted(captures)[:5])}{', ...' if len(captures) > 5 else ''})"
+            )
+        items.append(EvalItem(stem, r, sim_dir / cap["target"], cap, camera, space))
+    return items
+
+
+def load_xyz(path: str | os.PathLike, *, space: str | None = None) -> tuple[np.ndarray, str]:
+    """Read an image as float64 (H, W, 3) CIE XYZ.
+
+    Parameters
+    ----------
+    path
+        Image file (EXR, TIFF, PNG, JPEG).
+    space
+        Colour space of the file's values; None takes it from the file
+        (EXR ``l3:space`` attribute; display sRGB for the others).
+
+    Returns
+    -------
+    xyz, space
+        XYZ (display-encoded images on the 100 scale: white Y = 100) and the
+        space the values were in.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, an unknown colour space (encoding), or not 3 channels.
+    """
+    xyz, space, _ = load_image(path, space)
+    return xyz, space
+
+
+def load_image(path: str | os.PathLike, space: str | None) -> tuple[np.ndarray, str, np.ndarray]:
+    """:func:`load_xyz`, and the file's (3-channel) values as read."""
+    from l3cli.colourspace import check_space, convert
+    from l3cli.io.image import read_image
+
+    img, file_space = read_image(path)
+    name = space or file_space
+    try:
+        space = check_space(name)
+    except ConfigError:
+        raise InputError(
+            f"{path}: unknown encoding / colour space {name!r}; allowed: xyz, linear-srgb, srgb, lab"
+        ) from None
+    if img.shape[2] == 4:
+        img = img[:, :, :3]
+    if img.shape[2] == 1:
+        img = np.repeat(img, 3, axis=2)
+    if img.shape[2] != 3:
+        raise InputError(f"{path}: has {img.shape[2]} channels; evaluation needs 3 (or 1)")
+    if not np.all(np.isfinite(img)):
+        raise InputError(f"{path}: holds NaN or infinite values")
+    xyz = np.asarray(convert(img, space, "xyz"), dtype=np.float64)
+    if space == "srgb":
+        xyz *= 100.0
+    return xyz, space, img
+
