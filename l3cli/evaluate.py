@@ -160,16 +160,9 @@ class ImageReport:
 
 
 def _read_manifest(folder: Path) -> dict:
-    mpath = folder / "manifest.json"
-    try:
-        manifest = json.loads(mpath.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{mpath}: cannot read the simulation manifest ({exc})") from exc
-    if not isinstance(manifest, dict) or manifest.get("format") != "l3-simulation":
-        raise InputError(f"{mpath}: not an l3 simulation manifest (format must be 'l3-simulation')")
-    if not isinstance(manifest.get("captures"), list):
-        raise InputError(f"{mpath}: 'captures' must be a list")
-    return manifest
+    from l3cli.io.manifest import read_manifest
+
+    return read_manifest(folder)
 
 
 def _stem(path: Path) -> str:
@@ -268,10 +261,8 @@ def _simulation_items(rendered: list[Path], sim_dir: Path) -> list[EvalItem]:
     camera = manifest.get("camera") or {}
     space = (manifest.get("target") or {}).get("space", "xyz")
     captures = {}
-    for i, cap in enumerate(manifest["captures"]):
-        if not isinstance(cap, dict) or "stem" not in cap or "target" not in cap:
-            raise InputError(f"{sim_dir / 'manifest.json'}: capture {i} lacks 'stem' or 'target'")
-        captures[str(cap["stem"])] = cap
+    for cap in manifest["captures"]:  # validated by read_manifest
+        captures[cap["stem"]] = cap
     items = []
     if len(rendered) == 1 and rendered[0].is_dir():
         folder = rendered[0]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
@@ -22,14 +21,11 @@ def _expand_raws(raws: tuple[str, ...]) -> list[Path]:
     for r in raws:
         p = Path(r)
         if p.is_dir():
-            mpath = p / "manifest.json"
-            if not mpath.exists():
+            from l3cli.io.manifest import is_simulation_dir, read_manifest
+
+            if not is_simulation_dir(p):
                 raise InputError(f"{p}: a folder RAW must be a `l3 simulate` output (no manifest.json)")
-            try:
-                caps = json.loads(mpath.read_text())["captures"]
-                out.extend(p / c["raw"] for c in caps)
-            except (OSError, ValueError, KeyError, TypeError) as exc:
-                raise InputError(f"{mpath}: cannot list the captures' raws ({exc})") from exc
+            out.extend(p / c["raw"] for c in read_manifest(p)["captures"])
         else:
             out.append(p)
     return out

@@ -10,11 +10,9 @@ error the temporary folder is removed and ``SIM_DIR`` is left as it was.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +23,8 @@ import numpy as np
 from l3cli import spectral
 from l3cli.camera import Camera
 from l3cli.errors import ConfigError, OutputError
+from l3cli.io.atomic import make_temp_dir
+from l3cli.io.manifest import MANIFEST_FORMAT, MANIFEST_VERSION, write_manifest
 from l3cli.parallel import map_reduce
 from l3cli.simulate.core import (
     TARGET_SCALE_DOC,
@@ -44,8 +44,6 @@ log = logging.getLogger(__name__)
 
 DEFAULT_SCENES: tuple[str, ...] = ("macbeth", "natural")
 DEFAULT_SIZE: tuple[int, int] = (480, 320)
-MANIFEST_FORMAT = "l3-simulation"
-MANIFEST_VERSION = 1
 MIN_SIZE = (48, 32)
 
 
@@ -247,7 +245,7 @@ def run_simulation(
         dup = next(s for s in stems if stems.count(s) > 1)
         raise ConfigError(f"two captures would both be named {dup!r}; give distinct scenes and light levels")
 
-    tmp = Path(tempfile.mkdtemp(prefix=f".l3-tmp-{out_dir.name}-", dir=parent))
+    tmp = make_temp_dir(parent, out_dir.name)
     try:
         remote = workers is not None or scheduler is not None
         folder = str(tmp.absolute()) if remote else str(tmp)
@@ -282,7 +280,7 @@ def run_simulation(
                         "width": width, "height": height},
             "captures": captures,
         }
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+        write_manifest(tmp, manifest)
         _commit(tmp, out_dir)
     except BaseException:
         _remove_folder(tmp)

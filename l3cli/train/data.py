@@ -16,7 +16,6 @@ reads one, converts the target to the requested space and checks it.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,24 +70,12 @@ class Pair:
 
 
 def _simulation_pairs(folder: Path) -> list[Pair]:
-    mpath = folder / "manifest.json"
-    try:
-        manifest = json.loads(mpath.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{mpath}: cannot read the simulation manifest ({exc})") from exc
-    if not isinstance(manifest, dict) or manifest.get("format") != "l3-simulation":
-        raise InputError(f"{mpath}: not an l3 simulation manifest (format must be 'l3-simulation')")
-    space = (manifest.get("target") or {}).get("space", "xyz")
-    captures = manifest.get("captures")
-    if not isinstance(captures, list):
-        raise InputError(f"{mpath}: 'captures' must be a list")
-    pairs = []
-    for i, cap in enumerate(captures):
-        try:
-            pairs.append(Pair(folder / cap["raw"], folder / cap["target"], str(cap["stem"]),
-                              check_space(space)))
-        except (KeyError, TypeError) as exc:
-            raise InputError(f"{mpath}: capture {i} lacks 'raw', 'target' or 'stem'") from exc
+    from l3cli.io.manifest import read_manifest
+
+    manifest = read_manifest(folder)  # validated: each capture has raw, target, stem
+    space = check_space(manifest["target"]["space"])
+    pairs = [Pair(folder / cap["raw"], folder / cap["target"], cap["stem"], space)
+             for cap in manifest["captures"]]
     return pairs
 
 
