@@ -170,6 +170,7 @@ def run_simulation(
     workers: int | None = None,
     scheduler: str | None = None,
     show_progress: bool | None = False,
+    protect: Sequence[str | os.PathLike] = (),
 ) -> dict[str, Any]:
     """Simulate every (scene, light level) capture of a camera into ``out_dir``.
 
@@ -207,6 +208,8 @@ def run_simulation(
         way the captures run.
     show_progress
         Progress bar on stderr.
+    protect
+        Input files (the camera TOML, scene images) that no output may replace.
 
     Returns
     -------
@@ -244,6 +247,12 @@ def run_simulation(
     if len(set(stems)) != len(stems):
         dup = next(s for s in stems if stems.count(s) > 1)
         raise ConfigError(f"two captures would both be named {dup!r}; give distinct scenes and light levels")
+    if protect:
+        from l3cli.io.paths import refuse_overwrite
+
+        outs = ["manifest.json"] + [f"{s}{ext}" for s in stems for ext in
+                                    (".dng", ".tif", ".tif.toml", ".target.exr", ".noisefree.exr")]
+        refuse_overwrite([(out_dir / n, "-o") for n in outs], protect)
 
     tmp = make_temp_dir(parent, out_dir.name)
     try:
