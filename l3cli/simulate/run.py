@@ -232,8 +232,10 @@ def run_simulation(
     ill = illuminant or camera.exposure.illuminant
     levels = [float(x) for x in (lux if lux else camera.exposure.light_levels_lux)]
     for x in levels:
-        if not (np.isfinite(x) and x > 0):
-            raise ConfigError(f"--lux must be > 0, got {x:g}")
+        if not (np.isfinite(x) and 0 < x <= 1e6):
+            raise ConfigError(f"--lux must be in (0, 1e6] lux, got {x:g}")
+    if exposure_s is not None and not (np.isfinite(exposure_s) and 0 < exposure_s <= 3600):
+        raise ConfigError(f"--exposure must be in (0, 3600] seconds, got {exposure_s:g}")
     model = prepare_camera(camera)
     illuminant_irradiance(ill, 1.0, model.wavelengths)  # unknown / range errors now
     parent = out_dir.parent if str(out_dir.parent) else Path(".")
