@@ -187,6 +187,9 @@ def _encode(oiio, path: Path, tmp: Path, spec, data: np.ndarray) -> None:
             err = "" if _reads_back(oiio, tmp, spec) else err
         if not ok or err:
             raise OutputError(f"{path}: cannot write: {err or 'the encoder failed'}")
+        if format_of(tmp) in ("png", "jpg") and not _reads_back(oiio, tmp, spec, full=True):
+            # libpng/libjpeg write through stdio and may lose a failed final write
+            raise OutputError(f"{path}: cannot write: the file is truncated (disk full?)")
     finally:
         if not closed:
             out.close()
@@ -195,14 +198,20 @@ def _encode(oiio, path: Path, tmp: Path, spec, data: np.ndarray) -> None:
 _BENIGN_TIFF = "failed TIFFWriteCustomDirectory() of the Exif data"
 
 
-def _reads_back(oiio, tmp: Path, spec) -> bool:
-    """True when ``tmp`` opens as an image of ``spec``'s size."""
+def _reads_back(oiio, tmp: Path, spec, *, full: bool = False) -> bool:
+    """True when ``tmp`` opens as an image of ``spec``'s size (and, ``full``, decodes whole)."""
     inp = oiio.ImageInput.open(str(tmp))
     if inp is None:
         oiio.geterror()
         return False
     try:
         got = inp.spec()
-        return (got.width, got.height, got.nchannels) == (spec.width, spec.height, spec.nchannels)
+        if (got.width, got.height, got.nchannels) != (spec.width, spec.height, spec.nchannels):
+            return False
+        if full:
+            data = inp.read_image(0, 0, 0, got.nchannels, "uint8")
+            if data is None or inp.geterror():
+                return False
+        return True
     finally:
         inp.close()
