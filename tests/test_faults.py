@@ -100,7 +100,7 @@ _NAMES = list(_commands({"raw": "", "table": "", "sim": "", "renders": ""}, Path
 
 
 @pytest.mark.parametrize("name", _NAMES)
-@pytest.mark.parametrize("fault", ["full", "eio"])
+@pytest.mark.parametrize("fault", ["full", "eio", "enospc"])
 def test_write_fault_keeps_previous_output(runner, work, tmp_path, monkeypatch, name, fault):
     args, target = _commands(work, tmp_path)[name]
     res = runner.invoke(cli, args)
@@ -111,8 +111,10 @@ def test_write_fault_keeps_previous_output(runner, work, tmp_path, monkeypatch, 
         with disk_full():
             res = runner.invoke(cli, args)
     else:
+        code = errno.EIO if fault == "eio" else errno.ENOSPC
+
         def broken_fsync(fd):
-            raise OSError(errno.EIO, "Input/output error")
+            raise OSError(code, os.strerror(code))
 
         monkeypatch.setattr(os, "fsync", broken_fsync)
         res = runner.invoke(cli, args)
@@ -220,6 +222,9 @@ def test_stale_temporaries_of_killed_runs_are_removed(runner, work, tmp_path):
     alive.write_bytes(b"x")
     other = tmp_path / ".hidden-user-file"  # not l3's: kept
     other.write_bytes(b"x")
+    import l3cli.io.atomic
+
+    l3cli.io.atomic._CLEANED.clear()  # as in a new process
     res = runner.invoke(cli, ["smooth", str(work["table"]), "-o", str(tmp_path / "s.npz")])
     assert res.exit_code == 0, res.output
     assert not stale_dir.exists() and not stale_file.exists()
@@ -292,3 +297,29 @@ def test_malformed_or_refused_scheduler_is_one_line(runner, work, tmp_path, addr
     assert res.exit_code == 1, res.output
     last = res.output.strip().splitlines()[-1]
     assert "scheduler" in last and "internal error" not in last, last
+
+
+def test_killed_simulate_temporary_folder_is_removed_by_the_next_simulate(runner, tmp_path):
+    """A simulate killed mid-run (SIGKILL) leaves .l3-tmp-<pid>-sim-*; the next run removes it."""
+    import subprocess
+    import sys
+
+    import l3cli.io.atomic
+
+    code = ("import sys; from l3cli.cli.main import cli; "
+            "sys.argv = ['l3', 'simulate', sys.argv[1], '-o', sys.argv[2], '--scene', 'macbeth', "
+            "'--scene', 'natural', '--size', '480x320']; cli()")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(CFG), str(tmp_path / "sim")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not list(tmp_path.glob(".l3-tmp-*")):
+        time.sleep(0.05)
+    proc.kill()
+    proc.wait()
+    left = list(tmp_path.glob(".l3-tmp-*"))
+    assert left and left[0].is_dir() and not (tmp_path / "sim").exists()
+    l3cli.io.atomic._CLEANED.clear()  # as in a new process
+    res = runner.invoke(cli, ["simulate", str(CFG), "-o", str(tmp_path / "sim2"), "--scene",
+                              "macbeth", "--lux", "100", "--size", "48x32", "--no-blur"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim2"]

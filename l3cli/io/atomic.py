@@ -121,6 +121,17 @@ def _alive(pid: int) -> bool:
     return True
 
 
+_CLEANED: set[str] = set()
+
+
+def _clean_once(folder: str | os.PathLike) -> None:
+    """:func:`clean_stale` on the first write into ``folder`` of this process."""
+    key = os.path.realpath(folder)
+    if key not in _CLEANED:
+        _CLEANED.add(key)
+        clean_stale(folder)
+
+
 def clean_stale(folder: str | os.PathLike) -> list[Path]:
     """Remove l3's temporary files and folders left in ``folder`` by killed runs.
 
@@ -160,7 +171,7 @@ def _tmp_prefix(name: str) -> str:
 
 def make_temp_dir(parent: str | os.PathLike, name: str) -> Path:
     """A new temporary folder in ``parent`` named for this process (stale ones cleaned)."""
-    clean_stale(parent)
+    _clean_once(parent)
     try:
         return Path(tempfile.mkdtemp(prefix=_tmp_prefix(name), dir=parent))
     except OSError as exc:
@@ -207,7 +218,7 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     path = Path(path)
     folder = check_writable_dir(path.parent if str(path.parent) else Path("."))
     suffix = path.suffix if suffix is None else suffix
-    clean_stale(folder)
+    _clean_once(folder)
     try:
         fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.stem), suffix=suffix, dir=folder)
         os.close(fd)
