@@ -88,3 +88,15 @@ def test_two_outputs_that_are_one_file(tmp_path):
     with pytest.raises(OutputError, match="would both write"):
         refuse_overwrite([(tmp_path / "x.json", "-o"), (tmp_path / "." / "x.json", "--json")],
                          [])
+
+
+def test_atomic_write_refuses_a_pipe_or_a_folder(tmp_path):
+    from l3cli.io.atomic import atomic_path
+
+    fifo = tmp_path / "p.json"
+    os.mkfifo(fifo)
+    with pytest.raises(OutputError, match="not a regular file"), atomic_path(fifo) as tmp:
+        tmp.write_text("{}")
+    with pytest.raises(OutputError, match="is a folder"), atomic_path(tmp_path) as tmp:
+        tmp.write_text("{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json"]

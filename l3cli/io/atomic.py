@@ -217,6 +217,11 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     """
     path = Path(path)
     folder = check_writable_dir(path.parent if str(path.parent) else Path("."))
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder, expected an output file name")
+    if path.exists() and not path.is_file():
+        raise OutputError(f"{path}: exists and is not a regular file (a device or pipe); "
+                          "choose another output")
     suffix = path.suffix if suffix is None else suffix
     _clean_once(folder)
     try:
