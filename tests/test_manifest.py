@@ -75,3 +75,10 @@ def test_writer_refuses_a_bad_manifest(tmp_path):
     with pytest.raises(OutputError, match="lux"):
         write_manifest(tmp_path, _manifest(lux=float("nan")))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_writer_refuses_non_finite_numbers_anywhere(tmp_path):
+    m = _manifest()
+    m["camera"] = {"gain": float("inf")}
+    with pytest.raises(OutputError, match="bad manifest"):
+        write_manifest(tmp_path, m)

@@ -208,8 +208,12 @@ def write_manifest(folder: str | os.PathLike, manifest: dict[str, Any]) -> Path:
         raise OutputError(f"{manifest_path(folder)}: refusing to write a bad manifest: {exc}") \
             from None
     path = manifest_path(folder)
+    try:
+        text = json.dumps(manifest, indent=1, allow_nan=False) + "\n"
+    except (ValueError, TypeError) as exc:
+        raise OutputError(f"{path}: refusing to write a bad manifest: {exc}") from None
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(manifest, indent=1, allow_nan=False) + "\n")
+        tmp.write_text(text)
     return path
 
 
