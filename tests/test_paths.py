@@ -100,3 +100,11 @@ def test_atomic_write_refuses_a_pipe_or_a_folder(tmp_path):
     with pytest.raises(OutputError, match="is a folder"), atomic_path(tmp_path) as tmp:
         tmp.write_text("{}")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json"]
+
+
+def test_cli_error_is_one_line_even_for_a_file_name_with_a_line_break(runner, tmp_path):
+    from l3cli.cli.main import cli
+
+    res = runner.invoke(cli, ["smooth", str(tmp_path / "a\nb.npz"), "-o", str(tmp_path / "o.npz")])
+    assert res.exit_code == 1
+    assert res.output.count("\n") == 1 and "a\\nb.npz" in res.output, res.output

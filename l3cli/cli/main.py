@@ -69,7 +69,9 @@ class _LazyGroup(click.Group):
             obj = ctx.obj or {}
             if obj.get("debug"):
                 raise
-            raise click.ClickException(str(exc)) from exc
+            # one line, even where a file name holds a line break
+            msg = str(exc).replace("\r", "\\r").replace("\n", "\\n")
+            raise click.ClickException(msg) from exc
         except MemoryError as exc:
             if (ctx.obj or {}).get("debug"):
                 raise

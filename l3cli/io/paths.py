@@ -23,7 +23,7 @@ def _key(path: Path) -> tuple[str, tuple[int, int] | None]:
     try:
         st = os.stat(real)
         ident = (st.st_dev, st.st_ino)
-    except OSError:
+    except (OSError, ValueError):  # missing, unreadable, or not a valid path
         ident = None
     return real, ident
 
@@ -45,6 +45,8 @@ def input_files(inputs: Iterable[str | os.PathLike]) -> list[Path]:
     out: list[Path] = []
     for inp in inputs:
         p = Path(inp)
+        if "\0" in str(p):
+            continue
         if p.is_dir():
             try:
                 out.extend(q for q in p.iterdir() if q.is_file())
@@ -84,6 +86,8 @@ def refuse_overwrite(outputs: Iterable[tuple[str | os.PathLike, str]],
             by_ident.setdefault(ident, f)
     seen: dict[str, tuple[Path, str]] = {}
     for out, what in outputs:
+        if "\0" in str(out):
+            raise OutputError(f"{str(out)!r}: {what} is not a valid path (NUL character)")
         out = Path(out)
         real, ident = _key(out)
         hit = by_real.get(real) or (by_ident.get(ident) if ident is not None else None)
