@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.l3-installed
 SHARED ?= ../shared/data
 DEMO   ?= demo_out
 
-.PHONY: setup demo test test-fast bench lint clean
+.PHONY: setup demo test test-fast fuzz bench lint clean
 
 setup: $(STAMP)
 
@@ -22,6 +22,14 @@ test: $(STAMP)
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -n 2 -q -m "not slow"
+
+# Property-based fuzzing of the file readers and output planning with a large
+# budget (`make test` runs the same tests with a small one); prints the count.
+FUZZ_COUNT := .fuzz-count.txt
+fuzz: $(STAMP)
+	rm -f $(FUZZ_COUNT)
+	L3_FUZZ_PROFILE=fuzz L3_FUZZ_COUNT_FILE=$(FUZZ_COUNT) $(PY) -m pytest -n 0 -q -p no:cacheprovider tests/test_fuzz_readers.py
+	@cat $(FUZZ_COUNT) && rm -f $(FUZZ_COUNT)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check l3cli tests benchmarks

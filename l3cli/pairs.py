@@ -54,7 +54,6 @@ References
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -76,6 +75,7 @@ from l3cli.align import (
     scaled_pair,
 )
 from l3cli.errors import InputError
+from l3cli.io import manifest as _manifest
 from l3cli.io.raw import RAW_SUFFIXES, RawImage, read_raw, sidecar_path
 
 __all__ = [
@@ -218,56 +218,27 @@ def _render_for(raw: Path) -> Path:
 _CAPTURE_FACTS = ("scene", "illuminant", "lux", "exposure_s")
 
 
-def manifest_path(folder: str | os.PathLike) -> Path:
-    """The path of a ``simulate`` folder's manifest (whether or not it exists)."""
-    return Path(folder) / "manifest.json"
-
-
 def is_simulation_dir(path: str | os.PathLike) -> bool:
     """True for a folder with a simulation manifest (an ``l3 simulate`` output)."""
-    p = Path(path)
-    return p.is_dir() and manifest_path(p).exists()
+    return Path(path).is_dir() and _manifest.is_simulation_dir(path)
 
 
-def read_simulation_manifest(folder: Path) -> dict:
-    """The manifest of a ``simulate`` folder, checked to be one (with a list of captures).
-
-    The one reader of simulation manifests outside :mod:`l3cli.simulate`
-    (training, the baseline and evaluation come through here; to be served
-    by the versioned manifest reader of :mod:`l3cli.io` once it exists).
-
-    Raises
-    ------
-    InputError
-        An unreadable file, or not an l3 simulation manifest.
-    """
-    mpath = manifest_path(folder)
-    try:
-        manifest = json.loads(mpath.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{mpath}: cannot read the simulation manifest ({exc})") from exc
-    if not isinstance(manifest, dict) or manifest.get("format") != "l3-simulation":
-        raise InputError(f"{mpath}: not an l3 simulation manifest (format must be 'l3-simulation')")
-    if not isinstance(manifest.get("captures"), list):
-        raise InputError(f"{mpath}: 'captures' must be a list")
-    return manifest
+#: The versioned, validated reader (:func:`l3cli.io.manifest.read_manifest`).
+read_simulation_manifest = _manifest.read_manifest
+manifest_path = _manifest.manifest_path
 
 
 def _simulation_pairs(folder: Path) -> list[Pair]:
     """The captures of a ``simulate`` folder, in manifest order."""
     from l3cli.colourspace import check_space
 
-    manifest = read_simulation_manifest(folder)
-    mpath = manifest_path(folder)
-    space = (manifest.get("target") or {}).get("space", "xyz")
+    manifest = read_simulation_manifest(folder)  # validated: each capture has raw, target, stem
+    space = check_space(manifest["target"]["space"])
     pairs = []
-    for i, cap in enumerate(manifest["captures"]):
-        try:
-            facts = {k: cap[k] for k in _CAPTURE_FACTS if k in cap}
-            pairs.append(Pair(str(cap["stem"]), folder / cap["raw"], folder / cap["target"],
-                              check_space(space), metadata=facts))
-        except (KeyError, TypeError) as exc:
-            raise InputError(f"{mpath}: capture {i} lacks 'raw', 'target' or 'stem'") from exc
+    for cap in manifest["captures"]:
+        facts = {k: cap[k] for k in _CAPTURE_FACTS if k in cap}
+        pairs.append(Pair(cap["stem"], folder / cap["raw"], folder / cap["target"], space,
+                          metadata=facts))
     return pairs
 
 

@@ -50,6 +50,9 @@ WINDOW_PER_THREAD = 4
 #: turns off glibc's dynamic mmap threshold: every large array of a task is then
 #: mapped and zero-filled anew (measured on 16 training captures: worker system
 #: time 1.6 s instead of 0.2 s). Local clusters leave it unset.
+#: Seconds a scheduler address has to answer as a dask scheduler (connect + handshake).
+SCHEDULER_TIMEOUT_S = 20.0
+
 _SPAWN_ENV = "distributed.nanny.pre-spawn-environ"
 _TRIM = _SPAWN_ENV + ".MALLOC_TRIM_THRESHOLD_"
 
@@ -68,6 +71,71 @@ def _cpu_count() -> int:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
         return os.cpu_count() or 1
+
+
+def check_scheduler(address: str, timeout: float | None = None) -> None:
+    """Check that ``address`` answers as a dask.distributed scheduler, within ``timeout`` s.
+
+    dask's own connect waits forever for a server that accepts the connection
+    and never answers, and reads the first bytes of any other server (a web
+    server) as a message length (then "out of memory"). Here the address is
+    parsed, connected to, and asked for its identity under one deadline.
+
+    Raises
+    ------
+    ParallelError
+        A malformed address, nothing listening, no answer in time, or a server
+        that is not a dask scheduler: one line naming the address.
+    """
+    import asyncio
+
+    from distributed.comm import connect
+    from distributed.comm.addressing import parse_address
+
+    timeout = SCHEDULER_TIMEOUT_S if timeout is None else timeout
+    try:
+        parse_address(address)
+    except (ValueError, TypeError) as exc:
+        raise ParallelError(f"{address!r} is not a scheduler address (e.g. "
+                            f"tcp://host:8786): {exc}") from None
+
+    scheme, loc = parse_address(address)
+    if scheme == "tcp":  # a refused connection fails now, not after dask's retries
+        import socket
+
+        from distributed.comm.addressing import parse_host_port
+
+        try:
+            host, port = parse_host_port(loc)
+            socket.create_connection((host, port), timeout=timeout).close()
+        except (OSError, ValueError, TypeError) as exc:
+            raise ParallelError(f"cannot reach dask scheduler {address}: "
+                                f"{getattr(exc, 'strerror', None) or exc}") from None
+
+    async def identity() -> Any:
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    async def bounded() -> Any:
+        return await asyncio.wait_for(identity(), timeout)
+
+    try:
+        reply = asyncio.run(bounded())
+    except TimeoutError:
+        raise ParallelError(f"cannot reach dask scheduler {address}: no answer within {timeout:g} s "
+                            "(nothing listening, or not a dask scheduler)") from None
+    except (OSError, ValueError) as exc:
+        raise ParallelError(f"cannot reach dask scheduler {address}: {exc}") from None
+    except (MemoryError, Exception) as exc:  # noqa: BLE001 - any garbage a non-scheduler sends
+        raise ParallelError(f"{address} is not a dask scheduler ({type(exc).__name__} "
+                            "while talking to it)") from None
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        raise ParallelError(f"{address} is not a dask scheduler (it answered "
+                            f"{str(reply)[:60]!r})")
 
 
 @contextlib.contextmanager
@@ -117,9 +185,10 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     cluster = None
     try:
         if scheduler is not None:
+            check_scheduler(scheduler)
             try:
-                client = Client(scheduler, timeout="5s")
-            except (OSError, TimeoutError) as exc:
+                client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+            except (OSError, TimeoutError, ValueError, MemoryError) as exc:
                 raise ParallelError(f"cannot reach dask scheduler {scheduler}: {exc}") from exc
         else:
             n = int(workers)  # type: ignore[arg-type]

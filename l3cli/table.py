@@ -157,6 +157,10 @@ class TransformTable:
             return "no class is trained"
         if not np.all(np.isfinite(self.kernels)):
             return "kernels hold NaN or Inf"
+        if np.any(self.counts < 0):
+            return "counts hold negative sample counts"
+        if np.any(np.isinf(self.lambdas)) or np.any(self.lambdas < 0):
+            return "lambdas hold negative or infinite values"
         return None
 
     @property
@@ -268,12 +272,16 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             contrast_rule=_scalar(arrs, "contrast_rule", path, "U"),
             saturation_rule=_scalar(arrs, "saturation_rule", path, "U"),
         )
-    except ConfigError as exc:
+    except (ConfigError, TableError) as exc:
         raise TableError(f"{path}: bad class definition: {exc}") from exc
+    except (TypeError, ValueError, IndexError, OverflowError) as exc:
+        raise TableError(f"{path}: bad class definition ({type(exc).__name__}: {exc})") from exc
     try:
         prov = json.loads(_scalar(arrs, "provenance", path, "U") or "{}")
     except json.JSONDecodeError as exc:
         raise TableError(f"{path}: provenance is not JSON ({exc.msg})") from exc
+    if not isinstance(prov, dict):
+        raise TableError(f"{path}: provenance must be a JSON object, got {type(prov).__name__}")
     try:
         return TransformTable(
             definition=definition,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 
 import numpy as np
 import pytest
@@ -29,7 +30,8 @@ def _script():
 
 
 def _provenance(z) -> dict:
-    p = json.loads(str(z["provenance"]).replace(str(GOLDEN.resolve()), "<golden>"))
+    # paths of the inputs, whichever checkout made them
+    p = json.loads(re.sub(r'[^"]*/tests/data/golden', "<golden>", str(z["provenance"])))
     for k in ("python", "l3_version"):  # of the machine, not of the method
         p.pop(k, None)
     return p

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
 
 from l3cli.cli.options import output_opt, quiet, seed_opt
+from l3cli.cli.paths import FORMATS as _FORMATS
 
-_FORMATS = {"exr": ".exr", "tiff": ".tif", "png": ".png", "jpg": ".jpg"}
-_ALIASES = {".tiff": ".tif", ".jpeg": ".jpg"}
 _METHODS = ("bilinear", "malvar2004", "menon2007")
 
 
@@ -22,14 +20,11 @@ def _expand_raws(raws: tuple[str, ...]) -> list[Path]:
     for r in raws:
         p = Path(r)
         if p.is_dir():
-            mpath = p / "manifest.json"
-            if not mpath.exists():
+            from l3cli.io.manifest import is_simulation_dir, read_manifest
+
+            if not is_simulation_dir(p):
                 raise InputError(f"{p}: a folder RAW must be a `l3 simulate` output (no manifest.json)")
-            try:
-                caps = json.loads(mpath.read_text())["captures"]
-                out.extend(p / c["raw"] for c in caps)
-            except (OSError, ValueError, KeyError, TypeError) as exc:
-                raise InputError(f"{mpath}: cannot list the captures' raws ({exc})") from exc
+            out.extend(p / c["raw"] for c in read_manifest(p)["captures"])
         else:
             out.append(p)
     return out
@@ -67,36 +62,18 @@ def baseline(raws: tuple[str, ...], train_inputs: tuple[str, ...], output: str, 
     l3 evaluate BASE_DIR --reference SIM_DIR --json base.json
     """
     from l3cli.baseline import fit_baseline, render_baseline_file
-    from l3cli.errors import OutputError
+    from l3cli.cli.paths import check_outputs, plan_outputs
     from l3cli.io.atomic import atomic_path
     from l3cli.progress import progress
 
     raw_paths = _expand_raws(raws)
-    out = Path(output)
-    targets: list[tuple[Path, Path]] = []
-    if len(raw_paths) == 1 and not out.is_dir():
-        suffix = out.suffix.lower()
-        if suffix == "":
-            out = out.with_suffix(_FORMATS[fmt or "exr"])
-        elif fmt is not None and _ALIASES.get(suffix, suffix) != _FORMATS[fmt]:
-            raise click.BadParameter(f"{output} does not end in {_FORMATS[fmt]} as --format {fmt} asks",
-                                     param_hint="-o")
-        targets.append((raw_paths[0], out))
-    else:
-        if out.exists() and not out.is_dir():
-            raise OutputError(f"{out}: is a file; several inputs need an output folder")
-        out.mkdir(parents=True, exist_ok=True)
-        suffix = _FORMATS[fmt or "exr"]
-        stems: set[str] = set()
-        for p in raw_paths:
-            stem = p.name[: -len(p.suffix)] if p.suffix else p.name
-            if stem in stems:
-                raise click.BadParameter(f"two inputs share the stem {stem!r}", param_hint="RAW")
-            stems.add(stem)
-            targets.append((p, out / f"{stem}{suffix}"))
+    plan = plan_outputs(raw_paths, output, fmt, protect=train_inputs)
+    check_outputs([(save_model, "--save-model"), *((o, "-o") for _, o in plan.targets)],
+                  [*raw_paths, *train_inputs])
     model = fit_baseline(list(train_inputs), method=method, target_space=target_space, seed=seed)
-    if save_model:
-        with atomic_path(save_model) as tmp:
-            tmp.write_text(model.to_json() + "\n")
-    for raw_path, dst in progress(targets, label="baseline", enabled=not quiet()):
-        render_baseline_file(model, raw_path, dst)
+    with plan.writing():
+        for raw_path, dst in progress(plan.targets, label="baseline", enabled=not quiet()):
+            render_baseline_file(model, raw_path, dst)
+        if save_model:
+            with atomic_path(save_model) as tmp:
+                tmp.write_text(model.to_json() + "\n")

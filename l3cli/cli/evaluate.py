@@ -99,8 +99,6 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
     chart (ΔE*ab after white normalisation, as ISETCam) and the slanted edge
     (ISO 12233 MTF50). CIEDE2000 values are extra keys. See docs/evaluation.md.
     """
-    from pathlib import Path
-
     from l3cli.evaluate import EvalOptions, format_table, report_dict, write_report
     from l3cli.evaluate import evaluate as run_evaluate
 
@@ -108,18 +106,21 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
         raise click.BadParameter(f"{dpi}: must be positive", param_hint="--dpi")
     if distance <= 0:
         raise click.BadParameter(f"{distance}: must be positive", param_hint="--distance")
-    if plots_dir:
-        Path(plots_dir).mkdir(parents=True, exist_ok=True)
+    from l3cli.cli.paths import check_outputs, plan_folder
+
+    check_outputs([(json_path, "--json")], [*rendered, *references])
+    plots = plan_folder(plots_dir, "--plots")
     options = EvalOptions(dpi=dpi, distance=distance, filters=filters, opponent=opponent,
                           chart_corners=chart, edge_roi=edge, pixel_pitch_um=pixel_pitch,
                           exclude_border=exclude_border, keep_images=bool(plots_dir), align=align)
     reports, summary = run_evaluate(list(rendered), list(references), options)
     report = report_dict(reports, summary, settings=options.settings())
-    if json_path:
-        write_report(json_path, report)
     if plots_dir:
         from l3cli.evaluate.plots import plot_report
 
-        for r in reports:
-            plot_report(r, plots_dir)
+        with plots.writing():
+            for r in reports:
+                plot_report(r, plots_dir)
+    if json_path:  # last: a failed run leaves no complete-looking report
+        write_report(json_path, report)
     click.echo(format_table(reports, summary))

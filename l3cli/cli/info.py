@@ -21,14 +21,16 @@ def info(raws: tuple[str, ...], as_json: bool, preview: str | None, planes: str 
     Prints size, CFA, black/white levels and per-channel mean, 99th percentile
     and clipped fraction. Use it to check a sidecar before training.
     """
+    from l3cli.cli.paths import check_outputs, plan_folder
     from l3cli.colourspace import srgb_encode
-    from l3cli.io.atomic import check_writable_dir
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
     from l3cli.rawinfo import quick_preview, raw_summary
 
     if preview and len(raws) != 1:
         raise click.BadParameter("--preview takes exactly one input raw", param_hint="--preview")
+    plane_plan = plan_folder(planes, "--planes")
+    check_outputs([(preview, "--preview")], raws)
     summaries = []
     for path in raws:
         raw = read_raw(path)
@@ -38,11 +40,11 @@ def info(raws: tuple[str, ...], as_json: bool, preview: str | None, planes: str 
             write_image(preview, srgb_encode(quick_preview(raw)), space="srgb")
         if planes:
             folder = Path(planes)
-            folder.mkdir(parents=True, exist_ok=True)
-            check_writable_dir(folder)
-            for key, plane in raw.planes().items():
-                out = folder / f"{Path(path).stem}_plane{key}.tif"
-                write_image(out, plane, space="data")
+            outs = {key: folder / f"{Path(path).stem}_plane{key}.tif" for key in raw.planes()}
+            check_outputs([(o, "--planes") for o in outs.values()], raws)
+            with plane_plan.writing():
+                for key, plane in raw.planes().items():
+                    write_image(outs[key], plane, space="data")
     if as_json:
         click.echo(json.dumps(summaries if len(summaries) > 1 else summaries[0], indent=2))
         return

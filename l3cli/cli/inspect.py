@@ -46,9 +46,11 @@ def inspect(table_path: str, plots: str | None, compare: str | None, levels: lis
     draw the kernels as weight images per position group and output channel,
     and the coefficients against the level (before/after with --compare).
     """
+    from l3cli.cli.paths import plan_folder
     from l3cli.inspect import class_rows, format_summary, table_summary
     from l3cli.table import load_table
 
+    plot_plan = plan_folder(plots, "--plots")
     table = load_table(table_path)
     other = load_table(compare) if compare else None
     if other is not None and not other.definition.same_as(table.definition):
@@ -64,16 +66,11 @@ def inspect(table_path: str, plots: str | None, compare: str | None, levels: lis
     else:
         click.echo(format_summary(summary, table=table, classes=classes))
     if plots:
-        from l3cli.errors import OutputError
         from l3cli.plots_table import plot_coefficient_curves, plot_kernels
 
         folder = Path(plots)
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise OutputError(f"{folder}: cannot create the plots folder "
-                              f"({exc.strerror or exc})") from exc
         stem = Path(table_path).stem
-        written = plot_kernels(table, folder, levels=levels, name=stem)
-        written += plot_coefficient_curves(table, folder, before=other, name=stem)
+        with plot_plan.writing():
+            written = plot_kernels(table, folder, levels=levels, name=stem)
+            written += plot_coefficient_curves(table, folder, before=other, name=stem)
         click.echo(f"wrote {len(written)} figures to {folder}", err=True)

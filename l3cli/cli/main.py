@@ -10,6 +10,7 @@ Errors: an :class:`l3cli.errors.L3Error` raised by the library becomes a one-lin
 
 from __future__ import annotations
 
+import errno
 import importlib
 import logging
 import sys
@@ -30,6 +31,10 @@ def _click_bar(items: Iterable[Any], *, label: str, length: int | None = None
 
 
 progress.set_bar_factory(_click_bar)
+
+#: OS errors that are the machine's state (full disk, I/O error), not l3 bugs.
+_IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EFBIG, errno.EROFS,
+                        errno.EACCES, errno.EPERM})
 
 #: name -> "module:attribute" of each registered subcommand. Register a command
 #: only when it works.
@@ -64,11 +69,23 @@ class _LazyGroup(click.Group):
             obj = ctx.obj or {}
             if obj.get("debug"):
                 raise
-            raise click.ClickException(str(exc)) from exc
+            # one line, even where a file name holds a line break
+            msg = str(exc).replace("\r", "\\r").replace("\n", "\\n")
+            raise click.ClickException(msg) from exc
         except MemoryError as exc:
             if (ctx.obj or {}).get("debug"):
                 raise
             raise click.ClickException("out of memory") from exc
+        except OSError as exc:
+            # a full disk or an I/O error outside l3's own write path: still one line
+            if (ctx.obj or {}).get("debug") or exc.errno not in _IO_ERRNOS:
+                if (ctx.obj or {}).get("debug"):
+                    raise
+                raise click.ClickException(
+                    f"internal error: {type(exc).__name__}: {exc} (rerun with --debug for the "
+                    "traceback and please report it)") from exc
+            where = f"{exc.filename}: " if exc.filename else ""
+            raise click.ClickException(f"{where}{exc.strerror or exc}") from exc
         except KeyboardInterrupt:
             click.echo("Aborted.", err=True)
             sys.exit(130)

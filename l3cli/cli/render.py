@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from l3cli.cli.options import output_opt, quiet, scheduler_opt, workers_opt
-
-_FORMATS = {"exr": ".exr", "tiff": ".tif", "png": ".png", "jpg": ".jpg"}
-_ALIASES = {".tiff": ".tif", ".jpeg": ".jpg"}
+from l3cli.cli.paths import FORMATS as _FORMATS
 
 
 @click.command(short_help="Render raw files with a transform table.")
@@ -31,33 +27,11 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
     are rendered by dask.distributed workers, each reading its raw and writing
     its output itself (docs/distributed.md).
     """
-    from l3cli.errors import OutputError
+    from l3cli.cli.paths import plan_outputs
     from l3cli.render import render_files, table_for_task
 
     table_for_task(table_path)  # a bad table fails before anything is created
-    out = Path(output)
-    targets: list[tuple[str, Path]] = []
-    if len(raws) == 1 and not out.is_dir():
-        suffix = out.suffix.lower()
-        if suffix == "":
-            out = out.with_suffix(_FORMATS[fmt or "exr"])
-        elif fmt is not None and _ALIASES.get(suffix, suffix) != _FORMATS[fmt]:
-            raise click.BadParameter(
-                f"{output} does not end in {_FORMATS[fmt]} as --format {fmt} asks",
-                param_hint="-o")
-        targets.append((raws[0], out))
-    else:
-        if out.exists() and not out.is_dir():
-            raise OutputError(f"{out}: is a file; several inputs need an output folder")
-        out.mkdir(parents=True, exist_ok=True)
-        suffix = _FORMATS[fmt or "exr"]
-        stems: set[str] = set()
-        for r in raws:
-            p = Path(r)
-            stem = p.name[: -len(p.suffix)] if p.suffix else p.name
-            if stem in stems:
-                raise click.BadParameter(f"two inputs share the stem {stem!r}", param_hint="RAW")
-            stems.add(stem)
-            targets.append((r, out / f"{stem}{suffix}"))
-    render_files(table_path, targets, workers=workers, scheduler=scheduler,
-                 show_progress=not quiet())
+    plan = plan_outputs(raws, output, fmt, protect=[table_path])
+    with plan.writing():
+        render_files(table_path, [(str(r), o) for r, o in plan.targets], workers=workers,
+                     scheduler=scheduler, show_progress=not quiet())

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from l3cli.cli.options import quiet, scheduler_opt, seed_opt, workers_opt
@@ -87,7 +89,8 @@ def simulate(camera: str, output: str, scenes: tuple[str, ...], illuminant: str 
                               lux=list(lux) or None, seed=seed, size=size,
                               blur=not no_blur, noise=not no_noise, exposure_s=exposure_s,
                               oversample=oversample, workers=workers, scheduler=scheduler,
-                              show_progress=show)
+                              show_progress=show,
+                              protect=[camera, *(s for s in scenes if Path(s).is_file())])
     logging.getLogger(__name__).info("wrote %d captures to %s", len(manifest["captures"]), output)
     if show:
         click.echo(f"{output}: {len(manifest['captures'])} captures", err=True)

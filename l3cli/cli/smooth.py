@@ -48,9 +48,11 @@ def smooth(table_path: str, output: str, symmetry: bool, spline: bool, uniformit
     records which ran, with what settings, and which empty classes were
     filled (see `l3 inspect`).
     """
+    from l3cli.cli.paths import check_outputs
     from l3cli.smooth import smooth_table
     from l3cli.table import load_table, save_table
 
+    check_outputs([(output, "-o")], [table_path])
     table = load_table(table_path)
     out = smooth_table(table, symmetry=symmetry, spline=spline, uniformity=uniformity,
                        spline_strength=spline_strength, uniformity_target=uniformity_target)

@@ -78,10 +78,12 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     """
     import logging
 
+    from l3cli.cli.paths import check_outputs
     from l3cli.table import save_table
     from l3cli.train import TrainOptions, find_pairs
     from l3cli.train import train as train_table
 
+    check_outputs([(output, "-o")], inputs)
     pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
     if target_space is None:  # pairs folders reproduce their renders' encoding
         target_space = "srgb" if all(p.align for p in pairs) else "xyz"

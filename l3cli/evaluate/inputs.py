@@ -17,7 +17,6 @@ from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import (
     RENDER_SUFFIXES,
     is_simulation_dir,
-    manifest_path,
     read_simulation_manifest,
 )
 
@@ -150,10 +149,8 @@ def _simulation_items(rendered: list[Path], sim_dir: Path) -> list[EvalItem]:
     camera = manifest.get("camera") or {}
     space = (manifest.get("target") or {}).get("space", "xyz")
     captures = {}
-    for i, cap in enumerate(manifest["captures"]):
-        if not isinstance(cap, dict) or "stem" not in cap or "target" not in cap:
-            raise InputError(f"{manifest_path(sim_dir)}: capture {i} lacks 'stem' or 'target'")
-        captures[str(cap["stem"])] = cap
+    for cap in manifest["captures"]:  # validated by the manifest reader
+        captures[cap["stem"]] = cap
     items = []
     if len(rendered) == 1 and rendered[0].is_dir():
         folder = rendered[0]

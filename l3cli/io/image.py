@@ -18,7 +18,7 @@ import numpy as np
 
 from l3cli.colourspace import check_space, convert
 from l3cli.errors import InputError, OutputError
-from l3cli.io.atomic import atomic_path
+from l3cli.io.atomic import atomic_path, check_free_space
 
 __all__ = ["read_image", "write_image", "IMAGE_FORMATS", "format_of"]
 
@@ -60,7 +60,10 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, str]:
     if not path.exists():
         raise InputError(f"{path}: no such file")
     fmt = format_of(path)
-    inp = oiio.ImageInput.open(str(path))
+    config = oiio.ImageSpec()
+    # keep colour values as stored: PNG/TIFF alpha is not multiplied into them
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    inp = oiio.ImageInput.open(str(path), config)
     if inp is None:
         raise InputError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown'})")
     try:
@@ -153,15 +156,62 @@ def write_image(
     spec.attribute("DateTime", "")
     for k, v in (attributes or {}).items():
         spec.attribute(str(k), str(v))
+    if fmt == "jpg":  # libjpeg ends the process on a failed write: check the room first
+        check_free_space(path, 2 * data.nbytes + (1 << 16))
     with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None:
-            raise OutputError(f"{path}: cannot create writer ({oiio.geterror().strip()})")
-        try:
-            if not out.open(str(tmp), spec):
-                raise OutputError(f"{path}: cannot open for writing ({out.geterror().strip()})")
-            if not out.write_image(np.ascontiguousarray(data)):
-                raise OutputError(f"{path}: write failed ({out.geterror().strip()})")
-        finally:
-            out.close()
+        _encode(oiio, path, tmp, spec, data)
     return path
+
+
+def _encode(oiio, path: Path, tmp: Path, spec, data: np.ndarray) -> None:
+    """Write ``data`` into ``tmp`` with OpenImageIO; any error it reports is an OutputError.
+
+    OpenImageIO's writers may return success and only record a short write in
+    ``geterror()`` (PNG), or report it on close: all three are checked.
+    """
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None:
+        raise OutputError(f"{path}: cannot create writer ({oiio.geterror().strip()})")
+    closed = False
+    try:
+        if not out.open(str(tmp), spec):
+            raise OutputError(f"{path}: cannot open for writing ({out.geterror().strip()})")
+        ok = out.write_image(np.ascontiguousarray(data))
+        err = out.geterror().strip()
+        closed = True
+        ok = out.close() and ok
+        err = (err + " " + out.geterror().strip()).strip()
+        if err and _BENIGN_TIFF in err and err.replace(_BENIGN_TIFF, "").strip() == "":
+            # OpenImageIO's TIFF writer says this of files without a colour space
+            # although the file is whole: accept it when the file reads back.
+            err = "" if _reads_back(oiio, tmp, spec) else err
+        if not ok or err:
+            raise OutputError(f"{path}: cannot write: {err or 'the encoder failed'}")
+        if format_of(tmp) in ("png", "jpg") and not _reads_back(oiio, tmp, spec, full=True):
+            # libpng/libjpeg write through stdio and may lose a failed final write
+            raise OutputError(f"{path}: cannot write: the file is truncated (disk full?)")
+    finally:
+        if not closed:
+            out.close()
+
+
+_BENIGN_TIFF = "failed TIFFWriteCustomDirectory() of the Exif data"
+
+
+def _reads_back(oiio, tmp: Path, spec, *, full: bool = False) -> bool:
+    """True when ``tmp`` opens as an image of ``spec``'s size (and, ``full``, decodes whole)."""
+    inp = oiio.ImageInput.open(str(tmp))
+    if inp is None:
+        oiio.geterror()
+        return False
+    try:
+        got = inp.spec()
+        if (got.width, got.height, got.nchannels) != (spec.width, spec.height, spec.nchannels):
+            return False
+        if full:
+            data = inp.read_image(0, 0, 0, got.nchannels, "uint8")
+            if data is None or inp.geterror():
+                return False
+        return True
+    finally:
+        inp.close()

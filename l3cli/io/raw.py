@@ -152,8 +152,23 @@ def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.
     return out
 
 
+def _number(value: Any, key: str, where: str) -> float:
+    """A finite real number from a sidecar (bools and strings are refused)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise ConfigError(f"{where}: {key} must be finite, got {value!r}")
+    return v
+
+
 def _per_position(value: Any, cfa: CFA, where: str) -> np.ndarray:
-    arr = np.atleast_1d(np.asarray(value, dtype=np.float64)).ravel()
+    if isinstance(value, np.ndarray):
+        value = value.ravel().tolist()
+    items = list(value) if isinstance(value, list | tuple) else [value]
+    arr = np.array([_number(v, "black_level", where) for v in items], dtype=np.float64)
+    if arr.size == 0:
+        raise ConfigError(f"{where}: black_level is an empty list")
     if arr.size == 1:
         return np.full(cfa.n_positions, arr[0])
     if arr.size != cfa.n_positions:
@@ -164,14 +179,27 @@ def _per_position(value: Any, cfa: CFA, where: str) -> np.ndarray:
     return arr
 
 
+#: Type checks of the optional sidecar keys (the required ones are checked where used).
+_SIDECAR_TYPES: dict[str, tuple[type, ...]] = {
+    "width": (int,), "height": (int,), "dtype": (str,), "offset": (int,),
+    "bit_depth": (int,), "description": (str,), "cfa": (str, list),
+}
+
+
 def _read_sidecar(raw_path: Path, sc: Path) -> dict[str, Any]:
     if not sc.exists():
         raise InputError(f"{raw_path}: sidecar {sc.name} is missing (headerless raw needs it)")
+    if not sc.is_file():
+        raise InputError(f"{sc}: the sidecar is not a file")
     try:
         with open(sc, "rb") as fh:
             meta = tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{sc}: TOML syntax error: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{sc}: not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+    except OSError as exc:
+        raise InputError(f"{sc}: cannot read the sidecar ({exc.strerror or exc})") from exc
     unknown = sorted(set(meta) - set(_SIDECAR_KEYS))
     if unknown:
         raise ConfigError(
@@ -180,6 +208,11 @@ def _read_sidecar(raw_path: Path, sc: Path) -> dict[str, Any]:
     for key in ("cfa", "black_level", "white_level"):
         if key not in meta:
             raise ConfigError(f"{sc}: missing key {key!r} ({_SIDECAR_KEYS[key]})")
+    for key, types in _SIDECAR_TYPES.items():
+        v = meta.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, types)):
+            raise ConfigError(f"{sc}: {key} has the wrong type ({type(v).__name__}); "
+                              f"expected {_SIDECAR_KEYS[key]}")
     return meta
 
 
@@ -188,19 +221,31 @@ def _sidecar_cfa(meta: dict[str, Any], sc: Path) -> CFA:
         return CFA.from_spec(meta["cfa"])
     except ConfigError as exc:
         raise ConfigError(f"{sc}: cfa: {exc}") from None
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise ConfigError(f"{sc}: cfa: not a CFA pattern ({_SIDECAR_KEYS['cfa']})") from exc
 
 
-def _levels(meta: dict[str, Any], cfa: CFA, sc: Path) -> tuple[np.ndarray, float]:
-    try:
-        cfa_black = _per_position(meta["black_level"], cfa, str(sc))
-        white = float(meta["white_level"])
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{sc}: black_level/white_level must be numbers") from exc
+def _levels(meta: dict[str, Any], cfa: CFA, sc: Path,
+            dtype_max: float | None = None) -> tuple[np.ndarray, float]:
+    cfa_black = _per_position(meta["black_level"], cfa, str(sc))
+    white = _number(meta["white_level"], "white_level", str(sc))
+    if cfa_black.min() < 0:
+        raise ConfigError(f"{sc}: black_level must be >= 0, got {cfa_black.min():g}")
     if not white > cfa_black.max():
         raise ConfigError(
             f"{sc}: white_level {white:g} must be greater than black_level {cfa_black.max():g}"
         )
+    if dtype_max is not None and white > dtype_max:
+        raise ConfigError(f"{sc}: white_level {white:g} exceeds the data's range (max "
+                          f"{dtype_max:g})")
     return cfa_black, white
+
+
+def _check_size(path: Path, h: int, w: int, cfa: CFA) -> None:
+    ph, pw = cfa.period
+    if h < max(2, ph) or w < max(2, pw):
+        raise InputError(f"{path}: a {w}x{h} mosaic is too small (at least one CFA period "
+                         f"{pw}x{ph}, and 2x2)")
 
 
 def _read_headerless(path: Path) -> RawImage:
@@ -221,7 +266,8 @@ def _read_headerless(path: Path) -> RawImage:
     if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
         raise ConfigError(f"{sc}: offset must be an integer >= 0 (bytes), got {offset!r}")
     cfa = _sidecar_cfa(meta, sc)
-    black, white = _levels(meta, cfa, sc)
+    black, white = _levels(meta, cfa, sc, float(np.iinfo(dtype).max))
+    _check_size(path, h, w, cfa)
     expected = offset + w * h * dtype.itemsize
     size = path.stat().st_size
     if size != expected:
@@ -230,8 +276,6 @@ def _read_headerless(path: Path) -> RawImage:
             f" ({expected} bytes)"
         )
     dn = np.fromfile(path, dtype=dtype, offset=offset).reshape(h, w)
-    if white > np.iinfo(dtype).max:
-        raise ConfigError(f"{sc}: white_level {white:g} exceeds the {meta['dtype']} range")
     return RawImage(
         mosaic=_normalise(dn, black, white, cfa),
         cfa=cfa,
@@ -259,8 +303,12 @@ def _read_image_mosaic(path: Path) -> RawImage:
             if inp is None:
                 raise InputError(f"{path}: cannot open image mosaic ({oiio.geterror()})")
             spec = inp.spec()
-            dn = inp.read_image(0, 0, 0, spec.nchannels, "uint16")
+            # the stored integer type: asking for uint16 would rescale 8-bit data by 257
+            native = "uint8" if spec.format == oiio.TypeDesc("uint8") else "uint16"
+            dn = inp.read_image(0, 0, 0, spec.nchannels, native)
             inp.close()
+            if dn is None:
+                raise InputError(f"{path}: cannot read image mosaic ({oiio.geterror()})")
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001 - any decoder failure is a bad input
@@ -273,7 +321,8 @@ def _read_image_mosaic(path: Path) -> RawImage:
             f"{path}: expected a single-channel integer mosaic, got shape {dn.shape} {dn.dtype}"
         )
     cfa = _sidecar_cfa(meta, sc)
-    black, white = _levels(meta, cfa, sc)
+    black, white = _levels(meta, cfa, sc, float(np.iinfo(dn.dtype).max))
+    _check_size(path, dn.shape[0], dn.shape[1], cfa)
     return RawImage(
         mosaic=_normalise(dn, black, white, cfa),
         cfa=cfa,
@@ -377,6 +426,7 @@ def _read_rawpy(path: Path) -> RawImage:
         }
     if dn.size == 0:
         raise InputError(f"{path}: the raw image is empty")
+    _check_size(path, dn.shape[0], dn.shape[1], cfa)
     return RawImage(
         mosaic=_normalise(dn, black, white, cfa),
         cfa=cfa,
@@ -512,6 +562,9 @@ def write_raw(
             tmp.write_text(_toml_dumps(side))
         return out
 
+    # TIFF ASCII tags hold 7-bit text only: a camera named "Kamera Ä" is written "Kamera ?"
+    make, model, description = (t.encode("ascii", "replace").decode("ascii")
+                                for t in (make, model, description))
     ph, pw = cfa.period
     cmat = _XYZ_TO_SRGB if color_matrix is None else np.asarray(color_matrix, dtype=np.float64)
     neutral = np.ones(3) if as_shot_neutral is None else np.asarray(as_shot_neutral, float)

@@ -10,11 +10,9 @@ error the temporary folder is removed and ``SIM_DIR`` is left as it was.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +23,8 @@ import numpy as np
 from l3cli import spectral
 from l3cli.camera import Camera
 from l3cli.errors import ConfigError, OutputError
+from l3cli.io.atomic import make_temp_dir
+from l3cli.io.manifest import MANIFEST_FORMAT, MANIFEST_VERSION, write_manifest
 from l3cli.parallel import map_reduce
 from l3cli.simulate.core import (
     TARGET_SCALE_DOC,
@@ -44,8 +44,6 @@ log = logging.getLogger(__name__)
 
 DEFAULT_SCENES: tuple[str, ...] = ("macbeth", "natural")
 DEFAULT_SIZE: tuple[int, int] = (480, 320)
-MANIFEST_FORMAT = "l3-simulation"
-MANIFEST_VERSION = 1
 MIN_SIZE = (48, 32)
 
 
@@ -172,6 +170,7 @@ def run_simulation(
     workers: int | None = None,
     scheduler: str | None = None,
     show_progress: bool | None = False,
+    protect: Sequence[str | os.PathLike] = (),
 ) -> dict[str, Any]:
     """Simulate every (scene, light level) capture of a camera into ``out_dir``.
 
@@ -209,6 +208,8 @@ def run_simulation(
         way the captures run.
     show_progress
         Progress bar on stderr.
+    protect
+        Input files (the camera TOML, scene images) that no output may replace.
 
     Returns
     -------
@@ -231,8 +232,10 @@ def run_simulation(
     ill = illuminant or camera.exposure.illuminant
     levels = [float(x) for x in (lux if lux else camera.exposure.light_levels_lux)]
     for x in levels:
-        if not (np.isfinite(x) and x > 0):
-            raise ConfigError(f"--lux must be > 0, got {x:g}")
+        if not (np.isfinite(x) and 0 < x <= 1e6):
+            raise ConfigError(f"--lux must be in (0, 1e6] lux, got {x:g}")
+    if exposure_s is not None and not (np.isfinite(exposure_s) and 0 < exposure_s <= 3600):
+        raise ConfigError(f"--exposure must be in (0, 3600] seconds, got {exposure_s:g}")
     model = prepare_camera(camera)
     illuminant_irradiance(ill, 1.0, model.wavelengths)  # unknown / range errors now
     parent = out_dir.parent if str(out_dir.parent) else Path(".")
@@ -246,8 +249,14 @@ def run_simulation(
     if len(set(stems)) != len(stems):
         dup = next(s for s in stems if stems.count(s) > 1)
         raise ConfigError(f"two captures would both be named {dup!r}; give distinct scenes and light levels")
+    if protect:
+        from l3cli.io.paths import refuse_overwrite
 
-    tmp = Path(tempfile.mkdtemp(prefix=f".l3-tmp-{out_dir.name}-", dir=parent))
+        outs = ["manifest.json"] + [f"{s}{ext}" for s in stems for ext in
+                                    (".dng", ".tif", ".tif.toml", ".target.exr", ".noisefree.exr")]
+        refuse_overwrite([(out_dir / n, "-o") for n in outs], protect)
+
+    tmp = make_temp_dir(parent, out_dir.name)
     try:
         remote = workers is not None or scheduler is not None
         folder = str(tmp.absolute()) if remote else str(tmp)
@@ -282,7 +291,7 @@ def run_simulation(
                         "width": width, "height": height},
             "captures": captures,
         }
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+        write_manifest(tmp, manifest)
         _commit(tmp, out_dir)
     except BaseException:
         _remove_folder(tmp)

@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from l3cli.io.manifest import read_manifest
+
 ROOT = Path(__file__).resolve().parents[2]
 FIGURES = ROOT / "docs" / "figures"
 
@@ -52,14 +54,14 @@ def run_l3(*args: Any, quiet: bool = True) -> float:
 
 def raws_of(sim_dir: Path, *, scene: str | None = None) -> list[Path]:
     """Raw files of a simulation folder (from its manifest), optionally one scene only."""
-    man = json.loads((Path(sim_dir) / "manifest.json").read_text())
+    man = read_manifest(sim_dir)
     return [Path(sim_dir) / c["raw"] for c in man["captures"]
             if scene is None or c["scene"] == scene]
 
 
 def captures(sim_dir: Path) -> dict[str, dict]:
     """``{stem: capture record}`` of a simulation folder's manifest."""
-    man = json.loads((Path(sim_dir) / "manifest.json").read_text())
+    man = read_manifest(sim_dir)
     return {c["stem"]: c for c in man["captures"]}
 
 
@@ -227,7 +229,7 @@ def linear_colour_floor(sim_dir: Path) -> tuple[float, str]:
     from l3cli.cfa import CFA
     from l3cli.io.image import read_image
 
-    man = json.loads((Path(sim_dir) / "manifest.json").read_text())
+    man = read_manifest(sim_dir)
     cfa = CFA.from_spec(man["camera"]["cfa_pattern"])
     best = None
     for cap in sorted(man["captures"], key=lambda c: c["lux"]):

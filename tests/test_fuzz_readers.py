@@ -1,0 +1,390 @@
+"""Property-based fuzzing of l3's readers of external files and of the CLI's path handling.
+
+Property: any input gives a result or an :class:`~l3cli.errors.L3Error` (a
+one-line error for the user), never another exception. ``make test`` runs a
+small budget (profile ``ci``); ``make fuzz`` a large one (``L3_FUZZ_PROFILE=fuzz``)
+and prints how many inputs were generated.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+import tomllib
+from pathlib import Path
+
+import click
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from l3cli.errors import L3Error
+
+REPO = Path(__file__).parent.parent
+_COMMON = {"deadline": None, "database": None,
+           "suppress_health_check": [HealthCheck.function_scoped_fixture, HealthCheck.too_slow,
+                                     HealthCheck.data_too_large, HealthCheck.filter_too_much]}
+settings.register_profile("ci", max_examples=30, derandomize=True, **_COMMON)
+settings.register_profile("fuzz", max_examples=2500, **_COMMON)
+settings.load_profile(os.environ.get("L3_FUZZ_PROFILE", "ci"))
+
+#: Inputs generated in this session, per reader (``make fuzz`` reports them).
+COUNTS: dict[str, int] = {}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _report_counts():
+    yield
+    total = sum(COUNTS.values())
+    line = f"fuzz: {total} generated inputs ({', '.join(f'{k} {v}' for k, v in sorted(COUNTS.items()))})"
+    print("\n" + line)
+    out = os.environ.get("L3_FUZZ_COUNT_FILE")
+    if out:
+        with open(out, "a") as fh:
+            fh.write(line + "\n")
+
+
+def _count(name: str) -> None:
+    COUNTS[name] = COUNTS.get(name, 0) + 1
+
+
+def _either_result_or_l3error(fn, *args, one_line: bool = True, **kwargs):
+    try:
+        return fn(*args, **kwargs)
+    except L3Error as exc:
+        msg = str(exc)
+        assert msg and (not one_line or "\n" not in msg.strip()), f"not one line: {msg!r}"
+        return None
+
+
+# ----------------------------------------------------------------------------- values
+_text = st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=12)
+_floats = st.floats(allow_nan=True, allow_infinity=True)
+_ints = st.one_of(st.integers(-3, 70000), st.integers(-(2**63), 2**63 - 1))
+_scalar = st.one_of(_ints, _floats, _text, st.booleans(),
+                    st.sampled_from(["RGGB", "GRBG", "uint8", "uint16", "uint16be", "RGBW"]))
+_toml_value = st.recursive(_scalar, lambda inner: st.lists(inner, max_size=5), max_leaves=12)
+_json_value = st.recursive(
+    st.one_of(st.none(), _ints, st.floats(allow_nan=False, allow_infinity=False), _text,
+              st.booleans()),
+    lambda inner: st.one_of(st.lists(inner, max_size=4),
+                            st.dictionaries(_text, inner, max_size=4)),
+    max_leaves=10)
+
+
+def _toml_scalar(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=True)
+    return "[" + ", ".join(_toml_scalar(x) for x in v) + "]"
+
+
+def _toml_dump(d: dict, prefix: str = "") -> str:
+    flat = [f"{json.dumps(k)} = {_toml_scalar(v)}\n" for k, v in d.items() if not isinstance(v, dict)]
+    out = "".join(flat)
+    for k, v in d.items():
+        if isinstance(v, dict):
+            name = f"{prefix}.{json.dumps(k)}" if prefix else json.dumps(k)
+            out += f"[{name}]\n" + _toml_dump(v, name)
+    return out
+
+
+# ----------------------------------------------------------------------------- sidecars
+_SIDECAR_KEYS = ["width", "height", "dtype", "cfa", "black_level", "white_level", "offset",
+                 "bit_depth", "description", "bogus"]
+
+
+@st.composite
+def _sidecars(draw):
+    good = {"width": 8, "height": 6, "dtype": "uint16", "cfa": "RGGB", "black_level": 64,
+            "white_level": 4095}
+    side = dict(good)
+    for key in draw(st.lists(st.sampled_from(_SIDECAR_KEYS), max_size=4)):
+        if draw(st.booleans()):
+            side[key] = draw(_toml_value)
+        else:
+            side.pop(key, None)
+    return side
+
+
+@given(side=_sidecars(), kind=st.sampled_from(["raw", "png8", "png16", "tif"]),
+       nbytes=st.one_of(st.none(), st.integers(0, 200)), garbage=st.one_of(st.none(), st.binary(max_size=40)))
+def test_fuzz_raw_sidecar(tmp_path_factory, side, kind, nbytes, garbage):
+    from l3cli.io.raw import read_raw
+
+    _count("sidecar")
+    d = tmp_path_factory.mktemp("side")
+    if kind == "raw":
+        raw = d / "a.raw"
+        w, h = side.get("width"), side.get("height")
+        size = nbytes
+        if size is None:
+            ok = isinstance(w, int) and isinstance(h, int) and 0 < w * h < 10000
+            size = (w * h * 2) if ok and not isinstance(w, bool) and not isinstance(h, bool) else 16
+        raw.write_bytes(np.random.default_rng(size).integers(0, 256, size, dtype=np.uint8).tobytes())
+    else:
+        import tifffile
+        from PIL import Image
+
+        dt = np.uint8 if kind == "png8" else np.uint16
+        arr = np.random.default_rng(0).integers(0, np.iinfo(dt).max, (6, 8)).astype(dt)
+        raw = d / ("a.png" if kind != "tif" else "a.tif")
+        if kind == "tif":
+            tifffile.imwrite(raw, arr)
+        else:
+            Image.fromarray(arr).save(raw)
+    sc = raw.with_name(raw.name + ".toml")
+    if garbage is not None:
+        sc.write_bytes(garbage)
+    else:
+        sc.write_text(_toml_dump(side))
+    res = _either_result_or_l3error(read_raw, raw)
+    if res is not None:
+        assert np.isfinite(res.white_level) and np.all(np.isfinite(res.black_level))
+        assert res.mosaic.dtype == np.float32 and res.mosaic.ndim == 2
+        assert np.all(np.isfinite(res.mosaic))
+
+
+def test_sidecar_folder_and_8bit_png_scale(tmp_path):
+    """Regression facts found by the campaign: a folder sidecar; an 8-bit PNG's scale."""
+    from PIL import Image
+
+    from l3cli.io.raw import read_raw
+
+    arr = np.full((6, 8), 200, np.uint8)
+    Image.fromarray(arr).save(tmp_path / "m.png")
+    (tmp_path / "m.png.toml").write_text('cfa = "RGGB"\nblack_level = 0\nwhite_level = 255\n')
+    raw = read_raw(tmp_path / "m.png")
+    np.testing.assert_allclose(raw.mosaic, 200 / 255, rtol=1e-6)  # not 257x brighter
+    (tmp_path / "f.raw").write_bytes(b"\0" * 96)
+    (tmp_path / "f.raw.toml").mkdir()
+    with pytest.raises(L3Error, match="not a file"):
+        read_raw(tmp_path / "f.raw")
+
+
+# ----------------------------------------------------------------------------- camera TOML
+_CAMERA = tomllib.loads((REPO / "sample_configs" / "bayer.toml").read_text())
+_PATHS = [(sec, key) for sec, v in _CAMERA.items() if isinstance(v, dict) for key in v] + \
+         [(None, k) for k, v in _CAMERA.items() if not isinstance(v, dict)]
+
+
+@given(edits=st.lists(st.tuples(st.sampled_from(_PATHS + [("exposure", "bogus"), (None, "x")]),
+                                st.one_of(st.none(), _toml_value)), min_size=1, max_size=4),
+       garbage=st.one_of(st.none(), st.binary(max_size=60)))
+def test_fuzz_camera_toml(tmp_path_factory, edits, garbage):
+    from l3cli.camera import load_camera
+
+    _count("camera")
+    data = copy.deepcopy(_CAMERA)
+    for (sec, key), value in edits:
+        tgt = data if sec is None else data.setdefault(sec, {})
+        if value is None:
+            tgt.pop(key, None)
+        else:
+            tgt[key] = value
+    path = tmp_path_factory.mktemp("cam") / "cam.toml"
+    if garbage is not None:
+        path.write_bytes(garbage)
+    else:
+        path.write_text(_toml_dump(data))
+    cam = _either_result_or_l3error(load_camera, path)
+    if cam is not None:
+        json.dumps(cam.to_dict())  # the manifest record is plain JSON
+
+
+# ----------------------------------------------------------------------------- tables
+def _make_table_arrays() -> dict[str, np.ndarray]:
+    from l3cli.classify import ClassDefinition
+    from l3cli.table import TransformTable
+
+    d = ClassDefinition.build("RGGB", patch=3, level_cuts=[0.05, 0.2], contrast_cuts=0.3)
+    nc, q = d.n_classes, d.n_coeffs
+    t = TransformTable(definition=d, kernels=np.ones((nc, q, 3), np.float32),
+                       counts=np.full(nc, 10), lambdas=np.full((nc, 3), 1e-3),
+                       empty=np.zeros(nc, bool), source_class=np.arange(nc),
+                       provenance={"seed": 1})
+    return t.to_arrays()
+
+
+_TABLE = _make_table_arrays()
+
+
+def _filled(shape, kind, fill):
+    with np.errstate(all="ignore"):
+        return np.full(shape, fill).astype(kind)
+
+
+_arrays = st.one_of(
+    _json_value.map(lambda v: np.array(json.dumps(v))),
+    st.builds(_filled,
+              st.lists(st.integers(0, 4), max_size=3).map(tuple),
+              st.sampled_from(["f4", "f8", "i8", "u1", "?", "U3"]),
+              st.one_of(st.integers(-5, 5), st.floats(allow_nan=True, allow_infinity=True))),
+)
+
+
+@given(edits=st.lists(st.tuples(st.sampled_from(sorted(_TABLE) + ["extra"]),
+                                 st.one_of(st.none(), _arrays)), max_size=3),
+       cut=st.one_of(st.none(), st.integers(0, 3000)))
+def test_fuzz_table(tmp_path_factory, edits, cut):
+    from l3cli.table import load_table
+
+    _count("table")
+    arrays = dict(_TABLE)
+    for key, value in edits:
+        if value is None:
+            arrays.pop(key, None)
+        else:
+            arrays[key] = value
+    path = tmp_path_factory.mktemp("tab") / "t.npz"
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+    if cut is not None:
+        data = path.read_bytes()
+        path.write_bytes(data[:cut])
+    t = _either_result_or_l3error(load_table, path)
+    if t is not None:
+        assert np.all(t.counts >= 0) and isinstance(t.provenance, dict)
+        assert np.all(np.isfinite(t.kernels))
+
+
+def test_table_negative_counts_and_provenance_refused(tmp_path):
+    from l3cli.table import load_table
+
+    for key, value in (("counts", np.full(_TABLE["counts"].shape, -3)),
+                       ("provenance", np.array("[1, 2]"))):
+        path = tmp_path / f"{key}.npz"
+        with open(path, "wb") as fh:
+            np.savez(fh, **{**_TABLE, key: value})
+        with pytest.raises(L3Error, match=key):
+            load_table(path)
+
+
+# ----------------------------------------------------------------------------- manifests
+_MANIFEST = {
+    "format": "l3-simulation", "version": 1, "camera": {"name": "c", "pixel_pitch_um": 2.2},
+    "target": {"space": "xyz"}, "options": {},
+    "captures": [{"stem": "a", "raw": "a.dng", "target": "a.target.exr",
+                  "noise_free": "a.noisefree.exr", "lux": 100.0, "exposure_s": 0.01,
+                  "width": 48, "height": 32, "white_xyz": [0.95, 1.0, 1.09],
+                  "chart": {"patches": [[0, 0, 4, 4]] * 24,
+                            "reference_xyz": [[0.1, 0.1, 0.1]] * 24, "white_index": 18},
+                  "edge": {"roi": [0, 0, 10, 10]}}],
+}
+
+
+def _paths_of(obj, prefix=()):
+    yield prefix
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _paths_of(v, (*prefix, k))
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj[:2]):
+            yield from _paths_of(v, (*prefix, i))
+
+
+_MPATHS = [p for p in _paths_of(_MANIFEST) if p]
+
+
+@given(edits=st.lists(st.tuples(st.sampled_from(_MPATHS), st.one_of(st.none(), _json_value,
+                                                                    st.sampled_from([float("nan"), float("inf"), -1, 0, "../x"]))),
+                      max_size=3),
+       garbage=st.one_of(st.none(), st.binary(max_size=40)))
+def test_fuzz_manifest(tmp_path_factory, edits, garbage):
+    from l3cli.io.manifest import read_manifest
+    from l3cli.pairs import find_pairs
+
+    _count("manifest")
+    m = copy.deepcopy(_MANIFEST)
+    for path, value in edits:
+        tgt = m
+        try:
+            for k in path[:-1]:
+                tgt = tgt[k]
+            if value is None and isinstance(tgt, dict):
+                tgt.pop(path[-1], None)
+            else:
+                tgt[path[-1]] = value
+        except (KeyError, IndexError, TypeError):
+            continue
+    d = tmp_path_factory.mktemp("sim")
+    mp = d / "manifest.json"
+    if garbage is not None:
+        mp.write_bytes(garbage)
+    else:
+        mp.write_text(json.dumps(m))
+    got = _either_result_or_l3error(read_manifest, d)
+    if got is not None:
+        pairs = _either_result_or_l3error(find_pairs, [d]) or []
+        assert all(p.raw.parent == d and p.target.parent == d for p in pairs)
+
+
+# ----------------------------------------------------------------------------- CLI paths
+@given(n_inputs=st.integers(1, 3),
+       out_kind=st.sampled_from(["new", "input", "symlink", "hardlink", "folder", "folder-of-inputs",
+                                 "sidecar", "file-in-missing", "existing-file"]),
+       suffix=st.sampled_from(["", ".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".dng", ".txt"]),
+       fmt=st.one_of(st.none(), st.sampled_from(["exr", "tiff", "png", "jpg"])),
+       in_suffix=st.sampled_from([".dng", ".exr", ".tif", ".png"]))
+def test_fuzz_output_planning(tmp_path_factory, n_inputs, out_kind, suffix, fmt, in_suffix):
+    from l3cli.cli.paths import plan_outputs
+    from l3cli.io.paths import same_file
+
+    _count("paths")
+    d = tmp_path_factory.mktemp("paths")
+    ins = []
+    for i in range(n_inputs):
+        p = d / f"in{i}{in_suffix}"
+        p.write_bytes(b"x" * (i + 1))
+        ins.append(p)
+    (d / f"in0{in_suffix}.toml").write_text("cfa = 'RGGB'\n")
+    out = {"new": d / f"out{suffix}", "input": ins[0], "symlink": d / f"link{suffix}",
+           "hardlink": d / f"hard{suffix}", "folder": d / "outdir", "folder-of-inputs": d,
+           "sidecar": d / f"in0{in_suffix}.toml", "file-in-missing": d / "no" / f"x{suffix}",
+           "existing-file": d / f"exists{suffix}"}[out_kind]
+    if out_kind == "symlink":
+        out.symlink_to(ins[0])
+    elif out_kind == "hardlink":
+        os.link(ins[0], out)
+    elif out_kind == "folder":
+        out.mkdir()
+    elif out_kind == "existing-file":
+        out.write_text("old")
+    try:
+        plan = plan_outputs(ins, out, fmt)
+    except (L3Error, click.BadParameter):
+        return
+    protected = [*ins, d / f"in0{in_suffix}.toml"]
+    for _, o in plan.targets:
+        assert not any(same_file(o, p) for p in protected), (o, out_kind)
+
+
+_path_text = st.lists(st.one_of(st.sampled_from(["..", ".", "", "a", "a.dng", "a.dng.toml",
+                                                 "manifest.json", "sub", "\0", "ä ☃"]), _text),
+                      min_size=1, max_size=4).map("/".join)
+
+
+@given(out=_path_text, ins=st.lists(_path_text, max_size=3), absolute=st.booleans())
+def test_fuzz_check_outputs(tmp_path_factory, out, ins, absolute):
+    from l3cli.cli.paths import check_outputs
+
+    _count("paths")
+    d = tmp_path_factory.mktemp("chk")
+    (d / "a.dng").write_bytes(b"x")
+    (d / "sub").mkdir()
+    base = d if absolute else Path(os.path.relpath(d))
+    # a file name may itself hold a line break (the CLI escapes it: test_paths)
+    _either_result_or_l3error(check_outputs, [(base / out, "-o")], [base / i for i in ins],
+                              one_line=not any("\n" in p or "\r" in p for p in (out, *ins)))
