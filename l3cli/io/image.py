@@ -4,7 +4,16 @@
   in the ``l3:space`` attribute (``xyz``, ``linear-srgb``, ...).
 * TIFF (16-bit), PNG (8/16-bit), JPEG (8-bit): display-encoded sRGB. Read into
   float32 in [0, 1] (still encoded); written from any l3 space by converting to
-  display sRGB first (:func:`l3cli.colourspace.convert`).
+  display sRGB first (:func:`l3cli.io.encode.display_encode`, the same integers
+  as :func:`l3cli.colourspace.convert` then rounding, without colour-science).
+
+Compression (:data:`COMPRESSIONS`, defaults :data:`DEFAULT_COMPRESSION`):
+TIFF is written uncompressed by default, as dcraw/LibRaw, RawTherapee and most
+raw converters do: deflate costs seconds per 16-bit image on one core and
+saves little on camera noise (``lzw``/``zip`` on request). EXR defaults to
+``zips`` (deflate over single scanlines): lossless, read by every EXR reader,
+about as small as ``zip`` and about twice as fast to write
+(``docs/performance.md``).
 
 Images are float32 (H, W, C), channels last.
 """
@@ -16,14 +25,22 @@ from pathlib import Path
 
 import numpy as np
 
-from l3cli.colourspace import check_space, convert
+from l3cli.colourspace import check_space
 from l3cli.errors import InputError, OutputError
 from l3cli.io.atomic import atomic_path
 
-__all__ = ["read_image", "write_image", "IMAGE_FORMATS", "format_of"]
+__all__ = ["read_image", "write_image", "IMAGE_FORMATS", "format_of", "COMPRESSIONS",
+           "DEFAULT_COMPRESSION"]
 
 #: Output formats by name → file suffix.
 IMAGE_FORMATS: dict[str, str] = {"exr": ".exr", "tiff": ".tif", "png": ".png", "jpg": ".jpg"}
+#: Lossless compressions l3 writes, by format (OpenImageIO's names).
+COMPRESSIONS: dict[str, tuple[str, ...]] = {
+    "tiff": ("none", "lzw", "zip"),
+    "exr": ("none", "rle", "zips", "zip", "piz"),
+}
+#: The compression used when none is asked for (see the module notes for why).
+DEFAULT_COMPRESSION: dict[str, str] = {"tiff": "none", "exr": "zips"}
 _SUFFIX_FORMAT = {".exr": "exr", ".tif": "tiff", ".tiff": "tiff", ".png": "png", ".jpg": "jpg",
                   ".jpeg": "jpg"}
 
@@ -91,6 +108,7 @@ def write_image(
     quality: int = 95,
     bits: int | None = None,
     attributes: dict[str, str] | None = None,
+    compression: str | None = None,
 ) -> Path:
     """Write an image atomically; the format follows the suffix.
 
@@ -114,6 +132,9 @@ def write_image(
     attributes
         Extra string metadata. No ``DateTime`` is written unless given here, so
         the same image always gives the same bytes.
+    compression
+        TIFF or EXR compression (:data:`COMPRESSIONS`; default
+        :data:`DEFAULT_COMPRESSION`). PNG and JPEG take none.
     """
     import OpenImageIO as oiio
 
@@ -127,22 +148,24 @@ def write_image(
     if space != "data":
         space = check_space(space)
     h, w, c = img.shape
+    if compression is not None and compression not in COMPRESSIONS.get(fmt, ()):
+        allowed = ", ".join(COMPRESSIONS.get(fmt, ())) or "none (the format has no choice)"
+        raise OutputError(f"{path}: compression {compression!r} is not one for {fmt}; "
+                          f"use {allowed}")
     if fmt == "exr":
         data = img
         typedesc = "half" if half else "float"
     else:
-        if space not in ("data", "srgb") and c == 3:
-            img = convert(img, space, "srgb")
-        elif space == "srgb" or c != 3:
-            img = np.clip(img, 0.0, 1.0)
+        from l3cli.io.encode import display_encode
+
         nbits = {"tiff": 16, "jpg": 8}.get(fmt, bits or 8)
-        maxv = (1 << nbits) - 1
-        data = np.round(np.clip(img, 0.0, 1.0) * maxv).astype(np.uint16 if nbits == 16 else np.uint8)
+        data = display_encode(img, space, nbits)
         typedesc = "uint16" if nbits == 16 else "uint8"
     spec = oiio.ImageSpec(w, h, c, typedesc)
+    if fmt in COMPRESSIONS:
+        spec.attribute("compression", compression or DEFAULT_COMPRESSION[fmt])
     if fmt == "exr":
         spec.attribute("l3:space", space)
-        spec.attribute("compression", "zip")
     elif fmt == "jpg":
         spec.attribute("Compression", f"jpeg:{int(quality)}")
         spec.attribute("jpeg:subsampling", "4:4:4")
