@@ -117,7 +117,10 @@ def write_image(
     path
         ``.exr``, ``.tif``/``.tiff``, ``.png``, ``.jpg``/``.jpeg``.
     image
-        float (H, W) or (H, W, C) in colour space ``space``.
+        float (H, W) or (H, W, C) in colour space ``space``; or, for
+        TIFF/PNG/JPEG, uint8/uint16 integers already display-encoded (as
+        :func:`l3cli.io.encode.display_encode` gives them), written as they
+        are: uint16 for TIFF (and PNG with ``bits=16``), uint8 for JPEG/PNG.
     space
         Colour space of ``image`` (:data:`l3cli.colourspace.SPACES`), or
         ``"data"`` for non-colour data (written as is; EXR only for floats).
@@ -136,10 +139,11 @@ def write_image(
         TIFF or EXR compression (:data:`COMPRESSIONS`; default
         :data:`DEFAULT_COMPRESSION`). PNG and JPEG take none.
     """
-    import OpenImageIO as oiio
-
     path = Path(path)
     fmt = format_of(path)
+    if fmt != "exr" and np.asarray(image).dtype in (np.uint8, np.uint16):
+        return _write_encoded(path, fmt, np.asarray(image), space=space, quality=quality,
+                              bits=bits, attributes=attributes, compression=compression)
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
         img = img[:, :, None]
@@ -147,20 +151,55 @@ def write_image(
         raise OutputError(f"{path}: image must be (H, W) or (H, W, C), got {img.shape}")
     if space != "data":
         space = check_space(space)
-    h, w, c = img.shape
-    if compression is not None and compression not in COMPRESSIONS.get(fmt, ()):
-        allowed = ", ".join(COMPRESSIONS.get(fmt, ())) or "none (the format has no choice)"
-        raise OutputError(f"{path}: compression {compression!r} is not one for {fmt}; "
-                          f"use {allowed}")
+    _check_compression(path, fmt, compression)
     if fmt == "exr":
         data = img
         typedesc = "half" if half else "float"
     else:
         from l3cli.io.encode import display_encode
 
-        nbits = {"tiff": 16, "jpg": 8}.get(fmt, bits or 8)
-        data = display_encode(img, space, nbits)
-        typedesc = "uint16" if nbits == 16 else "uint8"
+        data = display_encode(img, space, _bits_of(fmt, bits))
+        typedesc = "uint16" if data.dtype == np.uint16 else "uint8"
+    return _write(path, fmt, data, typedesc, space=space, quality=quality,
+                  attributes=attributes, compression=compression)
+
+
+def _bits_of(fmt: str, bits: int | None) -> int:
+    return {"tiff": 16, "jpg": 8}.get(fmt, bits or 8)
+
+
+def _check_compression(path: Path, fmt: str, compression: str | None) -> None:
+    if compression is not None and compression not in COMPRESSIONS.get(fmt, ()):
+        allowed = ", ".join(COMPRESSIONS.get(fmt, ())) or "none (the format has no choice)"
+        raise OutputError(f"{path}: compression {compression!r} is not one for {fmt}; "
+                          f"use {allowed}")
+
+
+def _write_encoded(path: Path, fmt: str, data: np.ndarray, *, space: str, quality: int,
+                   bits: int | None, attributes: dict[str, str] | None,
+                   compression: str | None) -> Path:
+    """Write display-encoded integers (TIFF/PNG/JPEG) as they are."""
+    if data.ndim == 2:
+        data = data[:, :, None]
+    if data.ndim != 3:
+        raise OutputError(f"{path}: image must be (H, W) or (H, W, C), got {data.shape}")
+    want = np.uint16 if _bits_of(fmt, bits) == 16 else np.uint8
+    if data.dtype != want:
+        raise OutputError(f"{path}: {fmt} takes {np.dtype(want).name} display values, got "
+                          f"{data.dtype.name}")
+    if space != "data":
+        space = check_space(space)
+    _check_compression(path, fmt, compression)
+    return _write(path, fmt, data, "uint16" if want == np.uint16 else "uint8", space=space,
+                  quality=quality, attributes=attributes, compression=compression)
+
+
+def _write(path: Path, fmt: str, data: np.ndarray, typedesc: str, *, space: str, quality: int,
+           attributes: dict[str, str] | None, compression: str | None) -> Path:
+    """Write pixels of OpenImageIO type ``typedesc`` atomically with l3's attributes."""
+    import OpenImageIO as oiio
+
+    h, w, c = data.shape
     spec = oiio.ImageSpec(w, h, c, typedesc)
     if fmt in COMPRESSIONS:
         spec.attribute("compression", compression or DEFAULT_COMPRESSION[fmt])
