@@ -27,10 +27,10 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -44,6 +44,7 @@ __all__ = ["IN_FLIGHT", "preload_scipy_blas", "render_pipeline", "warm_up"]
 IN_FLIGHT = 3
 
 _RENDER_LOCK = threading.Lock()
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -144,7 +145,7 @@ def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
 
 
 def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str | os.PathLike,
-         options: dict[str, Any]) -> Path:
+         options: dict[str, Any]) -> tuple[Path, tuple[float, float, float]]:
     from l3cli.io.image import format_of, write_image
     from l3cli.io.raw import read_raw
     from l3cli.render import check_fits, render_mosaic
@@ -163,9 +164,21 @@ def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str
     del raw
     out = write_image(out_path, img, space=table.output_space,
                       attributes={"l3:table": str(table_name)}, **options)
-    log.debug("%s: decode %.3f s, render (+ encode) %.3f s, write %.3f s", raw_path,
-              t1 - t0, t2 - t1, time.perf_counter() - t2)
-    return out
+    return out, (t1 - t0, t2 - t1, time.perf_counter() - t2)
+
+
+def _locked(items: Iterator[T]) -> Iterator[T]:
+    """``items`` with each step taken under the stderr lock (a bar draws in its steps)."""
+    from l3cli.io.raw import STDERR_LOCK
+
+    it = iter(items)
+    while True:
+        with STDERR_LOCK:
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+        yield item
 
 
 def _quiet_warm_up(table: Any, out_path: str | os.PathLike) -> None:
@@ -218,16 +231,24 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
         warm = threading.Thread(target=_quiet_warm_up, args=(table, jobs[0][1]),
                                 name="l3-warm-up", daemon=True)
         warm.start()
-        futures: list[Future[Path]] = [
+        futures: list[Future[tuple[Path, tuple[float, float, float]]]] = [
             pool.submit(_one, table, table_name, raw, out, options) for raw, out in jobs
         ]
         try:
-            for i, fut in enumerate(progress(futures, label="render", length=len(futures),
-                                             enabled=show_progress)):
+            for i, fut in enumerate(_locked(progress(futures, label="render",
+                                                     length=len(futures),
+                                                     enabled=show_progress))):
                 try:
-                    results[i] = fut.result()
+                    results[i], times = fut.result()
                 except Exception as exc:  # noqa: BLE001 - re-raised below, first in order
                     errors.append((i, exc))
+                    continue
+                if log.isEnabledFor(logging.DEBUG):
+                    from l3cli.io.raw import STDERR_LOCK
+
+                    with STDERR_LOCK:
+                        log.debug("%s: decode %.3f s, render (+ encode) %.3f s, write %.3f s",
+                                  jobs[i][0], *times)
         except BaseException:
             for fut in futures:
                 fut.cancel()
