@@ -82,8 +82,8 @@ def peer(alg: str, fmt: str, out_dir: str, files: list[str]) -> None:
 
 
 # ------------------------------------------------------------------ helpers
-def _run(cmd: list[str]) -> tuple[float, float]:
-    """Wall seconds and peak RSS (MB) of a child process."""
+def _run(cmd: list[str]) -> tuple[float, float, float]:
+    """Wall seconds, peak RSS (MB) and CPU seconds (user + system) of a child process."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
@@ -93,7 +93,7 @@ def _run(cmd: list[str]) -> tuple[float, float]:
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd[:6])}... failed ({proc.returncode}): {err[-500:]}")
-    return dt, usage.ru_maxrss / 1024.0
+    return dt, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
 
 
 def _l3_cmd() -> list[str]:
@@ -129,12 +129,13 @@ def timing_tables(dng: Path, tmp: Path, copies: int, repeat: int) -> list[str]:
              f"{repeat}, interleaved; peer = one Python process: rawpy (LibRaw) + OpenImageIO, "
              "same encoder settings.", "",
              "| output | l3 render | LibRaw AHD | LibRaw PPG | l3 vs AHD | l3 vs PPG "
-             "| l3 peak RSS |", "|---|---|---|---|---|---|---|"]
+             "| CPU s: l3 / AHD / PPG | l3 peak RSS |", "|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     cases = [(name, fmt, files) for name, (fmt, _) in FORMATS.items()]
     cases.append(("one file → JPEG", "jpg", files[:1]))
     for name, fmt, fs in cases:
         best = {"l3": np.inf, "AHD": np.inf, "PPG": np.inf}
+        cpu = dict(best)
         rss = 0.0
         for _ in range(repeat):
             out = _fresh(tmp / "out")
@@ -143,15 +144,16 @@ def timing_tables(dng: Path, tmp: Path, copies: int, repeat: int) -> list[str]:
                        str(out / f"one{FORMATS_SUFFIX[fmt]}")]
             else:
                 cmd = [*_l3_cmd(), "-q", "render", table, *fs, "-o", str(out), "--format", fmt]
-            dt, mb = _run(cmd)
-            best["l3"] = min(best["l3"], dt)
+            dt, mb, c = _run(cmd)
+            best["l3"], cpu["l3"] = min(best["l3"], dt), min(cpu["l3"], c)
             rss = max(rss, mb)
             for alg in ("AHD", "PPG"):
                 out = _fresh(tmp / "out")
-                dt, _ = _run([*me, "--peer", alg, fmt, str(out), *fs])
-                best[alg] = min(best[alg], dt)
+                dt, _, c = _run([*me, "--peer", alg, fmt, str(out), *fs])
+                best[alg], cpu[alg] = min(best[alg], dt), min(cpu[alg], c)
         lines.append(f"| {name} | {best['l3']:.2f} s | {best['AHD']:.2f} s | {best['PPG']:.2f} s "
                      f"| {best['AHD'] / best['l3']:.2f}x | {best['PPG'] / best['l3']:.2f}x "
+                     f"| {cpu['l3']:.1f} / {cpu['AHD']:.1f} / {cpu['PPG']:.1f} "
                      f"| {rss:.0f} MB |")
         print(lines[-1], flush=True)
     return lines
@@ -173,7 +175,8 @@ def memory_table(tmp: Path, size: str, n_files: int) -> list[str]:
     del mosaic
     table = str(tmp / "table.npz") if (tmp / "table.npz").exists() else str(table_file(tmp))
     out = _fresh(tmp / "bigout")
-    dt, mb = _run([*_l3_cmd(), "-q", "render", table, *files, "-o", str(out), "--format", "tiff"])
+    dt, mb, _ = _run([*_l3_cmd(), "-q", "render", table, *files, "-o", str(out), "--format",
+                      "tiff"])
     return [f"Peak memory, {n_files} synthetic {w}x{h} ({w * h / 1e6:.0f} MP) DNGs → 16-bit TIFF "
             f"in one `l3 render`: {mb:.0f} MB ({dt:.1f} s)."]
 

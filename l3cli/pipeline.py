@@ -3,17 +3,21 @@
 A folder is a pipeline, not a loop. Each file goes through
 
 1. decode (LibRaw through rawpy: C code, the GIL released),
-2. render (the numba tile kernel, parallel over every core),
-3. encode (display sRGB integers: :func:`l3cli.io.encode.display_encode`, a
-   ``nogil`` numba kernel; or float EXR) and write (OpenImageIO's encoders,
-   the GIL released), atomically,
+2. render (the numba tile kernel, parallel over every core) and, for
+   TIFF/PNG/JPEG, display-encode (:func:`l3cli.io.encode.display_encode`, a
+   ``nogil`` numba kernel) band by band, straight into 8/16-bit integers: no
+   full-size float image is held;
+3. write (OpenImageIO's encoders, the GIL released), atomically,
 
 on a small pool of threads: while one file renders, the next decodes and the
-previous one is encoded and written. Memory stays bounded: at most
-``in_flight`` files (default 3) are between decode and write at any time, and
-a file's buffers are freed as soon as its stage is done. The render stage runs
-one file at a time (it already uses every core, and numba's default threading
-layer must not be entered from two threads at once).
+previous one is written. Memory stays bounded: at most ``in_flight`` files
+(default 3) are between decode and write at any time, and a file's buffers
+are freed as soon as its stage is done. Render calls run one at a time (each
+already uses every core, and numba's default threading layer must not be
+entered from two threads at once); a band's display encoding runs outside
+that lock, beside the next band's render. Before the first file, the kernels
+are loaded from numba's on-disk cache on a tiny input beside the first decode
+(:func:`warm_up`).
 
 Results come back in input order. A file that fails does not stop the others:
 they are all written, and the first failure (in input order) is raised at the

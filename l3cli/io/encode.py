@@ -13,8 +13,9 @@ same integers without colour-science and without float64 image temporaries:
   patterns with the reference recipe itself);
 * a numba kernel (``nogil``: it runs beside the renderer in the file pipeline)
   does the 3x3 matrix per pixel and looks the code up: a table indexed by the
-  top bits of ``v`` gives the code of its bucket's first value, a short walk
-  over the thresholds finishes it.
+  top bits of ``v`` gives the code of its bucket's first value, a short
+  branch-free walk over the thresholds (as many steps as a bucket spans codes:
+  1 for 8 bits, 3-4 for 16) finishes it.
 
 Only the matrix product can differ from numpy's (BLAS may fuse multiply-adds):
 by one float64 ulp, which changes a float32 value about once in 2**29.
@@ -73,7 +74,7 @@ def srgb_thresholds(bits: int, encode: bool = True) -> tuple[np.ndarray, np.ndar
         [0, 1] whose code is >= k (``thresholds[0] = 0``, the last entry is
         +inf as a sentinel).
     buckets
-        int32: the code of the first float32 of each bucket of ``2**10``
+        uint16: the code of the first float32 of each bucket of ``2**10``
         consecutive bit patterns in [0, 1].
     """
     n = 1 << bits
@@ -106,8 +107,14 @@ def srgb_thresholds(bits: int, encode: bool = True) -> tuple[np.ndarray, np.ndar
     thr[n] = np.inf
     starts = (np.arange((_ONE_BITS >> _BUCKET_SHIFT) + 1, dtype=np.int64) << _BUCKET_SHIFT)
     first = starts.astype(np.int32).view(np.float32)
-    buckets = (np.searchsorted(thr[: n], first, side="right") - 1).astype(np.int32)
+    buckets = (np.searchsorted(thr[: n], first, side="right") - 1).astype(np.uint16)
     return thr, buckets
+
+
+@functools.cache
+def _walk(bits: int, encode: bool) -> int:
+    """Most codes a bucket spans (the steps of the kernel's walk): 1 for 8 bits, ~3 for 16."""
+    return max(1, int(np.diff(srgb_thresholds(bits, encode)[1].astype(np.int64)).max()))
 
 
 @functools.cache
@@ -116,8 +123,9 @@ def _kernel():
     import numba as nb
 
     @nb.njit(cache=True, nogil=True)
-    def encode_rows(img, matrix, use_matrix, thr, buckets, shift, maxv, out):
+    def encode_rows(img, matrix, use_matrix, thr, buckets, shift, steps, out):
         h, w, c = img.shape
+        flat = out.reshape(h, w * c)
         lin = np.empty(w * c, dtype=np.float32)
         bits = lin.view(np.int32)
         m = matrix
@@ -134,19 +142,17 @@ def _kernel():
                 for x in range(w):
                     for k in range(c):
                         lin[c * x + k] = img[y, x, k]
-            for x in range(w):
-                for k in range(c):
-                    i = c * x + k
-                    v = lin[i]
-                    if v >= 1.0:
-                        q = maxv
-                    elif v > 0.0:  # NaN and negatives give 0
-                        q = buckets[bits[i] >> shift]
-                        while v >= thr[q + 1]:
-                            q += 1
-                    else:
-                        q = 0
-                    out[y, x, k] = q
+            for i in range(w * c):  # clip to [0, 1]; NaN gives 0
+                v = lin[i]
+                lin[i] = v if v > 0.0 else np.float32(0.0)
+                if v > 1.0:
+                    lin[i] = np.float32(1.0)
+            for i in range(w * c):  # the bucket's first code, then a fixed, branch-free walk
+                v = lin[i]
+                q = np.int64(buckets[bits[i] >> shift])
+                for _ in range(steps):
+                    q += v >= thr[q + 1]
+                flat[y, i] = q
 
     return encode_rows
 
@@ -189,5 +195,5 @@ def display_encode(image: np.ndarray, space: str, bits: int) -> np.ndarray:
     out = np.empty(img.shape, dtype=np.uint16 if bits == 16 else np.uint8)
     matrix = XYZ_TO_LINEAR_SRGB if (encode and space == "xyz") else np.eye(3)
     _kernel()(img, matrix, bool(encode and space == "xyz"), thr, buckets, _BUCKET_SHIFT,
-              (1 << bits) - 1, out)
+              _walk(bits, encode), out)
     return out
