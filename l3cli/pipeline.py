@@ -44,7 +44,8 @@ from l3cli.progress import progress
 __all__ = ["IN_FLIGHT", "preload_scipy_blas", "render_pipeline", "warm_up"]
 
 #: Files between decode and write at a time (one decoding, one rendering, one
-#: being written): about 3 x (mosaic + float output) of memory at the peak.
+#: being written): at the peak about 3 x (mosaic + output), the output being
+#: 8/16-bit integers for TIFF/PNG/JPEG and float32 for EXR.
 IN_FLIGHT = 3
 
 _RENDER_LOCK = threading.Lock()
@@ -104,8 +105,6 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
     (target set-up, cache loading: a few tenths of a second) off the
     critical path of a one-file render.
     """
-    import numpy as np
-
     from l3cli.render import render_mosaic
 
     preload_scipy_blas()
@@ -230,6 +229,7 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
         return []
     results: list[Path | None] = [None] * len(jobs)
     errors: list[tuple[int, BaseException]] = []
+    preload_scipy_blas()  # before any thread can reach numba's first call
     with ThreadPoolExecutor(max_workers=max(1, int(in_flight)),
                             thread_name_prefix="l3-render") as pool:
         warm = threading.Thread(target=_quiet_warm_up, args=(table, jobs[0][1]),
