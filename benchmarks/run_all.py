@@ -30,7 +30,8 @@ from common import copy_bandwidth, machine  # noqa: E402
 
 BEGIN, END = "<!-- bench:begin -->", "<!-- bench:end -->"
 #: Run order (others found in the folder follow alphabetically).
-ORDER = ["bench_render.py", "bench_train.py", "bench_distributed.py", "bench_simulate.py"]
+ORDER = ["bench_render.py", "bench_files.py", "bench_train.py", "bench_distributed.py",
+         "bench_simulate.py"]
 
 
 def _scripts(only: list[str] | None) -> list[Path]:
@@ -45,7 +46,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "performance.md"))
     ap.add_argument("--only", nargs="*", help="run only benchmarks whose name contains these")
-    ap.add_argument("--timeout", type=int, default=400, help="seconds per benchmark")
+    ap.add_argument("--timeout", type=int, default=900, help="seconds per benchmark")
     args = ap.parse_args()
 
     start = time.perf_counter()

@@ -23,6 +23,8 @@ from l3cli.errors import ConfigError
 __all__ = [
     "SPACES",
     "D65_XYZ",
+    "XYZ_TO_LINEAR_SRGB",
+    "LINEAR_SRGB_TO_XYZ",
     "srgb_encode",
     "srgb_decode",
     "convert",
@@ -36,6 +38,16 @@ _ALIASES = {"linear_srgb": "linear-srgb", "linsrgb": "linear-srgb", "rgb": "line
 
 #: D65 white, Y = 1 (CIE 1931 2°, as colour-science's sRGB whitepoint).
 D65_XYZ = np.array([0.95047, 1.0, 1.08883])
+
+#: XYZ -> linear sRGB and back: IEC 61966-2-1's matrices, as colour-science's
+#: ``RGB_COLOURSPACES["sRGB"]`` holds them (a test checks they are equal). Kept
+#: here so that rendering to display sRGB does not import colour-science.
+XYZ_TO_LINEAR_SRGB = np.array([[3.2406, -1.5372, -0.4986],
+                               [-0.9689, 1.8758, 0.0415],
+                               [0.0557, -0.204, 1.057]])
+LINEAR_SRGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805],
+                               [0.2126, 0.7152, 0.0722],
+                               [0.0193, 0.1192, 0.9505]])
 
 
 def check_space(name: str) -> str:
@@ -66,17 +78,11 @@ def srgb_decode(encoded: np.ndarray) -> np.ndarray:
 
 
 def _xyz_to_linear_srgb(xyz: np.ndarray) -> np.ndarray:
-    import colour
-
-    cs = colour.RGB_COLOURSPACES["sRGB"]
-    return np.asarray(xyz @ np.asarray(cs.matrix_XYZ_to_RGB, dtype=np.float64).T, dtype=np.float32)
+    return np.asarray(xyz @ XYZ_TO_LINEAR_SRGB.T, dtype=np.float32)
 
 
 def _linear_srgb_to_xyz(rgb: np.ndarray) -> np.ndarray:
-    import colour
-
-    cs = colour.RGB_COLOURSPACES["sRGB"]
-    return np.asarray(rgb @ np.asarray(cs.matrix_RGB_to_XYZ, dtype=np.float64).T, dtype=np.float32)
+    return np.asarray(rgb @ LINEAR_SRGB_TO_XYZ.T, dtype=np.float32)
 
 
 def _as_f32(img: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -123,11 +123,12 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
 
 
 def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: str | os.PathLike,
-                *, table_name: str = "table") -> Path:
+                *, table_name: str = "table", **options: Any) -> Path:
     """Read a raw file, render it and write ``out_path`` (format by suffix).
 
     EXR keeps the table's space (linear values as rendered); TIFF/PNG/JPEG
-    receive display sRGB (:func:`l3cli.io.image.write_image`).
+    receive display sRGB (:func:`l3cli.io.image.write_image`, which also takes
+    ``options``: ``compression``, ``half``, ``quality``).
     """
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
@@ -136,7 +137,7 @@ def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: st
     img = render_raw(table, raw, table_name=table_name)
     del raw
     return write_image(out_path, img, space=table.output_space,
-                       attributes={"l3:table": str(table_name)})
+                       attributes={"l3:table": str(table_name)}, **options)
 
 
 # ------------------------------------------------------- many files (map tasks)
@@ -159,27 +160,33 @@ def table_for_task(path: str | os.PathLike) -> TransformTable:
     return _cached_table(str(p), st.st_mtime_ns, st.st_size)
 
 
-def render_task(item: tuple[str, str, str, str]) -> str:
-    """Render one file (a map task): ``(table_path, raw_path, out_path, table_name)``.
+def render_task(item: tuple) -> str:
+    """Render one file (a map task): ``(table_path, raw_path, out_path, table_name[, options])``.
 
     The task reads the table (once per process) and the raw itself and writes
-    the output atomically; it returns the output path.
+    the output atomically (``options``: :func:`l3cli.io.image.write_image`
+    keywords); it returns the output path.
     """
-    table_path, raw_path, out_path, table_name = item
+    table_path, raw_path, out_path, table_name, *rest = item
+    options = dict(rest[0]) if rest else {}
     table = table_for_task(table_path)
-    return str(render_file(table, raw_path, out_path, table_name=table_name))
+    return str(render_file(table, raw_path, out_path, table_name=table_name, **options))
 
 
 def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLike,
                                                                 str | os.PathLike]], *,
                  workers: int | None = None, scheduler: str | None = None,
-                 show_progress: bool | None = False) -> list[Path]:
+                 show_progress: bool | None = False,
+                 options: dict[str, Any] | None = None) -> list[Path]:
     """Render ``(raw, output)`` pairs with the table at ``table_path``.
 
-    One :func:`render_task` per file, in process or on a dask cluster
+    In process, the files go through a pipeline that overlaps decoding,
+    rendering, encoding and writing across files (:mod:`l3cli.pipeline`);
+    on a dask cluster, one :func:`render_task` per file
     (:func:`l3cli.parallel.map_reduce`). The table is checked here first, so a
-    bad table fails before any work. Each output is written atomically by its
-    task: a failed job leaves the outputs already finished, and no partial file.
+    bad table fails before any work. Each output is written atomically: a
+    failed file leaves no partial output (in process, the other files are
+    still written before the first failure is raised).
 
     Parameters
     ----------
@@ -191,22 +198,30 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
         Local cluster size or running scheduler address (default: in process).
     show_progress
         Progress bar on stderr.
+    options
+        Output options (:func:`l3cli.io.image.write_image` keywords:
+        ``compression``, ``half``, ``quality``).
 
     Returns
     -------
     list of Path
         The outputs, in input order.
     """
-    from l3cli.parallel import map_reduce
-
-    table_for_task(table_path)  # a bad table fails now, with its one-line message
+    table = table_for_task(table_path)  # a bad table fails now, with its one-line message
     name = Path(table_path).name
     remote = workers is not None or scheduler is not None
+    options = dict(options or {})
+    if not remote:
+        from l3cli.pipeline import render_pipeline
+
+        return render_pipeline(table, jobs, table_name=name, options=options,
+                               show_progress=show_progress)
+    from l3cli.parallel import map_reduce
 
     def sent(p: str | os.PathLike) -> str:
         return str(Path(p).absolute()) if remote else str(p)
 
-    items = [(sent(table_path), sent(raw), sent(out), name) for raw, out in jobs]
+    items = [(sent(table_path), sent(raw), sent(out), name, options) for raw, out in jobs]
     done = map_reduce(render_task, items, workers=workers, scheduler=scheduler,
                       label="render", show_progress=show_progress)
     return [Path(p) for p in done]

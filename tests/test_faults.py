@@ -186,11 +186,18 @@ def test_outputs_that_alias_inputs_are_refused(runner, work, tmp_path):
 def test_failed_render_leaves_no_empty_folder(runner, work, tmp_path):
     bad = tmp_path / "bad.dng"
     bad.write_bytes(b"II*\0garbage")
+    bad2 = tmp_path / "bad2.dng"
+    bad2.write_bytes(b"II*\0garbage too")
     out = tmp_path / "renders"
+    res = runner.invoke(cli, ["render", str(work["table"]), str(bad), str(bad2), "-o", str(out)])
+    assert res.exit_code == 1
+    assert not out.exists()
+    # with a good file among them, the good one is written (issue 16) and nothing else
     res = runner.invoke(cli, ["render", str(work["table"]), str(bad), str(work["raw"]),
                               "-o", str(out)])
     assert res.exit_code == 1
-    assert not out.exists()
+    assert "bad.dng" in res.output
+    assert sorted(p.name for p in out.iterdir()) == [work["raw"].stem + ".exr"]
 
 
 def test_failed_evaluate_leaves_no_report(runner, work, tmp_path, monkeypatch):

@@ -15,9 +15,16 @@ from l3cli.cli.paths import FORMATS as _FORMATS
 @click.option("--format", "fmt", type=click.Choice(sorted(_FORMATS)), default=None,
               help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
                    "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
+@click.option("--compression", metavar="NAME", default=None,
+              help="TIFF: none (default), lzw or zip. EXR: none, rle, zips (default), zip "
+                   "or piz. All lossless.")
+@click.option("--half", is_flag=True, help="EXR: write half floats (16-bit) instead of 32-bit.")
+@click.option("--quality", type=click.IntRange(1, 100), default=95, show_default=True,
+              help="JPEG quality (4:4:4 chroma).")
 @workers_opt
 @scheduler_opt
 def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
+           compression: str | None, half: bool, quality: int,
            workers: int | None, scheduler: str | None) -> None:
     """Render RAW files with TABLE.npz into OUT (-o).
 
@@ -32,6 +39,26 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
 
     table_for_task(table_path)  # a bad table fails before anything is created
     plan = plan_outputs(raws, output, fmt, protect=[table_path])
+    options = _write_options(plan.targets[0][1], compression, half, quality)
     with plan.writing():
         render_files(table_path, [(str(r), o) for r, o in plan.targets], workers=workers,
-                     scheduler=scheduler, show_progress=not quiet())
+                     scheduler=scheduler, show_progress=not quiet(), options=options)
+
+
+def _write_options(out, compression: str | None, half: bool, quality: int) -> dict:
+    """``write_image`` keywords for the outputs' format; usage errors for options it lacks."""
+    from l3cli.io.image import COMPRESSIONS, format_of
+
+    fmt = format_of(out)
+    if compression is not None and compression not in COMPRESSIONS.get(fmt, ()):
+        allowed = ", ".join(COMPRESSIONS.get(fmt, ())) or "no --compression"
+        raise click.BadParameter(f"{compression!r} is not a compression for {fmt} "
+                                 f"(it takes {allowed})", param_hint="--compression")
+    if half and fmt != "exr":
+        raise click.BadParameter(f"--half is for EXR output, not {fmt}", param_hint="--half")
+    options: dict = {"compression": compression} if compression is not None else {}
+    if half:
+        options["half"] = True
+    if fmt == "jpg":
+        options["quality"] = quality
+    return options

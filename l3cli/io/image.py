@@ -4,7 +4,16 @@
   in the ``l3:space`` attribute (``xyz``, ``linear-srgb``, ...).
 * TIFF (16-bit), PNG (8/16-bit), JPEG (8-bit): display-encoded sRGB. Read into
   float32 in [0, 1] (still encoded); written from any l3 space by converting to
-  display sRGB first (:func:`l3cli.colourspace.convert`).
+  display sRGB first (:func:`l3cli.io.encode.display_encode`, the same integers
+  as :func:`l3cli.colourspace.convert` then rounding, without colour-science).
+
+Compression (:data:`COMPRESSIONS`, defaults :data:`DEFAULT_COMPRESSION`):
+TIFF is written uncompressed by default, as dcraw/LibRaw, RawTherapee and most
+raw converters do: deflate costs seconds per 16-bit image on one core and
+saves little on camera noise (``lzw``/``zip`` on request). EXR defaults to
+``zips`` (deflate over single scanlines): lossless, read by every EXR reader,
+about as small as ``zip`` and about twice as fast to write
+(``docs/performance.md``).
 
 Images are float32 (H, W, C), channels last.
 """
@@ -16,14 +25,22 @@ from pathlib import Path
 
 import numpy as np
 
-from l3cli.colourspace import check_space, convert
+from l3cli.colourspace import check_space
 from l3cli.errors import InputError, OutputError
 from l3cli.io.atomic import atomic_path, check_free_space
 
-__all__ = ["read_image", "write_image", "IMAGE_FORMATS", "format_of"]
+__all__ = ["read_image", "write_image", "IMAGE_FORMATS", "format_of", "COMPRESSIONS",
+           "DEFAULT_COMPRESSION"]
 
 #: Output formats by name → file suffix.
 IMAGE_FORMATS: dict[str, str] = {"exr": ".exr", "tiff": ".tif", "png": ".png", "jpg": ".jpg"}
+#: Lossless compressions l3 writes, by format (OpenImageIO's names).
+COMPRESSIONS: dict[str, tuple[str, ...]] = {
+    "tiff": ("none", "lzw", "zip"),
+    "exr": ("none", "rle", "zips", "zip", "piz"),
+}
+#: The compression used when none is asked for (see the module notes for why).
+DEFAULT_COMPRESSION: dict[str, str] = {"tiff": "none", "exr": "zips"}
 _SUFFIX_FORMAT = {".exr": "exr", ".tif": "tiff", ".tiff": "tiff", ".png": "png", ".jpg": "jpg",
                   ".jpeg": "jpg"}
 
@@ -94,6 +111,7 @@ def write_image(
     quality: int = 95,
     bits: int | None = None,
     attributes: dict[str, str] | None = None,
+    compression: str | None = None,
 ) -> Path:
     """Write an image atomically; the format follows the suffix.
 
@@ -102,7 +120,10 @@ def write_image(
     path
         ``.exr``, ``.tif``/``.tiff``, ``.png``, ``.jpg``/``.jpeg``.
     image
-        float (H, W) or (H, W, C) in colour space ``space``.
+        float (H, W) or (H, W, C) in colour space ``space``; or, for
+        TIFF/PNG/JPEG, uint8/uint16 integers already display-encoded (as
+        :func:`l3cli.io.encode.display_encode` gives them), written as they
+        are: uint16 for TIFF (and PNG with ``bits=16``), uint8 for JPEG/PNG.
     space
         Colour space of ``image`` (:data:`l3cli.colourspace.SPACES`), or
         ``"data"`` for non-colour data (written as is; EXR only for floats).
@@ -117,11 +138,15 @@ def write_image(
     attributes
         Extra string metadata. No ``DateTime`` is written unless given here, so
         the same image always gives the same bytes.
+    compression
+        TIFF or EXR compression (:data:`COMPRESSIONS`; default
+        :data:`DEFAULT_COMPRESSION`). PNG and JPEG take none.
     """
-    import OpenImageIO as oiio
-
     path = Path(path)
     fmt = format_of(path)
+    if fmt != "exr" and np.asarray(image).dtype in (np.uint8, np.uint16):
+        return _write_encoded(path, fmt, np.asarray(image), space=space, quality=quality,
+                              bits=bits, attributes=attributes, compression=compression)
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
         img = img[:, :, None]
@@ -129,23 +154,60 @@ def write_image(
         raise OutputError(f"{path}: image must be (H, W) or (H, W, C), got {img.shape}")
     if space != "data":
         space = check_space(space)
-    h, w, c = img.shape
+    _check_compression(path, fmt, compression)
     if fmt == "exr":
         data = img
         typedesc = "half" if half else "float"
     else:
-        if space not in ("data", "srgb") and c == 3:
-            img = convert(img, space, "srgb")
-        elif space == "srgb" or c != 3:
-            img = np.clip(img, 0.0, 1.0)
-        nbits = {"tiff": 16, "jpg": 8}.get(fmt, bits or 8)
-        maxv = (1 << nbits) - 1
-        data = np.round(np.clip(img, 0.0, 1.0) * maxv).astype(np.uint16 if nbits == 16 else np.uint8)
-        typedesc = "uint16" if nbits == 16 else "uint8"
+        from l3cli.io.encode import display_encode
+
+        data = display_encode(img, space, _bits_of(fmt, bits))
+        typedesc = "uint16" if data.dtype == np.uint16 else "uint8"
+    return _write(path, fmt, data, typedesc, space=space, quality=quality,
+                  attributes=attributes, compression=compression)
+
+
+def _bits_of(fmt: str, bits: int | None) -> int:
+    return {"tiff": 16, "jpg": 8}.get(fmt, bits or 8)
+
+
+def _check_compression(path: Path, fmt: str, compression: str | None) -> None:
+    if compression is not None and compression not in COMPRESSIONS.get(fmt, ()):
+        allowed = ", ".join(COMPRESSIONS.get(fmt, ())) or "none (the format has no choice)"
+        raise OutputError(f"{path}: compression {compression!r} is not one for {fmt}; "
+                          f"use {allowed}")
+
+
+def _write_encoded(path: Path, fmt: str, data: np.ndarray, *, space: str, quality: int,
+                   bits: int | None, attributes: dict[str, str] | None,
+                   compression: str | None) -> Path:
+    """Write display-encoded integers (TIFF/PNG/JPEG) as they are."""
+    if data.ndim == 2:
+        data = data[:, :, None]
+    if data.ndim != 3:
+        raise OutputError(f"{path}: image must be (H, W) or (H, W, C), got {data.shape}")
+    want = np.uint16 if _bits_of(fmt, bits) == 16 else np.uint8
+    if data.dtype != want:
+        raise OutputError(f"{path}: {fmt} takes {np.dtype(want).name} display values, got "
+                          f"{data.dtype.name}")
+    if space != "data":
+        space = check_space(space)
+    _check_compression(path, fmt, compression)
+    return _write(path, fmt, data, "uint16" if want == np.uint16 else "uint8", space=space,
+                  quality=quality, attributes=attributes, compression=compression)
+
+
+def _write(path: Path, fmt: str, data: np.ndarray, typedesc: str, *, space: str, quality: int,
+           attributes: dict[str, str] | None, compression: str | None) -> Path:
+    """Write pixels of OpenImageIO type ``typedesc`` atomically with l3's attributes."""
+    import OpenImageIO as oiio
+
+    h, w, c = data.shape
     spec = oiio.ImageSpec(w, h, c, typedesc)
+    if fmt in COMPRESSIONS:
+        spec.attribute("compression", compression or DEFAULT_COMPRESSION[fmt])
     if fmt == "exr":
         spec.attribute("l3:space", space)
-        spec.attribute("compression", "zip")
     elif fmt == "jpg":
         spec.attribute("Compression", f"jpeg:{int(quality)}")
         spec.attribute("jpeg:subsampling", "4:4:4")

@@ -335,6 +335,9 @@ def _read_image_mosaic(path: Path) -> RawImage:
 
 
 _FD2_LOCK = threading.Lock()
+#: Held while LibRaw's C-level stderr is captured: a thread that draws on stderr
+#: while others decode (a progress bar) holds it too, or its text is captured.
+STDERR_LOCK = _FD2_LOCK
 
 
 @contextlib.contextmanager

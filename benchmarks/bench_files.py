@@ -1,0 +1,212 @@
+"""File to file, as a user times it: a folder of DNGs to JPEG, TIFF and EXR, whole processes.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_files.py [--dng PATH] [--copies 8] [--repeat 3]
+        [--memory-size 6000x4000] [--memory-files 3]
+
+Inputs: ``--copies`` copies of one real 9-MP DNG (default: the Blackmagic
+Pocket 4K frame of the shared data set, ``../shared/data/raw/misc/``; a clone
+without it skips the timing tables with a note) in a temporary folder, and a
+table with the layout of ``bench_render.py`` (4 positions x 40 levels x 2
+contrasts, random kernels: speed does not depend on the values).
+
+Timed, interleaved, best of ``--repeat``, each a fresh process started from
+the shell's point of view (Python start-up, imports and kernel loading
+included):
+
+* ``l3 render TABLE DNG... -o DIR --format FMT`` (one process for the folder);
+* one Python process looping over the files with rawpy (LibRaw AHD, then PPG)
+  and writing with OpenImageIO with the same encoder settings: JPEG quality 95
+  4:4:4 from 8-bit sRGB, uncompressed 16-bit TIFF, float32 EXR with ``zips``
+  (linear, from LibRaw's 16-bit output);
+
+and one file end to end (one DNG to JPEG). Peak memory (``ru_maxrss`` of the
+child) is reported beside each l3 run, and for a folder of ``--memory-files``
+synthetic 24-MP DNGs rendered to 16-bit TIFF.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(HERE))
+
+DEFAULT_DNG = REPO.parent / "shared" / "data" / "raw" / "misc" / "blackmagic_pocket4k_rggb.dng"
+#: format -> (l3 --format, output suffix)
+FORMATS = {"JPEG q95 4:4:4": ("jpg", ".jpg"), "TIFF 16-bit, uncompressed": ("tiff", ".tif"),
+           "EXR float, zips": ("exr", ".exr")}
+
+
+# ----------------------------------------------------------------- the peer
+def peer(alg: str, fmt: str, out_dir: str, files: list[str]) -> None:
+    """The peer process: rawpy (LibRaw) + OpenImageIO, one file after another."""
+    import OpenImageIO as oiio
+    import rawpy
+
+    algo = {"AHD": rawpy.DemosaicAlgorithm.AHD, "PPG": rawpy.DemosaicAlgorithm.PPG}[alg]
+    for f in files:
+        with rawpy.imread(f) as raw:
+            if fmt == "jpg":
+                data = raw.postprocess(demosaic_algorithm=algo, output_bps=8)
+                spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, "uint8")
+                spec.attribute("Compression", "jpeg:95")
+                spec.attribute("jpeg:subsampling", "4:4:4")
+            elif fmt == "tiff":
+                data = raw.postprocess(demosaic_algorithm=algo, output_bps=16)
+                spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, "uint16")
+                spec.attribute("compression", "none")
+            else:
+                lin = raw.postprocess(demosaic_algorithm=algo, output_bps=16, gamma=(1, 1),
+                                      no_auto_bright=True)
+                data = lin.astype(np.float32) * np.float32(1 / 65535)
+                spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, "float")
+                spec.attribute("compression", "zips")
+        path = str(Path(out_dir) / (Path(f).stem + {"jpg": ".jpg", "tiff": ".tif"}.get(fmt, ".exr")))
+        out = oiio.ImageOutput.create(path)
+        out.open(path, spec)
+        out.write_image(data)
+        out.close()
+
+
+# ------------------------------------------------------------------ helpers
+def _run(cmd: list[str]) -> tuple[float, float, float]:
+    """Wall seconds, peak RSS (MB) and CPU seconds (user + system) of a child process."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    dt = time.perf_counter() - t0
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    proc.stderr.close() if proc.stderr else None
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd[:6])}... failed ({proc.returncode}): {err[-500:]}")
+    return dt, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
+
+
+def _l3_cmd() -> list[str]:
+    exe = Path(sys.executable).parent / "l3"
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "l3cli.cli.main"]
+
+
+def _fresh(folder: Path) -> Path:
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    return folder
+
+
+def table_file(folder: Path) -> Path:
+    from bench_render import bench_table
+
+    from l3cli.table import save_table
+
+    return save_table(folder / "table.npz", bench_table())
+
+
+def timing_tables(dng: Path, tmp: Path, copies: int, repeat: int) -> list[str]:
+    src = tmp / "dngs"
+    src.mkdir()
+    files = []
+    for i in range(copies):
+        f = src / f"frame{i + 1:02d}.dng"
+        shutil.copyfile(dng, f)
+        files.append(str(f))
+    table = str(table_file(tmp))
+    me = [sys.executable, str(Path(__file__).resolve())]
+    lines = [f"{copies} copies of `{dng.name}` (4128x2176, 9 MP), whole processes, best of "
+             f"{repeat}, interleaved; peer = one Python process: rawpy (LibRaw) + OpenImageIO, "
+             "same encoder settings.", "",
+             "| output | l3 render | LibRaw AHD | LibRaw PPG | l3 vs AHD | l3 vs PPG "
+             "| CPU s: l3 / AHD / PPG | l3 peak RSS |", "|---|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    cases = [(name, fmt, files) for name, (fmt, _) in FORMATS.items()]
+    cases.append(("one file → JPEG", "jpg", files[:1]))
+    for name, fmt, fs in cases:
+        best = {"l3": np.inf, "AHD": np.inf, "PPG": np.inf}
+        cpu = dict(best)
+        rss = 0.0
+        for _ in range(repeat):
+            out = _fresh(tmp / "out")
+            if len(fs) == 1:
+                cmd = [*_l3_cmd(), "-q", "render", table, fs[0], "-o",
+                       str(out / f"one{FORMATS_SUFFIX[fmt]}")]
+            else:
+                cmd = [*_l3_cmd(), "-q", "render", table, *fs, "-o", str(out), "--format", fmt]
+            dt, mb, c = _run(cmd)
+            best["l3"], cpu["l3"] = min(best["l3"], dt), min(cpu["l3"], c)
+            rss = max(rss, mb)
+            for alg in ("AHD", "PPG"):
+                out = _fresh(tmp / "out")
+                dt, _, c = _run([*me, "--peer", alg, fmt, str(out), *fs])
+                best[alg], cpu[alg] = min(best[alg], dt), min(cpu[alg], c)
+        lines.append(f"| {name} | {best['l3']:.2f} s | {best['AHD']:.2f} s | {best['PPG']:.2f} s "
+                     f"| {best['AHD'] / best['l3']:.2f}x | {best['PPG'] / best['l3']:.2f}x "
+                     f"| {cpu['l3']:.1f} / {cpu['AHD']:.1f} / {cpu['PPG']:.1f} "
+                     f"| {rss:.0f} MB |")
+        print(lines[-1], flush=True)
+    return lines
+
+
+FORMATS_SUFFIX = {fmt: suffix for fmt, suffix in FORMATS.values()}
+
+
+def memory_table(tmp: Path, size: str, n_files: int) -> list[str]:
+    from bench_render import synthetic_mosaic
+
+    from l3cli.io.raw import write_raw
+
+    w, h = (int(v) for v in size.split("x"))
+    mosaic = np.round(synthetic_mosaic(h, w) * 4095).astype(np.uint16)
+    folder = _fresh(tmp / "big")
+    files = [str(write_raw(folder / f"big{i}.dng", mosaic, "RGGB", white_level=4095))
+             for i in range(n_files)]
+    del mosaic
+    table = str(tmp / "table.npz") if (tmp / "table.npz").exists() else str(table_file(tmp))
+    out = _fresh(tmp / "bigout")
+    dt, mb, _ = _run([*_l3_cmd(), "-q", "render", table, *files, "-o", str(out), "--format",
+                      "tiff"])
+    return [f"Peak memory, {n_files} synthetic {w}x{h} ({w * h / 1e6:.0f} MP) DNGs → 16-bit TIFF "
+            f"in one `l3 render`: {mb:.0f} MB ({dt:.1f} s)."]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dng", default=str(DEFAULT_DNG))
+    ap.add_argument("--copies", type=int, default=8)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--memory-size", default="6000x4000")
+    ap.add_argument("--memory-files", type=int, default=3)
+    ap.add_argument("--peer", nargs="+", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.peer:
+        peer(a.peer[0], a.peer[1], a.peer[2], a.peer[3:])
+        return
+    tmp = Path(tempfile.mkdtemp(prefix="l3bench-files-"))
+    try:
+        dng = Path(a.dng)
+        if dng.exists():
+            lines = timing_tables(dng, tmp, a.copies, a.repeat)
+        else:
+            lines = [f"(skipped the file-to-file table: {dng} is not here; it is in the shared "
+                     "data set, not in the repository — pass --dng PATH to a 9-MP DNG)"]
+            print(lines[0], flush=True)
+        if a.memory_files > 0:
+            print("", *memory_table(tmp, a.memory_size, a.memory_files), sep="\n", flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,268 @@
+"""Render many raw files in one process: decode, render, encode and write overlap.
+
+A folder is a pipeline, not a loop. Each file goes through
+
+1. decode (LibRaw through rawpy: C code, the GIL released),
+2. render (the numba tile kernel, parallel over every core) and, for
+   TIFF/PNG/JPEG, display-encode (:func:`l3cli.io.encode.display_encode`, a
+   ``nogil`` numba kernel) band by band, straight into 8/16-bit integers: no
+   full-size float image is held;
+3. write (OpenImageIO's encoders, the GIL released), atomically,
+
+on a small pool of threads: while one file renders, the next decodes and the
+previous one is written. Memory stays bounded: at most ``in_flight`` files
+(default 3) are between decode and write at any time, and a file's buffers
+are freed as soon as its stage is done. Render calls run one at a time (each
+already uses every core, and numba's default threading layer must not be
+entered from two threads at once); a band's display encoding runs outside
+that lock, beside the next band's render. Before the first file, the kernels
+are loaded from numba's on-disk cache on a tiny input beside the first decode
+(:func:`warm_up`).
+
+Results come back in input order. A file that fails does not stop the others:
+they are all written, and the first failure (in input order) is raised at the
+end, naming its file; a failed file leaves no output (writes are atomic).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from l3cli.errors import L3Error
+from l3cli.progress import progress
+
+__all__ = ["IN_FLIGHT", "preload_scipy_blas", "render_pipeline", "warm_up"]
+
+#: Files between decode and write at a time (one decoding, one rendering, one
+#: being written): at the peak about 3 x (mosaic + output), the output being
+#: 8/16-bit integers for TIFF/PNG/JPEG and float32 for EXR.
+IN_FLIGHT = 3
+
+_RENDER_LOCK = threading.Lock()
+T = TypeVar("T")
+
+log = logging.getLogger(__name__)
+
+
+def preload_scipy_blas() -> None:
+    """Load scipy's BLAS/LAPACK capsule modules without the rest of ``scipy.linalg``.
+
+    numba's CPU target, on its first use (also when loading cached kernels),
+    imports ``scipy.linalg.cython_blas`` to check that BLAS exists; importing
+    that submodule first runs ``scipy.linalg``'s ``__init__`` (and through it
+    ``numpy.f2py`` and scipy's array-API layer): about a third of a second of
+    a one-file ``l3 render`` that never calls BLAS. Loading the two extension
+    modules by file and registering them under their names gives numba the
+    same modules (a later ``import scipy.linalg`` reuses them). Any surprise
+    (another scipy layout) leaves the normal import to happen.
+    """
+    if "scipy.linalg" in sys.modules:
+        return
+    try:
+        import glob
+        import importlib.machinery
+        import importlib.util
+
+        import scipy
+
+        folder = os.path.join(scipy.__path__[0], "linalg")
+        for name in ("cython_blas", "cython_lapack"):
+            full = f"scipy.linalg.{name}"
+            if full in sys.modules:
+                continue
+            files = [f for suffix in importlib.machinery.EXTENSION_SUFFIXES
+                     for f in glob.glob(os.path.join(folder, name + suffix))]
+            if not files:
+                return
+            spec = importlib.util.spec_from_file_location(full, files[0])
+            if spec is None or spec.loader is None:
+                return
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[full] = module
+            try:
+                spec.loader.exec_module(module)
+            except BaseException:
+                del sys.modules[full]
+                raise
+    except Exception as exc:  # noqa: BLE001 - an optimisation only
+        log.debug("scipy BLAS preload skipped: %s", exc)
+
+
+def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
+    """Load the render (and display-encode) kernels from numba's cache on a tiny input.
+
+    Run beside the first file's decode, this moves numba's first-call cost
+    (target set-up, cache loading: a few tenths of a second) off the
+    critical path of a one-file render.
+    """
+    from l3cli.render import render_mosaic
+
+    preload_scipy_blas()
+    s = max(table.patch, *table.cfa.period) * 2
+    with _RENDER_LOCK:
+        img = render_mosaic(table, np.zeros((s, s), dtype=np.float32))
+    if out_path is not None and Path(out_path).suffix.lower() != ".exr":
+        from l3cli.io.encode import display_encode
+        from l3cli.io.image import format_of
+
+        fmt = format_of(out_path)
+        display_encode(img, table.output_space, 16 if fmt == "tiff" else 8)
+
+
+#: Rows of one render band for display outputs: about this many pixels.
+BAND_PIXELS = 1 << 20
+
+
+def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
+    """Render straight to display integers, band by band (no full float image).
+
+    Each band is rendered (under the render lock) into a small float buffer
+    and display-encoded into its rows of the output outside the lock, so the
+    next band (or another file) renders meanwhile. A pixel depends on its
+    patch only, so bands give the same pixels as one whole render.
+    """
+    from l3cli.io.encode import display_encode
+    from l3cli.render import render_mosaic
+
+    h, w = mosaic.shape
+    rows = max(16, BAND_PIXELS // max(w, 1))
+    out = np.empty((h, w, table.n_out), dtype=np.uint16 if bits == 16 else np.uint8)
+    band = np.empty((min(rows, h), w, table.n_out), dtype=np.float32)
+    for y0 in range(0, h, rows):
+        y1 = min(h, y0 + rows)
+        part = band[: y1 - y0]
+        with _RENDER_LOCK:
+            render_mosaic(table, mosaic, out=part, rows=(y0, y1))
+        out[y0:y1] = display_encode(part, table.output_space, bits)
+    return out
+
+
+def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str | os.PathLike,
+         options: dict[str, Any]) -> tuple[Path, tuple[float, float, float]]:
+    from l3cli.io.image import format_of, write_image
+    from l3cli.io.raw import read_raw
+    from l3cli.render import check_fits, render_mosaic
+
+    fmt = format_of(out_path)
+    t0 = time.perf_counter()
+    raw = read_raw(raw_path)
+    check_fits(table, raw, table_name=table_name)
+    t1 = time.perf_counter()
+    if fmt == "exr":
+        with _RENDER_LOCK:
+            img = render_mosaic(table, raw.mosaic)
+    else:
+        img = _render_display(table, raw.mosaic, 16 if fmt == "tiff" else 8)
+    t2 = time.perf_counter()
+    del raw
+    out = write_image(out_path, img, space=table.output_space,
+                      attributes={"l3:table": str(table_name)}, **options)
+    return out, (t1 - t0, t2 - t1, time.perf_counter() - t2)
+
+
+def _locked(items: Iterator[T]) -> Iterator[T]:
+    """``items`` with each step taken under the stderr lock (a bar draws in its steps)."""
+    from l3cli.io.raw import STDERR_LOCK
+
+    it = iter(items)
+    while True:
+        with STDERR_LOCK:
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+        yield item
+
+
+def _quiet_warm_up(table: Any, out_path: str | os.PathLike) -> None:
+    try:
+        warm_up(table, out_path)
+    except Exception as exc:  # noqa: BLE001 - the real render reports real errors
+        log.debug("warm-up failed: %s", exc)
+
+
+def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
+                    table_name: str = "table", options: dict[str, Any] | None = None,
+                    in_flight: int = IN_FLIGHT, show_progress: bool | None = False) -> list[Path]:
+    """Render ``(raw, output)`` pairs with ``table``, stages overlapped across files.
+
+    Parameters
+    ----------
+    table
+        A :class:`l3cli.table.TransformTable`.
+    jobs
+        ``(raw path, output path)`` pairs; the output format follows the suffix.
+    table_name
+        Name recorded in each output (``l3:table``) and used in messages.
+    options
+        Keyword options of :func:`l3cli.io.image.write_image` (``compression``,
+        ``half``, ``quality``).
+    in_flight
+        Files in progress at a time (>= 1; 1 is a plain loop).
+    show_progress
+        Progress bar on stderr (files finished, in input order).
+
+    Returns
+    -------
+    list of Path
+        The outputs, in input order.
+
+    Raises
+    ------
+    L3Error
+        The first file that failed, in input order, once every other file is
+        written (the message says how many more failed).
+    """
+    options = dict(options or {})
+    jobs = list(jobs)
+    if not jobs:
+        return []
+    results: list[Path | None] = [None] * len(jobs)
+    errors: list[tuple[int, BaseException]] = []
+    preload_scipy_blas()  # before any thread can reach numba's first call
+    with ThreadPoolExecutor(max_workers=max(1, int(in_flight)),
+                            thread_name_prefix="l3-render") as pool:
+        warm = threading.Thread(target=_quiet_warm_up, args=(table, jobs[0][1]),
+                                name="l3-warm-up", daemon=True)
+        warm.start()
+        futures: list[Future[tuple[Path, tuple[float, float, float]]]] = [
+            pool.submit(_one, table, table_name, raw, out, options) for raw, out in jobs
+        ]
+        try:
+            for i, fut in enumerate(_locked(progress(futures, label="render",
+                                                     length=len(futures),
+                                                     enabled=show_progress))):
+                try:
+                    results[i], times = fut.result()
+                except Exception as exc:  # noqa: BLE001 - re-raised below, first in order
+                    errors.append((i, exc))
+                    continue
+                if log.isEnabledFor(logging.DEBUG):
+                    from l3cli.io.raw import STDERR_LOCK
+
+                    with STDERR_LOCK:
+                        log.debug("%s: decode %.3f s, render (+ encode) %.3f s, write %.3f s",
+                                  jobs[i][0], *times)
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+        finally:
+            warm.join()
+    if errors:
+        _, first = errors[0]
+        if len(errors) > 1 and isinstance(first, L3Error):
+            raise type(first)(f"{first} (and {len(errors) - 1} more of {len(jobs)} files "
+                              "failed)") from first
+        raise first
+    return [p for p in results if p is not None]

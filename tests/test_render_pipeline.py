@@ -1,0 +1,148 @@
+"""`l3 render` over many files: pipeline order, failures, bands, options, start-up imports."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from l3cli.cli.main import cli
+from l3cli.io.image import read_image
+from l3cli.io.raw import read_raw, write_raw
+from l3cli.table import save_table
+from tests.conftest import REPO
+from tests.test_table import make_table
+
+
+def _raws(folder, n, *, seed=0, shape=(34, 46)):
+    rng = np.random.default_rng(seed)
+    return [write_raw(folder / f"r{i}.dng", rng.integers(100, 4000, shape).astype(np.uint16),
+                      "RGGB", white_level=4095) for i in range(n)]
+
+
+@pytest.fixture
+def table_path(tmp_path):
+    t = make_table("RGGB", patch=5, seed=4)
+    t.kernels *= np.float32(0.05)  # values mostly inside [0, 1] once encoded
+    return save_table(tmp_path / "t.npz", t)
+
+
+def test_folder_outputs_in_input_order_equal_one_file_renders(runner, tmp_path, table_path):
+    from l3cli.pipeline import render_pipeline
+    from l3cli.render import render_mosaic, table_for_task
+
+    raws = _raws(tmp_path, 5)
+    table = table_for_task(table_path)
+    # different content per file, so a mix-up of order shows
+    jobs = [(r, tmp_path / "out" / f"{r.stem}.png") for r in raws[::-1]]
+    (tmp_path / "out").mkdir()
+    done = render_pipeline(table, jobs, table_name="t.npz", in_flight=3)
+    assert done == [o for _, o in jobs]
+    for raw, out in jobs:
+        img, _ = read_image(out)
+        solo = tmp_path / f"solo-{raw.stem}.png"
+        res = runner.invoke(cli, ["render", str(table_path), str(raw), "-o", str(solo)])
+        assert res.exit_code == 0, res.output
+        np.testing.assert_array_equal(img, read_image(solo)[0])
+        exr = tmp_path / f"solo-{raw.stem}.exr"
+        runner.invoke(cli, ["render", str(table_path), str(raw), "-o", str(exr)])
+        np.testing.assert_array_equal(read_image(exr)[0],
+                                      render_mosaic(table, read_raw(raw).mosaic))
+
+
+def test_a_failing_file_in_the_middle(runner, tmp_path, table_path):
+    raws = _raws(tmp_path, 4)
+    bad = tmp_path / "r1.dng"
+    bad.write_bytes(b"II*\x00 not really a raw file")
+    out = tmp_path / "out"
+    res = runner.invoke(cli, ["render", str(table_path), *map(str, raws), "-o", str(out),
+                              "--format", "jpg"])
+    assert res.exit_code == 1
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1 and "r1.dng" in lines[0] and lines[0].startswith("Error:")
+    assert sorted(p.name for p in out.iterdir()) == ["r0.jpg", "r2.jpg", "r3.jpg"]
+
+
+def test_display_bands_equal_one_whole_render(monkeypatch, table_path):
+    from l3cli import pipeline
+    from l3cli.io.encode import display_encode
+    from l3cli.render import render_mosaic, table_for_task
+
+    table = table_for_task(table_path)
+    m = np.random.default_rng(2).random((53, 40)).astype(np.float32)
+    monkeypatch.setattr(pipeline, "BAND_PIXELS", 7 * 40)  # 16-row bands (the minimum)
+    for bits in (8, 16):
+        got = pipeline._render_display(table, m, bits)
+        want = display_encode(render_mosaic(table, m), table.output_space, bits)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_compression_and_half_options(runner, tmp_path, table_path):
+    import OpenImageIO as oiio
+
+    (raw,) = _raws(tmp_path, 1)
+
+    def spec(path):
+        inp = oiio.ImageInput.open(str(path))
+        s = inp.spec()
+        inp.close()
+        return s
+
+    for args, name, compression, fmt in (
+            ([], "a.tif", "none", "uint16"), (["--compression", "zip"], "b.tif", "zip", "uint16"),
+            ([], "c.exr", "zips", "float"), (["--half", "--compression", "piz"], "d.exr", "piz",
+                                              "half")):
+        res = runner.invoke(cli, ["render", str(table_path), str(raw), "-o",
+                                  str(tmp_path / name), *args])
+        assert res.exit_code == 0, res.output
+        s = spec(tmp_path / name)
+        assert s.getattribute("compression") == compression and str(s.format) == fmt
+    a, _ = read_image(tmp_path / "a.tif")
+    np.testing.assert_array_equal(a, read_image(tmp_path / "b.tif")[0])
+    for args in (["--compression", "zip"], ["--half"], ["--compression", "b44"]):
+        out = "x.jpg" if args[0] != "--compression" or args[1] != "b44" else "x.exr"
+        res = runner.invoke(cli, ["render", str(table_path), str(raw), "-o",
+                                  str(tmp_path / out), *args])
+        assert res.exit_code == 2, res.output
+        assert not (tmp_path / out).exists()
+
+
+_PROBE = """
+import sys
+from l3cli.cli.main import cli
+try:
+    cli(sys.argv[1:], standalone_mode=False)
+finally:
+    heavy = ("colour", "matplotlib", "dask", "distributed", "scipy.linalg", "scipy.interpolate",
+             "scipy.ndimage")
+    print(" ".join(sorted(m for m in heavy if m in sys.modules)) or "-")
+"""
+
+
+def _imports(args):
+    res = subprocess.run([sys.executable, "-c", _PROBE, *args], cwd=REPO, capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    return res.stdout.strip().splitlines()[-1]
+
+
+def test_render_and_info_import_only_what_they_use(tmp_path, table_path):
+    (raw,) = _raws(tmp_path, 1)
+    assert _imports(["-q", "render", str(table_path), str(raw), "-o",
+                     str(tmp_path / "o.jpg")]) == "-"
+    assert _imports(["-q", "render", str(table_path), str(raw), "-o",
+                     str(tmp_path / "o.exr")]) == "-"
+    assert _imports(["info", str(raw)]) == "-"
+    assert (tmp_path / "o.jpg").exists() and (tmp_path / "o.exr").exists()
+
+
+def test_help_imports_no_numerical_library():
+    probe = ("import sys\nfrom l3cli.cli.main import cli\ntry:\n    cli(['--help'])\n"
+             "except SystemExit:\n    pass\nprint(sorted(m for m in ('numpy', 'numba', 'click')"
+             " if m in sys.modules))")
+    res = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().splitlines()[-1] == "['click']"
