@@ -8,9 +8,11 @@
     column (even, so both halves keep the RGGB phase):
     ``OUTDIR/train/bmpcc_left.{raw,raw.toml,tif}`` (a pairs folder),
     ``OUTDIR/test/bmpcc_right.{raw,raw.toml}`` and ``OUTDIR/ref/bmpcc_right.tif``.
-``chart STEM``
-    Prints the ``l3 evaluate --chart`` value of an Infinite-ISP frame from the
-    bundled ``l3cli/data/charts/infinite_isp_charts.json``.
+``chart STEM [CHARTS_JSON]``
+    Prints the ``l3 evaluate --chart`` value of an Infinite-ISP frame from
+    CHARTS_JSON (default: the bundled
+    ``l3cli/data/charts/infinite_isp_charts.json`` of the full frames; the
+    compact set's crops have theirs in ``examples/infinite_isp/charts.json``).
 ``summary JSON...``
     Prints one Markdown table row per report (S-CIELAB mean, PSNR, Macbeth ΔE).
 """
@@ -67,10 +69,11 @@ def blackmagic(dng: str, outdir: str) -> None:
     print(f"split {w}x{h} at column {split}; LibRaw settings: {LIBRAW_SETTINGS}")
 
 
-def chart(stem: str) -> None:
+def chart(stem: str, charts: str | None = None) -> None:
     from importlib.resources import files
 
-    data = json.loads((files("l3cli") / "data/charts/infinite_isp_charts.json").read_text())
+    src = Path(charts) if charts else files("l3cli") / "data/charts/infinite_isp_charts.json"
+    data = json.loads(src.read_text())
     print(data["frames"][stem]["chart_option"])
 
 
@@ -87,7 +90,7 @@ if __name__ == "__main__":
     cmd, *args = sys.argv[1:] or ["help"]
     if cmd == "blackmagic" and len(args) == 2:
         blackmagic(*args)
-    elif cmd == "chart" and len(args) == 1:
+    elif cmd == "chart" and len(args) in (1, 2):
         chart(*args)
     elif cmd == "summary" and args:
         summary(args)
