@@ -126,16 +126,22 @@ def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: st
     """Read a raw file, render it and write ``out_path`` (format by suffix).
 
     EXR keeps the table's space (linear values as rendered); TIFF/PNG/JPEG
-    receive display sRGB (:func:`l3cli.io.image.write_image`).
+    receive display sRGB (:func:`l3cli.io.image.write_image`). The output keeps
+    the raw's pixel grid and carries the raw's shot metadata
+    (:mod:`l3cli.io.metadata`): the EXIF Orientation, so viewers show it
+    upright, and Make, Model, DateTimeOriginal, ISO, exposure time, f-number
+    and lens where known.
     """
     from l3cli.io.image import write_image
+    from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
 
     raw = read_raw(raw_path)
     img = render_raw(table, raw, table_name=table_name)
+    shot = exif_attributes(raw.metadata.get("shot", {}))
     del raw
     return write_image(out_path, img, space=table.output_space,
-                       attributes={"l3:table": str(table_name)})
+                       attributes={"l3:table": str(table_name)}, metadata=shot)
 
 
 # ------------------------------------------------------- many files (map tasks)

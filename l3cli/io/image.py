@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -91,6 +92,7 @@ def write_image(
     quality: int = 95,
     bits: int | None = None,
     attributes: dict[str, str] | None = None,
+    metadata: dict[str, Any] | None = None,
 ) -> Path:
     """Write an image atomically; the format follows the suffix.
 
@@ -114,6 +116,10 @@ def write_image(
     attributes
         Extra string metadata. No ``DateTime`` is written unless given here, so
         the same image always gives the same bytes.
+    metadata
+        Typed attributes, e.g. the shot's EXIF of
+        :func:`l3cli.io.metadata.exif_attributes` (``Orientation``, ``Make``,
+        ...): EXIF in JPEG/PNG/TIFF, header attributes in EXR.
     """
     import OpenImageIO as oiio
 
@@ -153,6 +159,10 @@ def write_image(
     spec.attribute("DateTime", "")
     for k, v in (attributes or {}).items():
         spec.attribute(str(k), str(v))
+    if metadata:
+        from l3cli.io.metadata import set_spec_metadata
+
+        set_spec_metadata(spec, metadata)
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:

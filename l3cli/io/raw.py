@@ -37,6 +37,7 @@ import numpy as np
 from l3cli.cfa import CFA
 from l3cli.errors import ConfigError, InputError
 from l3cli.io.atomic import atomic_path
+from l3cli.io.metadata import read_shot_metadata
 
 __all__ = ["RawImage", "read_raw", "write_raw", "sidecar_path", "RAW_SUFFIXES"]
 
@@ -374,6 +375,7 @@ def _read_rawpy(path: Path) -> RawImage:
             "rgb_xyz_matrix": np.asarray(rp.rgb_xyz_matrix).tolist(),
             "sizes": {k: int(v) if isinstance(v, int | np.integer) else float(v)
                       for k, v in rp.sizes._asdict().items()},
+            "shot": read_shot_metadata(path, rp),
         }
     if dn.size == 0:
         raise InputError(f"{path}: the raw image is empty")
@@ -455,6 +457,7 @@ def write_raw(
     make: str = "l3",
     model: str = "simulated camera",
     description: str = "",
+    shot: dict[str, Any] | None = None,
 ) -> Path:
     """Write an integer CFA mosaic as DNG, or as a 16-bit TIFF + sidecar.
 
@@ -476,6 +479,10 @@ def write_raw(
         Camera neutral (white balance) per colour, defaults to ones.
     make, model, description
         Identification tags.
+    shot
+        DNG only: shot metadata with keys of :data:`l3cli.io.metadata.SHOT_KEYS`
+        (``orientation`` 1-8, ``datetime_original``, ``iso``, ``exposure_time``,
+        ``f_number``, ``lens``), written as the TIFF/EXIF tags of IFD0.
 
     Returns
     -------
@@ -536,6 +543,7 @@ def write_raw(
     ]
     if description:
         extratags.append((270, "s", 0, description, True))
+    extratags += _shot_tags(shot or {})
     with atomic_path(path) as tmp:
         tifffile.imwrite(
             tmp,
@@ -548,6 +556,24 @@ def write_raw(
             metadata=None,
         )
     return path
+
+
+def _shot_tags(shot: dict[str, Any]) -> list[tuple]:
+    """TIFF/EXIF tags (in IFD0, as DNG allows) for :func:`write_raw`'s ``shot``."""
+    tags: list[tuple] = []
+    if "orientation" in shot:
+        tags.append((274, "H", 1, int(shot["orientation"]), True))
+    for code, key in ((33434, "exposure_time"), (33437, "f_number")):
+        if key in shot:
+            tags.append((code, "2I", 1, tuple(_rational(np.array([float(shot[key])]), 1000000)),
+                         True))
+    if "iso" in shot:
+        tags.append((34855, "H", 1, int(shot["iso"]), True))
+    if "datetime_original" in shot:
+        tags.append((36867, "s", 0, str(shot["datetime_original"]), True))
+    if "lens" in shot:
+        tags.append((42036, "s", 0, str(shot["lens"]), True))
+    return tags
 
 
 def _toml_dumps(d: dict[str, Any]) -> str:
