@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from l3cli.classify import MODE_RENDER, RENDER_LANES, _check_mosaic, run_tiles
-from l3cli.errors import TableError
+from l3cli.errors import InputError, TableError
 from l3cli.table import TransformTable
 
 if TYPE_CHECKING:
@@ -109,20 +109,42 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
     return out
 
 
-def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table") -> np.ndarray:
+def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table",
+               white_balance: np.ndarray | None = None) -> np.ndarray:
     """Render a :class:`l3cli.io.raw.RawImage` (checks that the table fits).
+
+    A table that expects white-balanced input (``table.white_balance``)
+    normalises the mosaic by the raw's as-shot gains, or ``white_balance``
+    when given, and adapts the output to that white (:mod:`l3cli.whitebalance`).
 
     Returns
     -------
     numpy.ndarray
         float32 (H, W, n_out) in ``table.output_space``.
+
+    Raises
+    ------
+    InputError
+        The table expects a white balance and the raw has none (and none is
+        given), or one is given for a table trained without.
     """
     check_fits(table, raw, table_name=table_name)
-    return render_mosaic(table, raw.mosaic)
+    if table.white_balance is None:
+        if white_balance is not None:
+            raise InputError(f"{table_name}: the table was trained without white balance; "
+                             "--white-balance does not apply to it")
+        return render_mosaic(table, raw.mosaic)
+    from l3cli.whitebalance import WhiteBalanceModel, adapt_image, apply_gains, gains_or_error
+
+    gains = gains_or_error(raw, white_balance)
+    mosaic = apply_gains(raw.mosaic, raw.cfa, gains, table.definition.saturation_threshold)
+    model = WhiteBalanceModel.from_dict(table.white_balance)
+    img = render_mosaic(table, mosaic)
+    return adapt_image(img, model.matrix(gains), table.output_space, model.space)
 
 
 def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: str | os.PathLike,
-                *, table_name: str = "table") -> Path:
+                *, table_name: str = "table", white_balance: np.ndarray | None = None) -> Path:
     """Read a raw file, render it and write ``out_path`` (format by suffix).
 
     EXR keeps the table's space (linear values as rendered); TIFF/PNG/JPEG
@@ -137,7 +159,7 @@ def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: st
     from l3cli.io.raw import read_raw
 
     raw = read_raw(raw_path)
-    img = render_raw(table, raw, table_name=table_name)
+    img = render_raw(table, raw, table_name=table_name, white_balance=white_balance)
     shot = exif_attributes(raw.metadata.get("shot", {}))
     del raw
     return write_image(out_path, img, space=table.output_space,
@@ -164,21 +186,52 @@ def table_for_task(path: str | os.PathLike) -> TransformTable:
     return _cached_table(str(p), st.st_mtime_ns, st.st_size)
 
 
-def render_task(item: tuple[str, str, str, str]) -> str:
-    """Render one file (a map task): ``(table_path, raw_path, out_path, table_name)``.
+def check_white_balance(table: TransformTable, raws: list[str | os.PathLike],
+                        white_balance: np.ndarray | None, *, table_name: str = "table") -> None:
+    """Check before any output that every raw has the white balance the table needs.
+
+    Raises
+    ------
+    InputError
+        The table expects white-balanced input and a raw carries no white
+        balance (and none is given), or its metadata contradict themselves; or
+        ``white_balance`` is given for a table trained without.
+    """
+    if table.white_balance is None:
+        if white_balance is not None:
+            raise InputError(f"{table_name}: the table was trained without white balance; "
+                             "--white-balance does not apply to it")
+        return
+    if white_balance is not None:
+        return
+    from l3cli.whitebalance import file_gains
+
+    for raw in raws:
+        if file_gains(raw) is None:
+            raise InputError(
+                f"{raw}: no white balance in the raw's metadata, and the table expects "
+                "white-balanced input; give one with --white-balance R,G,B")
+
+
+def render_task(item: tuple) -> str:
+    """Render one file (a map task): ``(table_path, raw_path, out_path, table_name[, gains])``.
 
     The task reads the table (once per process) and the raw itself and writes
-    the output atomically; it returns the output path.
+    the output atomically; it returns the output path. ``gains`` (a tuple of
+    3, or None) overrides the raw's white balance.
     """
-    table_path, raw_path, out_path, table_name = item
+    table_path, raw_path, out_path, table_name = item[:4]
+    gains = np.asarray(item[4], dtype=np.float64) if len(item) > 4 and item[4] else None
     table = table_for_task(table_path)
-    return str(render_file(table, raw_path, out_path, table_name=table_name))
+    return str(render_file(table, raw_path, out_path, table_name=table_name,
+                           white_balance=gains))
 
 
 def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLike,
                                                                 str | os.PathLike]], *,
                  workers: int | None = None, scheduler: str | None = None,
-                 show_progress: bool | None = False) -> list[Path]:
+                 show_progress: bool | None = False,
+                 white_balance: np.ndarray | None = None) -> list[Path]:
     """Render ``(raw, output)`` pairs with the table at ``table_path``.
 
     One :func:`render_task` per file, in process or on a dask cluster
@@ -196,22 +249,35 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
         Local cluster size or running scheduler address (default: in process).
     show_progress
         Progress bar on stderr.
+    white_balance
+        Gains ``[r, g, b]`` for every raw instead of their own (tables that
+        expect white-balanced input only).
 
     Returns
     -------
     list of Path
         The outputs, in input order.
+
+    Raises
+    ------
+    InputError
+        For a table that expects white-balanced input: a raw without a white
+        balance when none is given (checked for every raw before any output
+        is written), or contradictory white-balance metadata.
     """
     from l3cli.parallel import map_reduce
 
-    table_for_task(table_path)  # a bad table fails now, with its one-line message
+    table = table_for_task(table_path)  # a bad table fails now, with its one-line message
+    check_white_balance(table, [raw for raw, _ in jobs], white_balance,
+                        table_name=Path(table_path).name)
+    gains = None if white_balance is None else tuple(float(v) for v in white_balance)
     name = Path(table_path).name
     remote = workers is not None or scheduler is not None
 
     def sent(p: str | os.PathLike) -> str:
         return str(Path(p).absolute()) if remote else str(p)
 
-    items = [(sent(table_path), sent(raw), sent(out), name) for raw, out in jobs]
+    items = [(sent(table_path), sent(raw), sent(out), name, gains) for raw, out in jobs]
     done = map_reduce(render_task, items, workers=workers, scheduler=scheduler,
                       label="render", show_progress=show_progress)
     return [Path(p) for p in done]

@@ -34,6 +34,10 @@ empty              bool         (n_classes,) too few samples to train
 source_class       int64        (n_classes,) class whose kernel is used
 output_space       str          ``xyz``, ``linear-srgb``, ``srgb`` or ``lab``
 provenance         str          JSON: inputs, options, seed, l3 version, date
+white_balance      str          optional JSON: the table expects white-balanced
+                                input and holds its adaptation model
+                                (:class:`l3cli.whitebalance.WhiteBalanceModel`);
+                                absent in tables trained without it
 ================== ============ ===============================================
 
 Class index ``= ((group * 2**n_channels + sat) * n_levels + level) * n_contrast
@@ -94,6 +98,10 @@ class TransformTable:
         Colour space of the output (:data:`l3cli.colourspace.SPACES`).
     provenance
         JSON-serialisable training record.
+    white_balance
+        ``None``, or the white-balance record (:mod:`l3cli.whitebalance`): the
+        table expects mosaics normalised by each raw's as-shot white balance
+        and adapts its output to the raw's white.
     """
 
     definition: ClassDefinition
@@ -106,6 +114,7 @@ class TransformTable:
     provenance: dict = field(default_factory=dict)
     format: str = TABLE_FORMAT
     version: int = TABLE_VERSION
+    white_balance: dict | None = None
 
     def __post_init__(self) -> None:
         self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
@@ -171,6 +180,8 @@ class TransformTable:
             "output_space": np.array(self.output_space),
             "provenance": np.array(json.dumps(self.provenance, sort_keys=True, default=str)),
         }
+        if self.white_balance is not None:
+            out["white_balance"] = np.array(json.dumps(self.white_balance, sort_keys=True))
         return out
 
 
@@ -257,6 +268,15 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         prov = json.loads(_scalar(arrs, "provenance", path, "U") or "{}")
     except json.JSONDecodeError as exc:
         raise TableError(f"{path}: provenance is not JSON ({exc.msg})") from exc
+    wb = None
+    if "white_balance" in arrs:
+        from l3cli.whitebalance import WhiteBalanceModel
+
+        try:
+            wb = json.loads(_scalar(arrs, "white_balance", path, "U"))
+            WhiteBalanceModel.from_dict(wb)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise TableError(f"{path}: bad white_balance record ({exc})") from exc
     try:
         return TransformTable(
             definition=definition,
@@ -267,6 +287,7 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             source_class=arrs["source_class"],
             output_space=_scalar(arrs, "output_space", path, "U"),
             provenance=prov,
+            white_balance=wb,
         )
     except L3Error as exc:
         raise TableError(f"{path}: {exc}") from exc

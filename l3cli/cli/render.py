@@ -19,10 +19,14 @@ _ALIASES = {".tiff": ".tif", ".jpeg": ".jpg"}
 @click.option("--format", "fmt", type=click.Choice(sorted(_FORMATS)), default=None,
               help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
                    "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
+@click.option("--white-balance", "white_balance", metavar="R,G,B", default=None,
+              help="White-balance multipliers for every raw instead of each raw's as-shot "
+                   "white balance (for tables trained with white-balanced input; needed for "
+                   "raws that carry none).")
 @workers_opt
 @scheduler_opt
 def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
-           workers: int | None, scheduler: str | None) -> None:
+           workers: int | None, scheduler: str | None, white_balance: str | None = None) -> None:
     """Render RAW files with TABLE.npz into OUT (-o).
 
     OUT is a file for one input, a folder for several (created if missing;
@@ -32,9 +36,20 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
     its output itself (docs/distributed.md).
     """
     from l3cli.errors import OutputError
-    from l3cli.render import render_files, table_for_task
+    from l3cli.render import check_white_balance, render_files, table_for_task
 
-    table_for_task(table_path)  # a bad table fails before anything is created
+    table = table_for_task(table_path)  # a bad table fails before anything is created
+    gains = None
+    if white_balance is not None:
+        from l3cli.errors import InputError
+        from l3cli.whitebalance import parse_gains
+
+        try:
+            gains = parse_gains(white_balance)
+        except InputError as exc:
+            raise click.BadParameter(str(exc).split(": ", 1)[-1],
+                                     param_hint="--white-balance") from None
+    check_white_balance(table, list(raws), gains, table_name=Path(table_path).name)
     out = Path(output)
     targets: list[tuple[str, Path]] = []
     if len(raws) == 1 and not out.is_dir():
@@ -60,4 +75,4 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
             stems.add(stem)
             targets.append((r, out / f"{stem}{suffix}"))
     render_files(table_path, targets, workers=workers, scheduler=scheduler,
-                 show_progress=not quiet())
+                 show_progress=not quiet(), white_balance=gains)

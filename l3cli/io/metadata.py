@@ -11,6 +11,10 @@ one flat dict with the keys of :data:`SHOT_KEYS` (absent keys are left out):
     From the file's TIFF/EXIF tags (tifffile) where the raw is TIFF-based
     (DNG, NEF, CR2, ARW, PEF, ...), else from what LibRaw reports through
     rawpy (``other``, ``lens``: ISO, shutter, aperture, timestamp, lens).
+``as_shot_neutral``, ``as_shot_white_xy``, ``color_matrix1``
+    A DNG's AsShotNeutral (camera neutral), AsShotWhiteXY and ColorMatrix1
+    (XYZ -> camera), where present; :mod:`l3cli.whitebalance` cross-checks
+    them with LibRaw's camera white balance.
 
 :func:`exif_attributes` turns such a dict into OpenImageIO attributes, which
 :func:`l3cli.io.image.write_image` writes: EXIF in JPEG, PNG (``eXIf``) and
@@ -105,6 +109,14 @@ def _from_tiff(path: Path) -> dict[str, Any]:
             if v:
                 out[key] = v
                 break
+    for key, tag, n in (("as_shot_neutral", "AsShotNeutral", 3),
+                        ("as_shot_white_xy", "AsShotWhiteXY", 2),
+                        ("color_matrix1", "ColorMatrix1", 9)):
+        v = flat.get(tag)
+        if isinstance(v, tuple | list) and len(v) == 2 * n:  # n (signed) rationals
+            vals = [v[i] / v[i + 1] if v[i + 1] else None for i in range(0, 2 * n, 2)]
+            if all(x is not None and math.isfinite(x) for x in vals):
+                out[key] = [float(x) for x in vals]
     for key, names in (("iso", ("ISOSpeedRatings", "PhotographicSensitivity",
                                 "RecommendedExposureIndex")),
                        ("exposure_time", ("ExposureTime",)), ("f_number", ("FNumber",))):

@@ -60,6 +60,7 @@ _SIDECAR_KEYS = {
     "offset": "bytes to skip at the start of the file (int >= 0, default 0)",
     "bit_depth": "significant bits (informative)",
     "description": "free text",
+    "white_balance": "as-shot white-balance multipliers [r, g, b] (3 finite numbers > 0)",
 }
 _DTYPES = {"uint8": np.dtype("<u1"), "uint16": np.dtype("<u2"), "uint16be": np.dtype(">u2")}
 
@@ -204,6 +205,23 @@ def _levels(meta: dict[str, Any], cfa: CFA, sc: Path) -> tuple[np.ndarray, float
     return cfa_black, white
 
 
+def _sidecar_white_balance(meta: dict[str, Any], sc: Path) -> list[float] | None:
+    """The sidecar's ``white_balance`` (validated), or None."""
+    if "white_balance" not in meta:
+        return None
+    from l3cli.whitebalance import check_gains
+
+    v = meta["white_balance"]
+    ok = isinstance(v, list) and not any(isinstance(x, bool | str) for x in v)
+    if not ok:
+        raise ConfigError(f"{sc}: white_balance: must be 3 finite positive numbers [r, g, b], "
+                          f"got {v!r}")
+    try:
+        return [float(x) for x in check_gains(v, f"{sc}: white_balance")]
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 def _read_headerless(path: Path) -> RawImage:
     sc = sidecar_path(path)
     meta = _read_sidecar(path, sc)
@@ -240,7 +258,8 @@ def _read_headerless(path: Path) -> RawImage:
         white_level=white,
         path=path,
         metadata={"format": "headerless", "dtype": meta["dtype"],
-                  "bit_depth": meta.get("bit_depth"), "description": meta.get("description")},
+                  "bit_depth": meta.get("bit_depth"), "description": meta.get("description"),
+                  "white_balance": _sidecar_white_balance(meta, sc)},
     )
 
 
@@ -282,7 +301,8 @@ def _read_image_mosaic(path: Path) -> RawImage:
         white_level=white,
         path=path,
         metadata={"format": "mosaic-image", "bit_depth": meta.get("bit_depth"),
-                  "description": meta.get("description")},
+                  "description": meta.get("description"),
+                  "white_balance": _sidecar_white_balance(meta, sc)},
     )
 
 
@@ -482,7 +502,8 @@ def write_raw(
     shot
         DNG only: shot metadata with keys of :data:`l3cli.io.metadata.SHOT_KEYS`
         (``orientation`` 1-8, ``datetime_original``, ``iso``, ``exposure_time``,
-        ``f_number``, ``lens``), written as the TIFF/EXIF tags of IFD0.
+        ``f_number``, ``lens``, ``as_shot_white_xy``), written as the TIFF/EXIF/DNG
+        tags of IFD0.
 
     Returns
     -------
@@ -573,6 +594,9 @@ def _shot_tags(shot: dict[str, Any]) -> list[tuple]:
         tags.append((36867, "s", 0, str(shot["datetime_original"]), True))
     if "lens" in shot:
         tags.append((42036, "s", 0, str(shot["lens"]), True))
+    if "as_shot_white_xy" in shot:  # AsShotWhiteXY (DNG writers give it or AsShotNeutral)
+        tags.append((50729, "2I", 2, tuple(_rational(np.asarray(shot["as_shot_white_xy"]),
+                                                     1000000)), True))
     return tags
 
 

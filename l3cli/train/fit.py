@@ -21,6 +21,7 @@ group (same saturation pattern and contrast first, nearest level).
 
 from __future__ import annotations
 
+import copy
 import logging
 import platform
 from collections.abc import Iterable, Sequence
@@ -58,7 +59,10 @@ class TrainOptions:
                  contrast_threshold: float | None = None, merge_positions: bool = True,
                  target_space: str = "xyz", sample_fraction: float = 1.0, seed: int = 0,
                  min_samples_factor: float = 3.0,
-                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID)) -> None:
+                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID),
+                 white_balance: bool = False,
+                 wb_override: Sequence[float] | None = None,
+                 target_adapt: dict[str, list] | None = None) -> None:
         if patch < 1 or patch % 2 == 0:
             raise ConfigError(f"--patch {patch} is not allowed; use an odd size >= 1")
         if levels < 2:
@@ -84,6 +88,12 @@ class TrainOptions:
         self.seed = int(seed)
         self.min_samples_factor = float(min_samples_factor)
         self.lambda_grid = np.asarray(lambda_grid, dtype=np.float64)
+        # White balance as an input (l3cli.whitebalance): normalise each raw by its
+        # as-shot gains (or wb_override); target_adapt maps a capture's stem to the
+        # 3x3 adaptation taken out of its target (set by train() itself).
+        self.white_balance = bool(white_balance)
+        self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
+        self.target_adapt = target_adapt
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
@@ -131,15 +141,17 @@ def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
         ``(index, cfa, histogram or None)``; histograms add.
     """
     from l3cli.io.raw import read_raw
+    from l3cli.whitebalance import training_mosaic
 
     i, pair, opts, with_hist = item
     raw = read_raw(pair.raw)
+    mosaic = training_mosaic(raw, opts)
     if not with_hist:
         return i, raw.cfa, None
     hist = ContrastHistogram.empty()
     frac = min(opts.sample_fraction, 0.25)
     mask = sample_mask(raw.mosaic.shape, frac, opts.seed, i, stream=1)
-    hist.add_mosaic(raw.mosaic, raw.cfa, patch=opts.patch,
+    hist.add_mosaic(mosaic, raw.cfa, patch=opts.patch,
                     saturation_threshold=opts.saturation, mask=mask)
     return i, raw.cfa, hist
 
@@ -206,8 +218,12 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
     mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
     if valid is not None:
         mask = valid if mask is None else mask & valid
+    from l3cli.whitebalance import training_mosaic, training_target
+
+    mosaic = training_mosaic(raw, opts)
+    target = training_target(target, i, opts)
     stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
-    accumulate(stats, raw.mosaic, target, mask=mask)
+    accumulate(stats, mosaic, target, mask=mask)
     return PartialStats.of(stats)
 
 
@@ -395,10 +411,24 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     pairs = list(pairs)
     if not pairs:
         raise InputError("no training pairs")
+    prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
+            "seed": opts.seed}
     with dask_client(workers, scheduler) as client:
         definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
         stats = collect_stats(pairs, definition, opts, client=client,
                               show_progress=show_progress)
-    prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
-            "seed": opts.seed}
-    return table_from_stats(stats, opts, provenance=prov)
+        model = None
+        stats_opts = opts
+        if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
+            from l3cli.whitebalance import fit_white_adaptation
+
+            model, adapt = fit_white_adaptation(pairs, opts)
+            if adapt:
+                stats_opts = copy.copy(opts)
+                stats_opts.target_adapt = adapt
+        stats = collect_stats(pairs, definition, stats_opts, client=client,
+                              show_progress=show_progress)
+    table = table_from_stats(stats, opts, provenance=prov)
+    if model is not None:
+        table.white_balance = model.as_dict()
+    return table
