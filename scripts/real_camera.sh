@@ -14,7 +14,9 @@
 #    raws, evaluate against the ISP's PNGs (S-CIELAB at 96 dpi and 1 m, PSNR,
 #    ColorChecker ΔE with the chart corners), 4-pixel border excluded.
 # 2. (full data only) Blackmagic Pocket 4K DNG vs LibRaw's AHD rendering:
-#    train on the left half, render and evaluate the right half.
+#    train on the left half, render and evaluate the right half; and five
+#    crops of it as DNGs whose white balance differs per shot (train on 3,
+#    evaluate 2; the as-shot white balance is an input, issue 15).
 # Extra `l3 train` options can be given in L3_TRAIN_OPTS (default below).
 set -euo pipefail
 L3=${1:-l3}
@@ -57,6 +59,16 @@ if [ -n "$DATA" ]; then
     "$L3" render "$OUT/bmpcc.npz" "$OUT/bmpcc/test/bmpcc_right.raw" -o "$OUT/bmpcc_right.tif"
     "$L3" evaluate "$OUT/bmpcc_right.tif" --reference "$OUT/bmpcc/ref/bmpcc_right.tif" \
         --dpi 96 --distance 1 --exclude-border 4 --json "$OUT/eval_bmpcc_right.json"
+
+    echo "== Blackmagic, white balance per shot: train on 3 DNG crops, evaluate 2 (issue 15)"
+    "$PY" "$here/scripts/real_camera_data.py" bmpcc-wb "$DATA/raw/misc/blackmagic_pocket4k_rggb.dng" "$OUT/bmpcc_wb"
+    # shellcheck disable=SC2086
+    "$L3" -v train "$OUT/bmpcc_wb/train" -o "$OUT/bmpcc_wb.npz" $TRAIN_OPTS --seed 1
+    "$L3" render "$OUT/bmpcc_wb.npz" "$OUT"/bmpcc_wb/test/*.dng -o "$OUT/bmpcc_wb_test" --format tiff
+    for stem in shot3 shot4; do
+        "$L3" evaluate "$OUT/bmpcc_wb_test/$stem.tif" --reference "$OUT/bmpcc_wb/test/$stem.tif" \
+            --dpi 96 --distance 1 --exclude-border 4 --json "$OUT/eval_bmpcc_wb_$stem.json"
+    done
 fi
 
 echo "== Summary (name | S-CIELAB mean ΔE*ab | PSNR dB | ColorChecker ΔE*ab)"

@@ -139,7 +139,7 @@ def run(out: Path, *, l3: str = "l3", size: str = "320x240", seed: int = 1,
         "fixed_test": (["D65"], TEST_SCENES),
     }
     base = ["--target", "linear-srgb", "--seed", "1"]
-    runs = {"mixed-wb": ("mixed_train", "mixed_test", ["--as-shot-wb"]),
+    runs = {"mixed-wb": ("mixed_train", "mixed_test", []),  # the default for such pairs
             "mixed-nowb": ("mixed_train", "mixed_test", ["--no-as-shot-wb"]),
             "fixed": ("fixed_train", "fixed_test", ["--as-shot-wb"]),
             "fixed-nowb": ("fixed_train", "fixed_test", ["--no-as-shot-wb"])}
