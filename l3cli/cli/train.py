@@ -41,6 +41,10 @@ from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, worker
               help="Accept pairs-folder renders that are resized copies of their raws (e.g. "
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
+@click.option("--embedded-preview", is_flag=True, default=False,
+              help="Train each raw of the INPUT folders against the JPEG preview the raw "
+                   "embeds (rawpy's thumbnail; full size, or a resized copy trained at its "
+                   "resolution) instead of a rendered image of the same stem.")
 @click.option("--as-shot-wb/--no-as-shot-wb", "as_shot_wb", default=None,
               help="Normalise every raw by its as-shot white balance and condition the "
                    "colour on the shot's white (docs/real-camera.md) [default: on when every "
@@ -57,7 +61,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           target_space: str, sample_fraction: float, min_samples_factor: float,
           seed: int, scaled_renders: bool = False, workers: int | None = None,
           scheduler: str | None = None, as_shot_wb: bool | None = None,
-          white_balance: str | None = None) -> None:
+          white_balance: str | None = None, embedded_preview: bool = False) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -77,7 +81,20 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
 
     if patch < 1 or patch % 2 == 0:
         raise click.BadParameter(f"{patch} is not an odd size >= 1", param_hint="--patch")
-    pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
+    if embedded_preview:
+        import shutil
+        import tempfile
+        from pathlib import Path
+
+        from l3cli.preview import preview_pairs
+
+        parent = Path(output).absolute().parent
+        work = tempfile.mkdtemp(prefix=".l3-tmp-previews-",
+                                dir=parent if parent.is_dir() else None)
+        click.get_current_context().call_on_close(lambda: shutil.rmtree(work, ignore_errors=True))
+        pairs = preview_pairs(list(inputs), work)
+    else:
+        pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
     if target_space is None:  # pairs folders reproduce their renders' encoding
         target_space = "srgb" if all(p.align for p in pairs) else "xyz"
     gains = None
