@@ -19,6 +19,7 @@ SIMD multiply-add.
 from __future__ import annotations
 
 import functools
+import logging
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -129,6 +130,18 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
         given), or one is given for a table trained without.
     """
     check_fits(table, raw, table_name=table_name)
+    if table.conditions is not None:  # per-ISO kernels, interpolated for this raw
+        import dataclasses
+
+        from l3cli.conditions import kernels_for, raw_condition
+
+        value = raw_condition(raw, table.conditions.by)
+        if value is None:
+            logging.getLogger(__name__).warning(
+                "%s: no %s in the metadata; rendering with the pooled kernels",
+                raw.path, table.conditions.by.upper())
+        k = kernels_for(table, value)
+        table = dataclasses.replace(table, kernels=k, conditions=None)
     if table.white_balance is None:
         if white_balance is not None:
             raise InputError(f"{table_name}: the table was trained without white balance; "

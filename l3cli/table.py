@@ -38,6 +38,7 @@ white_balance      str          optional JSON: the table expects white-balanced
                                 input and holds its adaptation model
                                 (:class:`l3cli.whitebalance.WhiteBalanceModel`);
                                 absent in tables trained without it
+cond_*             (optional)   per-ISO-bin kernels (:mod:`l3cli.conditions`)
 ================== ============ ===============================================
 
 Class index ``= ((group * 2**n_channels + sat) * n_levels + level) * n_contrast
@@ -51,6 +52,7 @@ import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -115,6 +117,7 @@ class TransformTable:
     format: str = TABLE_FORMAT
     version: int = TABLE_VERSION
     white_balance: dict | None = None
+    conditions: Any = None  # l3cli.conditions.Conditioned: per-bin kernels (--by iso)
 
     def __post_init__(self) -> None:
         self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
@@ -127,6 +130,9 @@ class TransformTable:
             raise TableError(f"inconsistent table: {problem}")
         if self.output_space not in SPACES:
             raise TableError(f"output space {self.output_space!r} is not one of {', '.join(SPACES)}")
+        if self.conditions is not None and self.conditions.kernels.shape[1:] != self.kernels.shape:
+            raise TableError(f"inconsistent table: condition kernels have shape "
+                             f"{self.conditions.kernels.shape[1:]}, the table's {self.kernels.shape}")
 
     def _shape_problem(self) -> str | None:
         d = self.definition
@@ -182,6 +188,8 @@ class TransformTable:
         }
         if self.white_balance is not None:
             out["white_balance"] = np.array(json.dumps(self.white_balance, sort_keys=True))
+        if self.conditions is not None:
+            out.update(self.conditions.to_arrays())
         return out
 
 
@@ -277,6 +285,12 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             WhiteBalanceModel.from_dict(wb)
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
             raise TableError(f"{path}: bad white_balance record ({exc})") from exc
+    from l3cli.conditions import Conditioned
+
+    try:
+        cond = Conditioned.from_arrays(arrs)
+    except TableError as exc:
+        raise TableError(f"{path}: {exc}") from exc
     try:
         return TransformTable(
             definition=definition,
@@ -288,6 +302,7 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             output_space=_scalar(arrs, "output_space", path, "U"),
             provenance=prov,
             white_balance=wb,
+            conditions=cond,
         )
     except L3Error as exc:
         raise TableError(f"{path}: {exc}") from exc

@@ -41,6 +41,10 @@ from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, worker
               help="Accept pairs-folder renders that are resized copies of their raws (e.g. "
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
+@click.option("--by", "by", type=click.Choice(["iso"]), default=None,
+              help="Learn one set of kernels per ISO of the training raws (from their "
+                   "metadata) into the table; `l3 render` interpolates between the two "
+                   "nearest ISOs of each raw.")
 @click.option("--embedded-preview", is_flag=True, default=False,
               help="Train each raw of the INPUT folders against the JPEG preview the raw "
                    "embeds (rawpy's thumbnail; full size, or a resized copy trained at its "
@@ -61,7 +65,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           target_space: str, sample_fraction: float, min_samples_factor: float,
           seed: int, scaled_renders: bool = False, workers: int | None = None,
           scheduler: str | None = None, as_shot_wb: bool | None = None,
-          white_balance: str | None = None, embedded_preview: bool = False) -> None:
+          white_balance: str | None = None, embedded_preview: bool = False,
+          by: str | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -122,7 +127,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         saturation=saturation, merge_positions=merge_positions,
                         target_space=target_space, sample_fraction=sample_fraction, seed=seed,
                         min_samples_factor=min_samples_factor, white_balance=as_shot_wb,
-                        wb_override=None if gains is None else gains.tolist())
+                        wb_override=None if gains is None else gains.tolist(), by=by)
     show = not quiet()
     table = train_table(pairs, opts, workers=workers, scheduler=scheduler, show_progress=show)
     save_table(output, table)

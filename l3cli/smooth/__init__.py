@@ -181,7 +181,7 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
     return TransformTable(definition=d, kernels=kernels.astype(np.float32), counts=table.counts,
                           lambdas=table.lambdas, empty=empty, source_class=src,
                           output_space=table.output_space, provenance=prov,
-                          white_balance=table.white_balance)
+                          white_balance=table.white_balance, conditions=table.conditions)
 
 
 def filled_classes(table: TransformTable) -> dict[str, list[int]]:

@@ -62,7 +62,8 @@ class TrainOptions:
                  lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID),
                  white_balance: bool = False,
                  wb_override: Sequence[float] | None = None,
-                 target_adapt: dict[str, list] | None = None) -> None:
+                 target_adapt: dict[str, list] | None = None,
+                 by: str | None = None) -> None:
         if patch < 1 or patch % 2 == 0:
             raise ConfigError(f"--patch {patch} is not allowed; use an odd size >= 1")
         if levels < 2:
@@ -94,6 +95,7 @@ class TrainOptions:
         self.white_balance = bool(white_balance)
         self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
         self.target_adapt = target_adapt
+        self.by = by  # condition bins (l3cli.conditions): None or "iso"
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
@@ -426,9 +428,36 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
             if adapt:
                 stats_opts = copy.copy(opts)
                 stats_opts.target_adapt = adapt
-        stats = collect_stats(pairs, definition, stats_opts, client=client,
-                              show_progress=show_progress)
+        if opts.by:
+            from l3cli.conditions import group_pairs
+
+            groups = group_pairs(pairs, opts.by)
+            parts = [collect_stats([pairs[i] for i in idx], definition, stats_opts,
+                                   index_offset=min(idx), client=client,
+                                   show_progress=show_progress) for idx in groups.values()]
+            stats = parts[0]
+            for part in parts[1:]:
+                stats = stats + part
+        else:
+            stats = collect_stats(pairs, definition, stats_opts, client=client,
+                                  show_progress=show_progress)
     table = table_from_stats(stats, opts, provenance=prov)
     if model is not None:
         table.white_balance = model.as_dict()
+    if opts.by:
+        from l3cli.conditions import Conditioned
+
+        min_n = opts.min_samples_factor * definition.n_coeffs
+        kernels, counts = [], []
+        for part in parts:
+            k = np.array(table.kernels)
+            n = np.where(part.n >= min_n, part.n, 0)
+            for c in np.flatnonzero(n):
+                k[c] = solve_class(float(part.n[c]), part.xtx[c], part.xty[c], part.yy[c],
+                                   grid=opts.lambda_grid).kernel
+            kernels.append(k)
+            counts.append(n)
+        table.conditions = Conditioned(opts.by, list(groups), np.array(kernels), np.array(counts))
+        table.provenance["conditions"] = {"by": opts.by, "values": list(groups),
+                                          "trained_classes": [int((c > 0).sum()) for c in counts]}
     return table
