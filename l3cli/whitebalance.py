@@ -321,13 +321,19 @@ def training_mosaic(raw: Any, opts: Any) -> np.ndarray:
     return apply_gains(raw.mosaic, raw.cfa, training_gains(raw, opts), opts.saturation)
 
 
-def training_target(target: np.ndarray, index: int, opts: Any) -> np.ndarray:
-    """The target with capture ``index``'s modelled adaptation taken out (when set)."""
+def _key(raw_path: Any) -> str:
+    from pathlib import Path
+
+    return str(Path(raw_path).absolute())
+
+
+def training_target(target: np.ndarray, raw_path: Any, opts: Any) -> np.ndarray:
+    """The target with the modelled adaptation of its capture taken out (when set)."""
     adapt = getattr(opts, "target_adapt", None)
-    if not adapt or str(index) not in adapt:
+    if not adapt or _key(raw_path) not in adapt:
         return target
     space = ADAPT_SPACE[opts.target_space]
-    return adapt_image(target, np.asarray(adapt[str(index)]), opts.target_space, space)
+    return adapt_image(target, np.asarray(adapt[_key(raw_path)]), opts.target_space, space)
 
 
 def quick_rgb(mosaic: np.ndarray, cfa: Any) -> np.ndarray:
@@ -368,8 +374,8 @@ def fit_white_adaptation(pairs: Sequence[Any], opts: Any
     Returns
     -------
     model, adapt
-        The model, and per capture index the inverse of its modelled matrix
-        (empty when the whites coincide).
+        The model, and per capture (its raw's absolute path) the inverse of
+        its modelled matrix (empty when the whites coincide).
     """
     from scipy.ndimage import minimum_filter
 
@@ -377,8 +383,9 @@ def fit_white_adaptation(pairs: Sequence[Any], opts: Any
     from l3cli.train.data import load_pair
 
     space = ADAPT_SPACE[opts.target_space]
-    whites, mats = [], []
+    whites, mats, keys = [], [], []
     for pair in pairs:
+        keys.append(_key(pair.raw))
         raw, target, valid = load_pair(pair, target_space=opts.target_space, with_mask=True)
         gains = training_gains(raw, opts)
         whites.append(gains)
@@ -397,5 +404,6 @@ def fit_white_adaptation(pairs: Sequence[Any], opts: Any
     # A(w) = F(w) F0^-1 is linear in the features too: right-multiply every term.
     coef = np.array([(c.reshape(3, 3) @ f0_inv).ravel() for c in f_model.coef])
     model = WhiteBalanceModel(space, f_model.center, coef, whites_a)
-    adapt = {str(i): np.linalg.inv(model.matrix(w)).tolist() for i, w in enumerate(whites_a)}
+    adapt = {k: np.linalg.inv(model.matrix(w)).tolist() for k, w in zip(keys, whites_a,
+                                                                          strict=True)}
     return model, adapt

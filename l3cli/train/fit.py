@@ -90,7 +90,7 @@ class TrainOptions:
         self.min_samples_factor = float(min_samples_factor)
         self.lambda_grid = np.asarray(lambda_grid, dtype=np.float64)
         # White balance as an input (l3cli.whitebalance): normalise each raw by its
-        # as-shot gains (or wb_override); target_adapt maps a capture's stem to the
+        # as-shot gains (or wb_override); target_adapt maps a capture's raw path to the
         # 3x3 adaptation taken out of its target (set by train() itself).
         self.white_balance = bool(white_balance)
         self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
@@ -223,7 +223,7 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
     from l3cli.whitebalance import training_mosaic, training_target
 
     mosaic = training_mosaic(raw, opts)
-    target = training_target(target, i, opts)
+    target = training_target(target, pair.raw, opts)
     stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
     accumulate(stats, mosaic, target, mask=mask)
     return PartialStats.of(stats)
