@@ -33,8 +33,10 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = ["SHOT_KEYS", "LIBRAW_FLIP_TO_EXIF", "read_shot_metadata", "exif_attributes",
-           "set_spec_metadata"]
+           "set_spec_metadata", "dng_shot_tags", "sidecar_white_balance"]
 
 log = logging.getLogger(__name__)
 
@@ -211,3 +213,52 @@ def set_spec_metadata(spec: Any, metadata: dict[str, Any]) -> None:
             spec.attribute(str(name), v)
         else:
             spec.attribute(str(name), str(v))
+
+
+def _rationals(values: Any, denominator: int = 1000000) -> tuple[int, ...]:
+    out: list[int] = []
+    for v in np.asarray(values, dtype=np.float64).ravel():
+        out += [int(round(v * denominator)), denominator]
+    return tuple(out)
+
+
+def dng_shot_tags(shot: dict[str, Any]) -> list[tuple]:
+    """TIFF/EXIF/DNG tags (in IFD0, as DNG allows) for ``write_raw(..., shot=...)``."""
+    tags: list[tuple] = []
+    if "orientation" in shot:
+        tags.append((274, "H", 1, int(shot["orientation"]), True))
+    for code, key in ((33434, "exposure_time"), (33437, "f_number")):
+        if key in shot:
+            tags.append((code, "2I", 1, _rationals([float(shot[key])]), True))
+    if "iso" in shot:
+        tags.append((34855, "H", 1, int(shot["iso"]), True))
+    if "datetime_original" in shot:
+        tags.append((36867, "s", 0, str(shot["datetime_original"]), True))
+    if "lens" in shot:
+        tags.append((42036, "s", 0, str(shot["lens"]), True))
+    if "as_shot_white_xy" in shot:  # AsShotWhiteXY (DNG writers give it or AsShotNeutral)
+        tags.append((50729, "2I", 2, _rationals(shot["as_shot_white_xy"]), True))
+    return tags
+
+
+def sidecar_white_balance(meta: dict[str, Any], sc: Path) -> list[float] | None:
+    """A raw sidecar's ``white_balance`` (validated: 3 finite numbers > 0), or None.
+
+    Raises
+    ------
+    l3cli.errors.ConfigError
+        A bad value; the message names the sidecar and the key.
+    """
+    from l3cli.errors import ConfigError, InputError
+    from l3cli.whitebalance import check_gains
+
+    if "white_balance" not in meta:
+        return None
+    v = meta["white_balance"]
+    if not isinstance(v, list) or any(isinstance(x, bool | str) for x in v):
+        raise ConfigError(f"{sc}: white_balance: must be 3 finite positive numbers [r, g, b], "
+                          f"got {v!r}")
+    try:
+        return [float(x) for x in check_gains(v, f"{sc}: white_balance")]
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None

@@ -37,7 +37,7 @@ import numpy as np
 from l3cli.cfa import CFA
 from l3cli.errors import ConfigError, InputError
 from l3cli.io.atomic import atomic_path
-from l3cli.io.metadata import read_shot_metadata
+from l3cli.io.metadata import dng_shot_tags, read_shot_metadata, sidecar_white_balance
 
 __all__ = ["RawImage", "read_raw", "write_raw", "sidecar_path", "RAW_SUFFIXES"]
 
@@ -205,23 +205,6 @@ def _levels(meta: dict[str, Any], cfa: CFA, sc: Path) -> tuple[np.ndarray, float
     return cfa_black, white
 
 
-def _sidecar_white_balance(meta: dict[str, Any], sc: Path) -> list[float] | None:
-    """The sidecar's ``white_balance`` (validated), or None."""
-    if "white_balance" not in meta:
-        return None
-    from l3cli.whitebalance import check_gains
-
-    v = meta["white_balance"]
-    ok = isinstance(v, list) and not any(isinstance(x, bool | str) for x in v)
-    if not ok:
-        raise ConfigError(f"{sc}: white_balance: must be 3 finite positive numbers [r, g, b], "
-                          f"got {v!r}")
-    try:
-        return [float(x) for x in check_gains(v, f"{sc}: white_balance")]
-    except InputError as exc:
-        raise ConfigError(str(exc)) from None
-
-
 def _read_headerless(path: Path) -> RawImage:
     sc = sidecar_path(path)
     meta = _read_sidecar(path, sc)
@@ -259,7 +242,7 @@ def _read_headerless(path: Path) -> RawImage:
         path=path,
         metadata={"format": "headerless", "dtype": meta["dtype"],
                   "bit_depth": meta.get("bit_depth"), "description": meta.get("description"),
-                  "white_balance": _sidecar_white_balance(meta, sc)},
+                  "white_balance": sidecar_white_balance(meta, sc)},
     )
 
 
@@ -302,7 +285,7 @@ def _read_image_mosaic(path: Path) -> RawImage:
         path=path,
         metadata={"format": "mosaic-image", "bit_depth": meta.get("bit_depth"),
                   "description": meta.get("description"),
-                  "white_balance": _sidecar_white_balance(meta, sc)},
+                  "white_balance": sidecar_white_balance(meta, sc)},
     )
 
 
@@ -564,7 +547,7 @@ def write_raw(
     ]
     if description:
         extratags.append((270, "s", 0, description, True))
-    extratags += _shot_tags(shot or {})
+    extratags += dng_shot_tags(shot or {})
     with atomic_path(path) as tmp:
         tifffile.imwrite(
             tmp,
@@ -577,27 +560,6 @@ def write_raw(
             metadata=None,
         )
     return path
-
-
-def _shot_tags(shot: dict[str, Any]) -> list[tuple]:
-    """TIFF/EXIF tags (in IFD0, as DNG allows) for :func:`write_raw`'s ``shot``."""
-    tags: list[tuple] = []
-    if "orientation" in shot:
-        tags.append((274, "H", 1, int(shot["orientation"]), True))
-    for code, key in ((33434, "exposure_time"), (33437, "f_number")):
-        if key in shot:
-            tags.append((code, "2I", 1, tuple(_rational(np.array([float(shot[key])]), 1000000)),
-                         True))
-    if "iso" in shot:
-        tags.append((34855, "H", 1, int(shot["iso"]), True))
-    if "datetime_original" in shot:
-        tags.append((36867, "s", 0, str(shot["datetime_original"]), True))
-    if "lens" in shot:
-        tags.append((42036, "s", 0, str(shot["lens"]), True))
-    if "as_shot_white_xy" in shot:  # AsShotWhiteXY (DNG writers give it or AsShotNeutral)
-        tags.append((50729, "2I", 2, tuple(_rational(np.asarray(shot["as_shot_white_xy"]),
-                                                     1000000)), True))
-    return tags
 
 
 def _toml_dumps(d: dict[str, Any]) -> str:
