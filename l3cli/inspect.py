@@ -160,6 +160,13 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "samples": int(table.counts.sum()),
         "lambda": lam,
         "smoothing": table.provenance.get("smoothing"),
+        "white_balance": table.white_balance is not None,
+        "conditions": None if table.conditions is None else {
+            "by": table.conditions.by,
+            "bins": [{"value": float(v), "samples": int(c.sum()),
+                      "trained_classes": int((c > 0).sum())}
+                     for v, c in zip(table.conditions.values, table.conditions.counts,
+                                     strict=True)]},
         "provenance": table.provenance,
     }
 
@@ -216,6 +223,16 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
         lam = s["lambda"]
         out.append(f"ridge lambda: min {lam['min']:.3g}, median {lam['median']:.3g}, "
                    f"max {lam['max']:.3g}")
+    if s.get("white_balance"):
+        out.append("input: white-balanced by each raw's as-shot white balance, output adapted "
+                   "to its white")
+    if s.get("conditions"):
+        cond = s["conditions"]
+        out.append(f"condition bins ({cond['by']}; render interpolates between neighbours, "
+                   "untrained classes use the pooled kernel):")
+        for b in cond["bins"]:
+            out.append(f"  {cond['by']} {b['value']:g}: {b['samples']} samples, "
+                       f"{b['trained_classes']} classes trained")
     out.append("")
     out.append(f"levels ({lay['level_spacing']} spacing):")
     out.append(f"  {'bin':>3}  {'from':>9}  {'to':>9}  {'samples':>10}  {'unsat':>10}  "

@@ -148,17 +148,24 @@ def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
 
 
 def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str | os.PathLike,
-         options: dict[str, Any]) -> tuple[Path, tuple[float, float, float]]:
+         options: dict[str, Any], white_balance: np.ndarray | None = None,
+         ) -> tuple[Path, tuple[float, float, float]]:
     from l3cli.io.image import format_of, write_image
+    from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
-    from l3cli.render import check_fits, render_mosaic
+    from l3cli.render import check_fits, render_mosaic, render_raw
 
     fmt = format_of(out_path)
     t0 = time.perf_counter()
     raw = read_raw(raw_path)
     check_fits(table, raw, table_name=table_name)
+    shot = exif_attributes(raw.metadata.get("shot", {}))
     t1 = time.perf_counter()
-    if fmt == "exr":
+    if table.white_balance is not None or table.conditions is not None:
+        # per-raw gains, adaptation or kernels: the whole-image path
+        with _RENDER_LOCK:
+            img = render_raw(table, raw, table_name=table_name, white_balance=white_balance)
+    elif fmt == "exr":
         with _RENDER_LOCK:
             img = render_mosaic(table, raw.mosaic)
     else:
@@ -166,7 +173,7 @@ def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str
     t2 = time.perf_counter()
     del raw
     out = write_image(out_path, img, space=table.output_space,
-                      attributes={"l3:table": str(table_name)}, **options)
+                      attributes={"l3:table": str(table_name)}, metadata=shot, **options)
     return out, (t1 - t0, t2 - t1, time.perf_counter() - t2)
 
 
@@ -193,7 +200,8 @@ def _quiet_warm_up(table: Any, out_path: str | os.PathLike) -> None:
 
 def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
                     table_name: str = "table", options: dict[str, Any] | None = None,
-                    in_flight: int = IN_FLIGHT, show_progress: bool | None = False) -> list[Path]:
+                    in_flight: int = IN_FLIGHT, show_progress: bool | None = False,
+                    white_balance: np.ndarray | None = None) -> list[Path]:
     """Render ``(raw, output)`` pairs with ``table``, stages overlapped across files.
 
     Parameters
@@ -209,6 +217,9 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
         ``half``, ``quality``).
     in_flight
         Files in progress at a time (>= 1; 1 is a plain loop).
+    white_balance
+        Gains ``[r, g, b]`` for every raw instead of their own (tables that
+        expect white-balanced input only).
     show_progress
         Progress bar on stderr (files finished, in input order).
 
@@ -236,7 +247,8 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
                                 name="l3-warm-up", daemon=True)
         warm.start()
         futures: list[Future[tuple[Path, tuple[float, float, float]]]] = [
-            pool.submit(_one, table, table_name, raw, out, options) for raw, out in jobs
+            pool.submit(_one, table, table_name, raw, out, options, white_balance)
+            for raw, out in jobs
         ]
         try:
             for i, fut in enumerate(_locked(progress(futures, label="render",

@@ -19,6 +19,7 @@ SIMD multiply-add.
 from __future__ import annotations
 
 import functools
+import logging
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from l3cli.classify import MODE_RENDER, check_mosaic, run_tiles
-from l3cli.errors import TableError
+from l3cli.errors import InputError, TableError
 from l3cli.render_rows import RENDER_LANES
 from l3cli.table import TransformTable
 
@@ -110,34 +111,75 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
     return out
 
 
-def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table") -> np.ndarray:
+def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table",
+               white_balance: np.ndarray | None = None) -> np.ndarray:
     """Render a :class:`l3cli.io.raw.RawImage` (checks that the table fits).
+
+    A table that expects white-balanced input (``table.white_balance``)
+    normalises the mosaic by the raw's as-shot gains, or ``white_balance``
+    when given, and adapts the output to that white (:mod:`l3cli.whitebalance`).
 
     Returns
     -------
     numpy.ndarray
         float32 (H, W, n_out) in ``table.output_space``.
+
+    Raises
+    ------
+    InputError
+        The table expects a white balance and the raw has none (and none is
+        given), or one is given for a table trained without.
     """
     check_fits(table, raw, table_name=table_name)
-    return render_mosaic(table, raw.mosaic)
+    if table.conditions is not None:  # per-ISO kernels, interpolated for this raw
+        import dataclasses
+
+        from l3cli.conditions import kernels_for, raw_condition
+
+        value = raw_condition(raw, table.conditions.by)
+        if value is None:
+            logging.getLogger(__name__).warning(
+                "%s: no %s in the metadata; rendering with the pooled kernels",
+                raw.path, table.conditions.by.upper())
+        k = kernels_for(table, value)
+        table = dataclasses.replace(table, kernels=k, conditions=None)
+    if table.white_balance is None:
+        if white_balance is not None:
+            raise InputError(f"{table_name}: the table was trained without white balance; "
+                             "--white-balance does not apply to it")
+        return render_mosaic(table, raw.mosaic)
+    from l3cli.whitebalance import WhiteBalanceModel, adapt_image, apply_gains, gains_or_error
+
+    gains = gains_or_error(raw, white_balance)
+    mosaic = apply_gains(raw.mosaic, raw.cfa, gains, table.definition.saturation_threshold)
+    model = WhiteBalanceModel.from_dict(table.white_balance)
+    img = render_mosaic(table, mosaic)
+    return adapt_image(img, model.matrix(gains), table.output_space, model.space)
 
 
 def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: str | os.PathLike,
-                *, table_name: str = "table", **options: Any) -> Path:
+                *, table_name: str = "table", white_balance: np.ndarray | None = None,
+                **options: Any) -> Path:
     """Read a raw file, render it and write ``out_path`` (format by suffix).
 
     EXR keeps the table's space (linear values as rendered); TIFF/PNG/JPEG
     receive display sRGB (:func:`l3cli.io.image.write_image`, which also takes
-    ``options``: ``compression``, ``half``, ``quality``).
+    ``options``: ``compression``, ``half``, ``quality``). The output keeps
+    the raw's pixel grid and carries the raw's shot metadata
+    (:mod:`l3cli.io.metadata`): the EXIF Orientation, so viewers show it
+    upright, and Make, Model, DateTimeOriginal, ISO, exposure time, f-number
+    and lens where known.
     """
     from l3cli.io.image import write_image
+    from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
 
     raw = read_raw(raw_path)
-    img = render_raw(table, raw, table_name=table_name)
+    img = render_raw(table, raw, table_name=table_name, white_balance=white_balance)
+    shot = exif_attributes(raw.metadata.get("shot", {}))
     del raw
     return write_image(out_path, img, space=table.output_space,
-                       attributes={"l3:table": str(table_name)}, **options)
+                       attributes={"l3:table": str(table_name)}, metadata=shot, **options)
 
 
 # ------------------------------------------------------- many files (map tasks)
@@ -160,24 +202,56 @@ def table_for_task(path: str | os.PathLike) -> TransformTable:
     return _cached_table(str(p), st.st_mtime_ns, st.st_size)
 
 
+def check_white_balance(table: TransformTable, raws: list[str | os.PathLike],
+                        white_balance: np.ndarray | None, *, table_name: str = "table") -> None:
+    """Check before any output that every raw has the white balance the table needs.
+
+    Raises
+    ------
+    InputError
+        The table expects white-balanced input and a raw carries no white
+        balance (and none is given), or its metadata contradict themselves; or
+        ``white_balance`` is given for a table trained without.
+    """
+    if table.white_balance is None:
+        if white_balance is not None:
+            raise InputError(f"{table_name}: the table was trained without white balance; "
+                             "--white-balance does not apply to it")
+        return
+    if white_balance is not None:
+        return
+    from l3cli.whitebalance import file_gains
+
+    for raw in raws:
+        if file_gains(raw) is None:
+            raise InputError(
+                f"{raw}: no white balance in the raw's metadata, and the table expects "
+                "white-balanced input; give one with --white-balance R,G,B")
+
+
+
 def render_task(item: tuple) -> str:
-    """Render one file (a map task): ``(table_path, raw_path, out_path, table_name[, options])``.
+    """Render one file (a map task): ``(table_path, raw_path, out_path, table_name[, options[, gains]])``.
 
     The task reads the table (once per process) and the raw itself and writes
     the output atomically (``options``: :func:`l3cli.io.image.write_image`
-    keywords); it returns the output path.
+    keywords); it returns the output path. ``gains`` (a tuple of 3, or None)
+    overrides the raw's white balance.
     """
     table_path, raw_path, out_path, table_name, *rest = item
-    options = dict(rest[0]) if rest else {}
+    options = dict(rest[0]) if rest and rest[0] else {}
+    gains = np.asarray(rest[1], dtype=np.float64) if len(rest) > 1 and rest[1] else None
     table = table_for_task(table_path)
-    return str(render_file(table, raw_path, out_path, table_name=table_name, **options))
+    return str(render_file(table, raw_path, out_path, table_name=table_name,
+                           white_balance=gains, **options))
 
 
 def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLike,
                                                                 str | os.PathLike]], *,
                  workers: int | None = None, scheduler: str | None = None,
                  show_progress: bool | None = False,
-                 options: dict[str, Any] | None = None) -> list[Path]:
+                 options: dict[str, Any] | None = None,
+                 white_balance: np.ndarray | None = None) -> list[Path]:
     """Render ``(raw, output)`` pairs with the table at ``table_path``.
 
     In process, the files go through a pipeline that overlaps decoding,
@@ -201,13 +275,26 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
     options
         Output options (:func:`l3cli.io.image.write_image` keywords:
         ``compression``, ``half``, ``quality``).
+    white_balance
+        Gains ``[r, g, b]`` for every raw instead of their own (tables that
+        expect white-balanced input only).
 
     Returns
     -------
     list of Path
         The outputs, in input order.
+
+    Raises
+    ------
+    InputError
+        For a table that expects white-balanced input: a raw without a white
+        balance when none is given (checked for every raw before any output
+        is written), or contradictory white-balance metadata.
     """
     table = table_for_task(table_path)  # a bad table fails now, with its one-line message
+    check_white_balance(table, [raw for raw, _ in jobs], white_balance,
+                        table_name=Path(table_path).name)
+    gains = None if white_balance is None else tuple(float(v) for v in white_balance)
     name = Path(table_path).name
     remote = workers is not None or scheduler is not None
     options = dict(options or {})
@@ -215,13 +302,13 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
         from l3cli.pipeline import render_pipeline
 
         return render_pipeline(table, jobs, table_name=name, options=options,
-                               show_progress=show_progress)
+                               show_progress=show_progress, white_balance=white_balance)
     from l3cli.parallel import map_reduce
 
     def sent(p: str | os.PathLike) -> str:
         return str(Path(p).absolute()) if remote else str(p)
 
-    items = [(sent(table_path), sent(raw), sent(out), name, options) for raw, out in jobs]
+    items = [(sent(table_path), sent(raw), sent(out), name, options, gains) for raw, out in jobs]
     done = map_reduce(render_task, items, workers=workers, scheduler=scheduler,
                       label="render", show_progress=show_progress)
     return [Path(p) for p in done]

@@ -34,6 +34,11 @@ empty              bool         (n_classes,) too few samples to train
 source_class       int64        (n_classes,) class whose kernel is used
 output_space       str          ``xyz``, ``linear-srgb``, ``srgb`` or ``lab``
 provenance         str          JSON: inputs, options, seed, l3 version, date
+white_balance      str          optional JSON: the table expects white-balanced
+                                input and holds its adaptation model
+                                (:class:`l3cli.whitebalance.WhiteBalanceModel`);
+                                absent in tables trained without it
+cond_*             (optional)   per-ISO-bin kernels (:mod:`l3cli.conditions`)
 ================== ============ ===============================================
 
 Class index ``= ((group * 2**n_channels + sat) * n_levels + level) * n_contrast
@@ -47,6 +52,7 @@ import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -94,6 +100,10 @@ class TransformTable:
         Colour space of the output (:data:`l3cli.colourspace.SPACES`).
     provenance
         JSON-serialisable training record.
+    white_balance
+        ``None``, or the white-balance record (:mod:`l3cli.whitebalance`): the
+        table expects mosaics normalised by each raw's as-shot white balance
+        and adapts its output to the raw's white.
 
     Examples
     --------
@@ -123,6 +133,8 @@ class TransformTable:
     provenance: dict = field(default_factory=dict)
     format: str = TABLE_FORMAT
     version: int = TABLE_VERSION
+    white_balance: dict | None = None
+    conditions: Any = None  # l3cli.conditions.Conditioned: per-bin kernels (--by iso)
 
     def __post_init__(self) -> None:
         self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
@@ -135,6 +147,9 @@ class TransformTable:
             raise TableError(f"inconsistent table: {problem}")
         if self.output_space not in SPACES:
             raise TableError(f"output space {self.output_space!r} is not one of {', '.join(SPACES)}")
+        if self.conditions is not None and self.conditions.kernels.shape[1:] != self.kernels.shape:
+            raise TableError(f"inconsistent table: condition kernels have shape "
+                             f"{self.conditions.kernels.shape[1:]}, the table's {self.kernels.shape}")
 
     def _shape_problem(self) -> str | None:
         d = self.definition
@@ -192,6 +207,10 @@ class TransformTable:
             "output_space": np.array(self.output_space),
             "provenance": np.array(json.dumps(self.provenance, sort_keys=True, default=str)),
         }
+        if self.white_balance is not None:
+            out["white_balance"] = np.array(json.dumps(self.white_balance, sort_keys=True))
+        if self.conditions is not None:
+            out.update(self.conditions.to_arrays())
         return out
 
 
@@ -282,6 +301,21 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         raise TableError(f"{path}: provenance is not JSON ({exc.msg})") from exc
     if not isinstance(prov, dict):
         raise TableError(f"{path}: provenance must be a JSON object, got {type(prov).__name__}")
+    wb = None
+    if "white_balance" in arrs:
+        from l3cli.whitebalance import WhiteBalanceModel
+
+        try:
+            wb = json.loads(_scalar(arrs, "white_balance", path, "U"))
+            WhiteBalanceModel.from_dict(wb)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise TableError(f"{path}: bad white_balance record ({exc})") from exc
+    from l3cli.conditions import Conditioned
+
+    try:
+        cond = Conditioned.from_arrays(arrs)
+    except TableError as exc:
+        raise TableError(f"{path}: {exc}") from exc
     try:
         return TransformTable(
             definition=definition,
@@ -292,6 +326,8 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             source_class=arrs["source_class"],
             output_space=_scalar(arrs, "output_space", path, "U"),
             provenance=prov,
+            white_balance=wb,
+            conditions=cond,
         )
     except L3Error as exc:
         raise TableError(f"{path}: {exc}") from exc

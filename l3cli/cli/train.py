@@ -56,6 +56,21 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Accept pairs-folder renders that are resized copies of their raws (e.g. "
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
+@click.option("--by", "by", type=click.Choice(["iso"]), default=None,
+              help="Learn one set of kernels per ISO of the training raws (from their "
+                   "metadata) into the table; `l3 render` interpolates between the two "
+                   "nearest ISOs of each raw.")
+@click.option("--embedded-preview", is_flag=True, default=False,
+              help="Train each raw of the INPUT folders against the JPEG preview the raw "
+                   "embeds (rawpy's thumbnail; full size, or a resized copy trained at its "
+                   "resolution) instead of a rendered image of the same stem.")
+@click.option("--as-shot-wb/--no-as-shot-wb", "as_shot_wb", default=None,
+              help="Normalise every raw by its as-shot white balance and condition the "
+                   "colour on the shot's white (docs/real-camera.md) [default: on when every "
+                   "input is a pairs folder and every raw carries a white balance].")
+@click.option("--white-balance", "white_balance", metavar="R,G,B", default=None,
+              help="White-balance multipliers for every training raw instead of their own "
+                   "(implies --as-shot-wb).")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -64,7 +79,9 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           contrast_threshold: float | None, saturation: float, merge_positions: bool,
           target_space: str, sample_fraction: float, min_samples_factor: float,
           seed: int, scaled_renders: bool = False, workers: int | None = None,
-          scheduler: str | None = None) -> None:
+          scheduler: str | None = None, as_shot_wb: bool | None = None,
+          white_balance: str | None = None, embedded_preview: bool = False,
+          by: str | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -84,15 +101,48 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     from l3cli.train import train as train_table
 
     check_outputs([(output, "-o")], inputs)
-    pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
+    if embedded_preview:
+        import shutil
+        import tempfile
+        from pathlib import Path
+
+        from l3cli.preview import preview_pairs
+
+        parent = Path(output).absolute().parent
+        work = tempfile.mkdtemp(prefix=".l3-tmp-previews-",
+                                dir=parent if parent.is_dir() else None)
+        click.get_current_context().call_on_close(lambda: shutil.rmtree(work, ignore_errors=True))
+        pairs = preview_pairs(list(inputs), work)
+    else:
+        pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
     if target_space is None:  # pairs folders reproduce their renders' encoding
         target_space = "srgb" if all(p.align for p in pairs) else "xyz"
+    gains = None
+    if white_balance is not None:
+        from l3cli.errors import InputError
+        from l3cli.whitebalance import parse_gains
+
+        try:
+            gains = parse_gains(white_balance)
+        except InputError as exc:
+            raise click.BadParameter(str(exc).split(": ", 1)[-1],
+                                     param_hint="--white-balance") from None
+        if as_shot_wb is False:
+            raise click.BadParameter("--white-balance needs white-balanced training; drop "
+                                     "--no-as-shot-wb", param_hint="--white-balance")
+        as_shot_wb = True
+    if as_shot_wb is None:  # real cameras: on when every raw says its white balance
+        from l3cli.whitebalance import file_gains
+
+        as_shot_wb = all(p.align for p in pairs) and all(
+            file_gains(p.raw) is not None for p in pairs)
     opts = TrainOptions(patch=patch, levels=levels, spacing=spacing,
                         level_range=tuple(level_range) if level_range else None,
                         contrast_bins=contrast_bins, contrast_threshold=contrast_threshold,
                         saturation=saturation, merge_positions=merge_positions,
                         target_space=target_space, sample_fraction=sample_fraction, seed=seed,
-                        min_samples_factor=min_samples_factor)
+                        min_samples_factor=min_samples_factor, white_balance=as_shot_wb,
+                        wb_override=None if gains is None else gains.tolist(), by=by)
     show = not quiet()
     table = train_table(pairs, opts, workers=workers, scheduler=scheduler, show_progress=show)
     save_table(output, table)

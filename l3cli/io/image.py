@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -112,6 +113,7 @@ def write_image(
     bits: int | None = None,
     attributes: dict[str, str] | None = None,
     compression: str | None = None,
+    metadata: dict[str, Any] | None = None,
 ) -> Path:
     """Write an image atomically; the format follows the suffix.
 
@@ -141,12 +143,17 @@ def write_image(
     compression
         TIFF or EXR compression (:data:`COMPRESSIONS`; default
         :data:`DEFAULT_COMPRESSION`). PNG and JPEG take none.
+    metadata
+        Typed attributes, e.g. the shot's EXIF of
+        :func:`l3cli.io.metadata.exif_attributes` (``Orientation``, ``Make``,
+        ...): EXIF in JPEG/PNG/TIFF, header attributes in EXR.
     """
     path = Path(path)
     fmt = format_of(path)
     if fmt != "exr" and np.asarray(image).dtype in (np.uint8, np.uint16):
         return _write_encoded(path, fmt, np.asarray(image), space=space, quality=quality,
-                              bits=bits, attributes=attributes, compression=compression)
+                              bits=bits, attributes=attributes, compression=compression,
+                              metadata=metadata)
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
         img = img[:, :, None]
@@ -164,7 +171,7 @@ def write_image(
         data = display_encode(img, space, _bits_of(fmt, bits))
         typedesc = "uint16" if data.dtype == np.uint16 else "uint8"
     return _write(path, fmt, data, typedesc, space=space, quality=quality,
-                  attributes=attributes, compression=compression)
+                  attributes=attributes, compression=compression, metadata=metadata)
 
 
 def _bits_of(fmt: str, bits: int | None) -> int:
@@ -180,7 +187,7 @@ def _check_compression(path: Path, fmt: str, compression: str | None) -> None:
 
 def _write_encoded(path: Path, fmt: str, data: np.ndarray, *, space: str, quality: int,
                    bits: int | None, attributes: dict[str, str] | None,
-                   compression: str | None) -> Path:
+                   compression: str | None, metadata: dict[str, Any] | None = None) -> Path:
     """Write display-encoded integers (TIFF/PNG/JPEG) as they are."""
     if data.ndim == 2:
         data = data[:, :, None]
@@ -194,11 +201,13 @@ def _write_encoded(path: Path, fmt: str, data: np.ndarray, *, space: str, qualit
         space = check_space(space)
     _check_compression(path, fmt, compression)
     return _write(path, fmt, data, "uint16" if want == np.uint16 else "uint8", space=space,
-                  quality=quality, attributes=attributes, compression=compression)
+                  quality=quality, attributes=attributes, compression=compression,
+                  metadata=metadata)
 
 
 def _write(path: Path, fmt: str, data: np.ndarray, typedesc: str, *, space: str, quality: int,
-           attributes: dict[str, str] | None, compression: str | None) -> Path:
+           attributes: dict[str, str] | None, compression: str | None,
+           metadata: dict[str, Any] | None = None) -> Path:
     """Write pixels of OpenImageIO type ``typedesc`` atomically with l3's attributes."""
     import OpenImageIO as oiio
 
@@ -218,6 +227,10 @@ def _write(path: Path, fmt: str, data: np.ndarray, typedesc: str, *, space: str,
     spec.attribute("DateTime", "")
     for k, v in (attributes or {}).items():
         spec.attribute(str(k), str(v))
+    if metadata:
+        from l3cli.io.metadata import set_spec_metadata
+
+        set_spec_metadata(spec, metadata)
     if fmt == "jpg":  # libjpeg ends the process on a failed write: check the room first
         check_free_space(path, 2 * data.nbytes + (1 << 16))
     with atomic_path(path) as tmp:

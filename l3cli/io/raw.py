@@ -37,6 +37,7 @@ import numpy as np
 from l3cli.cfa import CFA
 from l3cli.errors import ConfigError, InputError
 from l3cli.io.atomic import atomic_path
+from l3cli.io.metadata import dng_shot_tags, read_shot_metadata, sidecar_white_balance
 
 __all__ = ["RawImage", "read_raw", "write_raw", "sidecar_path", "RAW_SUFFIXES"]
 
@@ -59,6 +60,7 @@ _SIDECAR_KEYS = {
     "offset": "bytes to skip at the start of the file (int >= 0, default 0)",
     "bit_depth": "significant bits (informative)",
     "description": "free text",
+    "white_balance": "as-shot white-balance multipliers [r, g, b] (3 finite numbers > 0)",
 }
 _DTYPES = {"uint8": np.dtype("<u1"), "uint16": np.dtype("<u2"), "uint16be": np.dtype(">u2")}
 
@@ -283,7 +285,8 @@ def _read_headerless(path: Path) -> RawImage:
         white_level=white,
         path=path,
         metadata={"format": "headerless", "dtype": meta["dtype"],
-                  "bit_depth": meta.get("bit_depth"), "description": meta.get("description")},
+                  "bit_depth": meta.get("bit_depth"), "description": meta.get("description"),
+                  "white_balance": sidecar_white_balance(meta, sc)},
     )
 
 
@@ -330,7 +333,8 @@ def _read_image_mosaic(path: Path) -> RawImage:
         white_level=white,
         path=path,
         metadata={"format": "mosaic-image", "bit_depth": meta.get("bit_depth"),
-                  "description": meta.get("description")},
+                  "description": meta.get("description"),
+                  "white_balance": sidecar_white_balance(meta, sc)},
     )
 
 
@@ -426,6 +430,7 @@ def _read_rawpy(path: Path) -> RawImage:
             "rgb_xyz_matrix": np.asarray(rp.rgb_xyz_matrix).tolist(),
             "sizes": {k: int(v) if isinstance(v, int | np.integer) else float(v)
                       for k, v in rp.sizes._asdict().items()},
+            "shot": read_shot_metadata(path, rp),
         }
     if dn.size == 0:
         raise InputError(f"{path}: the raw image is empty")
@@ -508,6 +513,7 @@ def write_raw(
     make: str = "l3",
     model: str = "simulated camera",
     description: str = "",
+    shot: dict[str, Any] | None = None,
 ) -> Path:
     """Write an integer CFA mosaic as DNG, or as a 16-bit TIFF + sidecar.
 
@@ -529,6 +535,11 @@ def write_raw(
         Camera neutral (white balance) per colour, defaults to ones.
     make, model, description
         Identification tags.
+    shot
+        DNG only: shot metadata with keys of :data:`l3cli.io.metadata.SHOT_KEYS`
+        (``orientation`` 1-8, ``datetime_original``, ``iso``, ``exposure_time``,
+        ``f_number``, ``lens``, ``as_shot_white_xy``), written as the TIFF/EXIF/DNG
+        tags of IFD0.
 
     Returns
     -------
@@ -592,6 +603,7 @@ def write_raw(
     ]
     if description:
         extratags.append((270, "s", 0, description, True))
+    extratags += dng_shot_tags(shot or {})
     with atomic_path(path) as tmp:
         tifffile.imwrite(
             tmp,

@@ -180,7 +180,8 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
              ", ".join(record["priors"]) or "none", len(all_filled), int(empty.sum()))
     return TransformTable(definition=d, kernels=kernels.astype(np.float32), counts=table.counts,
                           lambdas=table.lambdas, empty=empty, source_class=src,
-                          output_space=table.output_space, provenance=prov)
+                          output_space=table.output_space, provenance=prov,
+                          white_balance=table.white_balance, conditions=table.conditions)
 
 
 def filled_classes(table: TransformTable) -> dict[str, list[int]]:

@@ -21,6 +21,7 @@ group (same saturation pattern and contrast first, nearest level).
 
 from __future__ import annotations
 
+import copy
 import logging
 import platform
 from collections.abc import Iterable, Sequence
@@ -57,7 +58,11 @@ class TrainOptions:
                  merge_positions: bool = defaults.MERGE_POSITIONS,
                  target_space: str = "xyz", sample_fraction: float = defaults.SAMPLE_FRACTION,
                  seed: int = defaults.SEED, min_samples_factor: float = defaults.MIN_SAMPLES_FACTOR,
-                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID)) -> None:
+                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID),
+                 white_balance: bool = False,
+                 wb_override: Sequence[float] | None = None,
+                 target_adapt: dict[str, list] | None = None,
+                 by: str | None = None) -> None:
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
@@ -81,6 +86,13 @@ class TrainOptions:
         self.seed = int(seed)
         self.min_samples_factor = float(min_samples_factor)
         self.lambda_grid = np.asarray(lambda_grid, dtype=np.float64)
+        # White balance as an input (l3cli.whitebalance): normalise each raw by its
+        # as-shot gains (or wb_override); target_adapt maps a capture's raw path to the
+        # 3x3 adaptation taken out of its target (set by train() itself).
+        self.white_balance = bool(white_balance)
+        self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
+        self.target_adapt = target_adapt
+        self.by = by  # condition bins (l3cli.conditions): None or "iso"
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
@@ -128,15 +140,17 @@ def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
         ``(index, cfa, histogram or None)``; histograms add.
     """
     from l3cli.io.raw import read_raw
+    from l3cli.whitebalance import training_mosaic
 
     i, pair, opts, with_hist = item
     raw = read_raw(pair.raw)
+    mosaic = training_mosaic(raw, opts)
     if not with_hist:
         return i, raw.cfa, None
     hist = ContrastHistogram.empty()
     frac = min(opts.sample_fraction, 0.25)
     mask = sample_mask(raw.mosaic.shape, frac, opts.seed, i, stream=1)
-    hist.add_mosaic(raw.mosaic, raw.cfa, patch=opts.patch,
+    hist.add_mosaic(mosaic, raw.cfa, patch=opts.patch,
                     saturation_threshold=opts.saturation, mask=mask)
     return i, raw.cfa, hist
 
@@ -204,8 +218,12 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
     mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
     if valid is not None:
         mask = valid if mask is None else mask & valid
+    from l3cli.whitebalance import training_mosaic, training_target
+
+    mosaic = training_mosaic(raw, opts)
+    target = training_target(target, pair.raw, opts)
     stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
-    accumulate(stats, raw.mosaic, target, mask=mask)
+    accumulate(stats, mosaic, target, mask=mask)
     return PartialStats.of(stats)
 
 
@@ -393,10 +411,51 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     pairs = list(pairs)
     if not pairs:
         raise InputError("no training pairs")
+    prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
+            "seed": opts.seed}
     with dask_client(workers, scheduler) as client:
         definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
         stats = collect_stats(pairs, definition, opts, client=client,
                               show_progress=show_progress)
-    prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
-            "seed": opts.seed}
-    return table_from_stats(stats, opts, provenance=prov)
+        model = None
+        stats_opts = opts
+        if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
+            from l3cli.whitebalance import fit_white_adaptation
+
+            model, adapt = fit_white_adaptation(pairs, opts)
+            if adapt:
+                stats_opts = copy.copy(opts)
+                stats_opts.target_adapt = adapt
+        if opts.by:
+            from l3cli.conditions import group_pairs
+
+            groups = group_pairs(pairs, opts.by)
+            parts = [collect_stats([pairs[i] for i in idx], definition, stats_opts,
+                                   index_offset=min(idx), client=client,
+                                   show_progress=show_progress) for idx in groups.values()]
+            stats = parts[0]
+            for part in parts[1:]:
+                stats = stats + part
+        else:
+            stats = collect_stats(pairs, definition, stats_opts, client=client,
+                                  show_progress=show_progress)
+    table = table_from_stats(stats, opts, provenance=prov)
+    if model is not None:
+        table.white_balance = model.as_dict()
+    if opts.by:
+        from l3cli.conditions import Conditioned
+
+        min_n = opts.min_samples_factor * definition.n_coeffs
+        kernels, counts = [], []
+        for part in parts:
+            k = np.array(table.kernels)
+            n = np.where(part.n >= min_n, part.n, 0)
+            for c in np.flatnonzero(n):
+                k[c] = solve_class(float(part.n[c]), part.xtx[c], part.xty[c], part.yy[c],
+                                   grid=opts.lambda_grid).kernel
+            kernels.append(k)
+            counts.append(n)
+        table.conditions = Conditioned(opts.by, list(groups), np.array(kernels), np.array(counts))
+        table.provenance["conditions"] = {"by": opts.by, "values": list(groups),
+                                          "trained_classes": [int((c > 0).sum()) for c in counts]}
+    return table
