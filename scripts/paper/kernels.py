@@ -99,7 +99,7 @@ def analyse(build: Path, camera: str, title: str) -> tuple:
                 allw = sum(tot.values())
                 sums[lab] = {c: tot[c] / allw for c in chans}
         ax = axes[-1, j]
-        ax.bar(range(len(chans)), [sums[lab][c] for c in chans], color=["0.6", "g", "r", "b"][:len(chans)])
+        ax.bar(range(len(chans)), [sums[lab][c] for c in chans], color=[{"W": "0.6", "R": "r", "G": "g", "B": "b"}.get(c, "0.3") for c in chans])
         ax.set_xticks(range(len(chans)), chans)
         ax.set_ylim(0, 1)
         ax.set_title("share of Σ|w| per channel (Y)", fontsize=7)

@@ -39,13 +39,18 @@ def _levels(build: Path) -> str:
         caps = json.loads(p.read_text())["captures"]
         lux = sorted({c["lux"] for c in caps})
         out.append(f"{part}: {', '.join(f'{x:g}' for x in lux)} lux")
-    exp = caps[0]["exposure_s"]
-    txt = "; ".join(out) + f"; fixed {exp * 1000:g} ms exposure"
+    times = sorted({c["exposure_s"] for c in caps})
+    if len(times) > 1:
+        txt = "; ".join(out) + (f"; each camera's own auto exposure ({times[0] * 1000:.0f}–{times[-1] * 1000:.0f} ms"
+                                " for the RGBW camera's test captures)")
+    else:
+        txt = "; ".join(out) + f"; fixed {times[0] * 1000:g} ms exposure"
     p = build / "sim" / "rgbnir" / "test" / "manifest.json"
     if p.exists():
-        e2 = json.loads(p.read_text())["captures"][0]["exposure_s"]
-        if e2 != exp:
-            txt += f" ({e2 * 1000:g} ms for the RGB-NIR cameras, whose pixels collect about 4x more light)"
+        e2 = sorted({c["exposure_s"] for c in json.loads(p.read_text())["captures"]})
+        if len(e2) == 1 and e2 != times:
+            txt += (f"; a fixed {e2[0] * 1000:g} ms for the RGB-NIR cameras, so that their light level"
+                    " sets the response level")
     return txt
 
 
@@ -59,15 +64,21 @@ def summary(build: Path) -> str:
                  ("1", "real pipeline, PSNR dB", "40.4 (Nikon D200)", f"{_f(real.get('infinite_isp_psnr'))} (Infinite-ISP)"),
                  ("1", "raw converter, S-CIELAB ΔE", "1.46 (DxO)", f"{_f(real.get('blackmagic_scielab'))} (LibRaw AHD)")]
     if rgbw:
-        m, mm = rgbw["mean"], rgbw["mean_mid_levels"]
-        mid = f"{rgbw['mid_levels'][0]:g}–{rgbw['mid_levels'][-1]:g} lux"
-        rows += [("2", "RGBW, Macbeth mean ΔE", "1.70", f"{_f(m['rgbw'])} all levels; {_f(mm['rgbw'])} at {mid}"),
-                 ("2", "RGBW with W→G, Macbeth mean ΔE", "1.65",
-                  f"{_f(m['rgbw-g'])} all levels; {_f(mm['rgbw-g'])} at {mid}"),
-                 ("2", "best linear map, noise-free (colour floor), RGBW / Bayer", "–",
-                  f"{_f(rgbw['linear_colour_floor']['rgbw'])} / {_f(rgbw['linear_colour_floor']['bayer'])}"),
+        m, ml = rgbw["mean"], rgbw["mean_lit_levels"]
+        lit = f"{rgbw['lit_levels'][0]:g}–{rgbw['lit_levels'][-1]:g} lux"
+        fl, fl3 = rgbw["linear_colour_floor"], rgbw["linear_colour_floor_3_pieces"]
+        rows += [("2", "2x2 RGBW, Macbeth mean ΔE (auto exposure)", "1.70",
+                  f"{_f(m['rgbw'])} all levels; {_f(ml['rgbw'])} at {lit}"),
+                 ("2", "RGBW with W→G (Bayer), Macbeth mean ΔE", "1.65",
+                  f"{_f(m['bayer'])} all levels; {_f(ml['bayer'])} at {lit}"),
+                 ("2", "RGBW / Bayer ratio of the means", "1.03", f"{rgbw['bar']['ratio']:.2f}"),
+                 ("2", "same, trained in CIELAB (`--target lab`), RGBW / Bayer", "–",
+                  f"{_f(m['rgbw-lab'])} / {_f(m['bayer-lab'])}"),
+                 ("2", "one linear map, noise-free (not a bound on L3), RGBW / Bayer", "–",
+                  f"{_f(fl['rgbw'])} / {_f(fl['bayer'])} (3 maps by level, in sample: "
+                  f"{_f(fl3['rgbw'])} / {_f(fl3['bayer'])})"),
                  ("2", "RGBW behind an IR-cut filter, Macbeth mean ΔE", "–",
-                  f"{_f(m['rgbw-ircut'])} all levels; {_f(mm['rgbw-ircut'])} at {mid}"),
+                  f"{_f(m['rgbw-ircut'])} all levels; {_f(ml['rgbw-ircut'])} at {lit}"),
                  ("2", "Bayer: L3 vs demosaic + matrix, Macbeth mean ΔE", "L3 better",
                   f"{_f(m['bayer'])} vs {_f(m['bayer-baseline'])}")]
     if nir:
