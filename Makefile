@@ -120,6 +120,22 @@ $(PAPER)/eval/%-lab.json: $(PAPER)/tables/%-lab.npz $(PAPER)/sim/%/test/manifest
 	$(L3) -q render $< $$(ls $(PAPER)/sim/$*/test/macbeth*.dng $(PAPER)/sim/$*/test/macbeth*.tif 2>/dev/null) -o $(PAPER)/render/$*-lab
 	$(L3) -q evaluate $(PAPER)/render/$*-lab --reference $(PAPER)/sim/$*/test --json $@
 
+# The same cameras trained without the chart (natural photos only), so the
+# Macbeth test is out of sample in its colours too.
+$(PAPER)/sim/%/train-natural/manifest.json: $(PAPER)/cameras/%.toml $(PAPER)/settings.txt $(STAMP)
+	rm -rf $(@D) && mkdir -p $(dir $(@D))
+	$(L3) -q simulate $(abspath $<) -o $(@D) --scene natural \
+	    $(addprefix --lux ,$(PAPER_TRAIN_LUX)) $(addprefix --exposure ,$(or $(PAPER_EXPOSURE_$*),$(PAPER_EXPOSURE))) --size $(PAPER_SIZE) --seed 1
+
+$(PAPER)/tables/%-nochart.raw.npz: $(PAPER)/sim/%/train-natural/manifest.json
+	mkdir -p $(@D)
+	$(L3) -q train $(<D) -o $@ --seed 1
+
+$(PAPER)/eval/%-nochart.json: $(PAPER)/tables/%-nochart.npz $(PAPER)/sim/%/test/manifest.json
+	rm -rf $(PAPER)/render/$*-nochart && mkdir -p $(PAPER)/render/$*-nochart $(@D)
+	$(L3) -q render $< $$(ls $(PAPER)/sim/$*/test/macbeth*.dng $(PAPER)/sim/$*/test/macbeth*.tif 2>/dev/null) -o $(PAPER)/render/$*-nochart
+	$(L3) -q evaluate $(PAPER)/render/$*-nochart --reference $(PAPER)/sim/$*/test --json $@
+
 # The conventional pipeline (demosaic + 3x3 matrix) on the Bayer camera.
 $(PAPER)/eval/bayer-baseline.json: $(PAPER)/sim/bayer/train/manifest.json $(PAPER)/sim/bayer/test/manifest.json
 	rm -rf $(PAPER)/render/bayer-baseline && mkdir -p $(@D)
@@ -137,7 +153,8 @@ $(PAPER)/sections/real.md: scripts/paper/real.py $(PAPER_COMMON) $(PAPER)/real/s
 # 2. RGBW vs the same camera with W -> G (an RGGB Bayer; also behind an IR-cut
 #    filter), and vs the conventional pipeline on the Bayer camera.
 $(PAPER)/sections/rgbw.md: scripts/paper/rgbw.py $(PAPER_COMMON) $(PAPER)/eval/rgbw.json \
-        $(PAPER)/eval/rgbw-lab.json $(PAPER)/eval/bayer-lab.json $(PAPER)/eval/rgbw-ircut.json $(PAPER)/eval/bayer.json \
+        $(PAPER)/eval/rgbw-lab.json $(PAPER)/eval/bayer-lab.json $(PAPER)/eval/rgbw-nochart.json \
+        $(PAPER)/eval/bayer-nochart.json $(PAPER)/eval/rgbw-ircut.json $(PAPER)/eval/bayer.json \
         $(PAPER)/eval/bayer-baseline.json
 	$(PAPER_PY)/rgbw.py $(PAPER)
 

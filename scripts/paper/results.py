@@ -74,6 +74,9 @@ def summary(build: Path) -> str:
                  ("2", "RGBW / Bayer ratio of the means", "1.03", f"{rgbw['bar']['ratio']:.2f}"),
                  ("2", "same, trained in CIELAB (`--target lab`), RGBW / Bayer", "–",
                   f"{_f(m['rgbw-lab'])} / {_f(m['bayer-lab'])}"),
+                 ("2", "same, chart not in training, RGBW / Bayer", "–",
+                  f"{_f(m['rgbw-nochart'])} / {_f(m['bayer-nochart'])} all levels; "
+                  f"{_f(ml['rgbw-nochart'])} / {_f(ml['bayer-nochart'])} at {lit}"),
                  ("2", "one linear map, noise-free (not a bound on L3), RGBW / Bayer", "–",
                   f"{_f(fl['rgbw'])} / {_f(fl['bayer'])} (3 maps by level, in sample: "
                   f"{_f(fl3['rgbw'])} / {_f(fl3['bayer'])})"),
