@@ -62,6 +62,11 @@ PAPER_COMMON   := scripts/paper/common.py $(STAMP)
 PAPER_SECTIONS := real rgbw rgbnir levels patch mtf kernels
 
 .PHONY: paper paper-real paper-rgbw paper-rgbnir paper-levels paper-patch paper-mtf paper-kernels
+# Build files are kept (.SECONDARY), and a deleted one is not rebuilt while
+# docs/results.md is newer. After a change to l3 itself (which the rules do not
+# track), re-run what depends on it by name, e.g. after an evaluate change:
+#   rm -rf paper_out/eval paper_out/sections paper_out/real
+#   make paper-real paper-rgbw paper-rgbnir paper-levels paper-patch paper-mtf paper-kernels paper
 .SECONDARY:
 
 paper: docs/results.md
