@@ -2,7 +2,7 @@
 
 Simulates a 4000x3000 capture of the bundled natural scene ``coffee`` with
 ``sample_configs/bayer.toml`` (RGGB, 71 wavelengths, 380-730 nm in 5 nm steps)
-and, separately, ``sample_configs/rgbw.toml`` (4x4 interleaved RGBW, 69
+and, separately, ``sample_configs/rgbw-4x4.toml`` (4x4 interleaved RGBW, 69
 wavelengths, 380-1060 nm in 10 nm steps): scene → Airy optics → noise chain →
 DN, plus the XYZ target and the noise-free response (in memory; file writing
 is not timed). Reports wall time and peak resident memory of a fresh
@@ -58,7 +58,7 @@ def measure(config: str, width: int = 4000, height: int = 3000) -> dict:
 def run(report=print) -> list[dict]:
     """Measure the 12 MP cases and report one line each (``report`` receives strings)."""
     rows = []
-    for cfg in ("sample_configs/bayer.toml", "sample_configs/rgbw.toml"):
+    for cfg in ("sample_configs/bayer.toml", "sample_configs/rgbw-4x4.toml"):
         r = measure(cfg)
         r["config"] = cfg
         rows.append(r)

@@ -52,6 +52,25 @@ def test_rgbw_is_the_l3_camera() -> None:
     cam = load_camera(REPO / "sample_configs" / "rgbw.toml")
     assert cam.pixel.pitch_um == 1.4 and cam.optics.f_number == 4.0
     assert set(cam.cfa.cfa.channels) == {"R", "G", "B", "W"}
+    # Jiang et al. 2017: "exactly one R, G, B and W in each CFA repeating
+    # pattern"; replacing W with G gives a Bayer pattern.
+    cfa = cam.cfa.cfa
+    assert cfa.period == (2, 2)
+    names = sorted(cfa.channels[i] for i in np.asarray(cfa.index_pattern).ravel())
+    assert names == ["B", "G", "R", "W"]
+    bayer = [[("G" if cfa.channels[i] == "W" else cfa.channels[i]) for i in row]
+             for row in np.asarray(cfa.index_pattern)]
+    assert "".join(bayer[0] + bayer[1]) in ("RGGB", "BGGR", "GRBG", "GBRG")
+
+
+def test_rgbw_4x4_keeps_the_interleaved_layout() -> None:
+    cam = load_camera(REPO / "sample_configs" / "rgbw-4x4.toml")
+    ref = load_camera(REPO / "sample_configs" / "rgbw.toml")
+    cfa = cam.cfa.cfa
+    assert cfa.period == (4, 4)
+    counts = {c: int((np.asarray(cfa.index_pattern) == i).sum()) for i, c in enumerate(cfa.channels)}
+    assert counts == {"W": 8, "G": 4, "R": 2, "B": 2}
+    assert cam.pixel == ref.pixel and cam.optics == ref.optics
 
 
 def test_rgbnir_reaches_nir() -> None:

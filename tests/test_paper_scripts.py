@@ -28,7 +28,7 @@ def _module(name: str):
         sys.path.remove(str(PAPER))
 
 
-@pytest.mark.parametrize("name", ["rgbw", "rgbw-g", "rgbw-ircut", "bayer", "rgbnir", "rgbnir-black",
+@pytest.mark.parametrize("name", ["rgbw", "rgbw-ircut", "bayer", "rgbnir", "rgbnir-black",
                                   "rgbnir-g", "mtf-f8-p2.4"])
 def test_cameras_load(tmp_path, name):
     from l3cli.camera import load_camera
@@ -46,10 +46,17 @@ def test_camera_variants_say_what_they_claim(tmp_path):
     from l3cli.camera import load_camera
 
     cams = _module("cameras")
-    for name in ("rgbw-g", "rgbnir-black", "mtf-f8-p2.4"):
+    for name in ("rgbw", "bayer", "rgbnir-black", "mtf-f8-p2.4"):
         cams.main([name, str(tmp_path / f"{name}.toml")])
-    g = tomllib.loads((tmp_path / "rgbw-g.toml").read_text())
-    assert "W" not in {c for row in g["cfa"]["pattern"] for c in row}
+    # the paper's comparison: the RGBW camera with W -> G is an RGGB Bayer,
+    # everything else (pixel, optics, filters, exposure) unchanged
+    rgbw = tomllib.loads((tmp_path / "rgbw.toml").read_text())
+    g = tomllib.loads((tmp_path / "bayer.toml").read_text())
+    assert load_camera((tmp_path / "bayer.toml").resolve()).cfa.cfa.spec == "RG/GB"
+    for sec in ("optics", "pixel", "readout", "exposure"):
+        assert g[sec] == rgbw[sec]
+    assert {k: v for k, v in g["cfa"].items() if k != "pattern"} == \
+        {k: v for k, v in rgbw["cfa"].items() if k != "pattern"}
     black = load_camera((tmp_path / "rgbnir-black.toml").resolve())
     qe = np.asarray(black.qe_curves())
     nir = black.cfa.cfa.channels.index("NIR")

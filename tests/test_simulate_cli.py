@@ -93,9 +93,11 @@ def test_bayer_dng_renders_through_rawpy(runner, tmp_path: Path) -> None:
     assert white.max() / white.min() < 1.25
 
 
-def test_rgbw_writes_tiff_and_sidecar(runner, tmp_path: Path) -> None:
+@pytest.mark.parametrize(("config", "period"), [("rgbw.toml", (2, 2)), ("rgbw-4x4.toml", (4, 4))])
+def test_rgbw_writes_tiff_and_sidecar(runner, tmp_path: Path, config: str, period: tuple) -> None:
     out = tmp_path / "sim"
-    r = runner.invoke(cli, ["simulate", RGBW, "-o", str(out), "--scene", "natural:coffee",
+    r = runner.invoke(cli, ["simulate", str(REPO / "sample_configs" / config), "-o", str(out),
+                            "--scene", "natural:coffee",
                             "--lux", "50", "--size", "96x64"])
     assert r.exit_code == 0, r.output
     cap = json.loads((out / "manifest.json").read_text())["captures"][0]
@@ -103,7 +105,7 @@ def test_rgbw_writes_tiff_and_sidecar(runner, tmp_path: Path) -> None:
     from l3cli.io.raw import read_raw
 
     raw = read_raw(out / cap["raw"])
-    assert raw.cfa.period == (4, 4) and "W" in raw.cfa.channels
+    assert raw.cfa.period == period and "W" in raw.cfa.channels
     assert cap["illuminant"] == "visir-DAY"
 
 

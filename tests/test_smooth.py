@@ -25,7 +25,7 @@ from l3cli.smooth.symmetry import symmetrize_kernels, symmetry_map, tap_permutat
 from l3cli.smooth.uniformity import channel_sums, make_uniform, uniformity_error
 from l3cli.table import TransformTable, load_table, save_table
 
-RGBW = "WGWR/BWGW/WRWG/GWBW"  # sample_configs/rgbw.toml
+RGBW = "WGWR/BWGW/WRWG/GWBW"  # sample_configs/rgbw-4x4.toml
 CFAS = ["RGGB", "GRBG", RGBW, "RGBW/GWRB/BRWG/WBGR", "R G/NIR B", "RGB/GBR/BRG"]
 
 
@@ -646,7 +646,7 @@ def test_rgbw_trained_table_renders_a_flat_field_uniform_after_smoothing(tmp_pat
     from tests.conftest import REPO
 
     runner = CliRunner()
-    cam = str(REPO / "sample_configs/rgbw.toml")
+    cam = str(REPO / "sample_configs/rgbw-4x4.toml")
     _run(runner, ["simulate", cam, "-o", str(tmp_path / "train"), "--scene", "natural:astronaut",
                   "--size", "96x72", "--seed", "1", "--lux", "10", "--lux", "100"])
     _run(runner, ["simulate", cam, "-o", str(tmp_path / "held"), "--scene", "macbeth",

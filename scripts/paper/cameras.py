@@ -4,17 +4,17 @@
 ``cameras.py NAME OUT.toml`` writes one camera:
 
 ``rgbw``
-    sample_configs/rgbw.toml as it is (the L3 RGBW camera: 1.4 µm, f/4,
-    ISETCam interleaved RGBW filters, no IR-cut filter).
-``rgbw-g``
-    the same camera with every W pixel replaced by a G pixel (the paper's
-    comparison camera; 12 of the 16 pixels of the repeat are G).
+    sample_configs/rgbw.toml as it is (the L3 RGBW camera: 1.4 µm, f/4, one
+    R, G, B and W in each 2x2 repeat, ISETCam interleaved RGBW filters, no
+    IR-cut filter).
+``bayer``
+    the same camera with its W pixel replaced by a G pixel: an RGGB Bayer
+    mosaic with the same pixel, optics and R, G, B filters (the paper's
+    comparison camera, and one that ``l3 baseline``, a Bayer-only
+    conventional pipeline, can render).
 ``rgbw-ircut``
     the RGBW camera behind an IR-cut filter (ISETCam ``ircf_public``), so that
     W sees only the visible.
-``bayer``
-    the same pixel, optics and R, G, B filters in a 2x2 RGGB Bayer mosaic
-    (what ``l3 baseline``, a Bayer-only conventional pipeline, can render).
 ``rgbnir``
     sample_configs/rgbnir.toml as it is (R G / NIR B, IR-blocked R, G, B).
 ``rgbnir-black``
@@ -71,18 +71,14 @@ def camera(name: str, out: Path) -> dict:
     """The camera dict for ``name`` (may write a QE CSV next to ``out``)."""
     if name in ("rgbw", "rgbnir"):
         cfg = _load(name)
-    elif name == "rgbw-g":
+    elif name == "bayer":
         cfg = _load("rgbw")
         cfg["cfa"]["pattern"] = [["G" if c == "W" else c for c in row] for row in cfg["cfa"]["pattern"]]
-        cfg["description"] = "L3 RGBW camera with W replaced by G"
+        cfg["description"] = "L3 RGBW camera with W replaced by G (an RGGB Bayer)"
     elif name == "rgbw-ircut":
         cfg = _load("rgbw")
         cfg["cfa"]["ir_cut"] = "ircf-public"
         cfg["description"] = "L3 RGBW camera behind an IR-cut filter"
-    elif name == "bayer":
-        cfg = _load("rgbw")
-        cfg["cfa"]["pattern"] = "RGGB"
-        cfg["description"] = "RGGB Bayer with the RGBW camera's pixel, optics and R, G, B filters"
     elif name == "rgbnir-g":
         cfg = _load("rgbnir")
         cfg["cfa"]["pattern"] = [["R", "G"], ["G", "B"]]

@@ -204,17 +204,54 @@ def plain_log(ax, *, x: bool = False, y: bool = True) -> None:
             axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
 
 
-def linear_colour_floor(sim_dir: Path) -> tuple[float, str]:
-    """Mean Macbeth ΔE*ab of the best linear map from the camera's channels to XYZ.
+def patch_electrons(sim_dir: Path, stem: str):
+    """Noise-free photo-electrons per channel on the 24 Macbeth patches of a capture.
+
+    The mean of each channel's noise-free response over the inner half of each
+    patch, less the dark-current mean (dark current x exposure time), in
+    electrons: a (24, channels) array, channels in the CFA's order.
+    """
+    import numpy as np
+
+    from l3cli.cfa import CFA
+    from l3cli.io.image import read_image
+
+    man = read_manifest(sim_dir)
+    cam, cap = man["camera"], captures(sim_dir)[stem]
+    px, ro = cam["pixel"], cam["readout"]
+    volts_per_e = ro["analog_gain"] * px["conversion_gain_uv_per_e"] * 1e-6 / px["voltage_swing_v"]
+    cfa = CFA.from_spec(cam["cfa_pattern"])
+    nf, _ = read_image(Path(sim_dir) / cap["noise_free"])
+    nf = nf.reshape(nf.shape[0], nf.shape[1]).astype(np.float64) / volts_per_e
+    nf -= px["dark_current_e_per_s"] * cap["exposure_s"]
+    cmap = cfa.channel_map(*nf.shape)
+    out = []
+    for x0, y0, x1, y1 in cap["chart"]["patches"]:
+        dx, dy = (x1 - x0) // 4, (y1 - y0) // 4
+        sl = np.s_[y0 + dy:y1 - dy, x0 + dx:x1 - dx]
+        out.append([nf[sl][cmap[sl] == c].mean() for c in range(cfa.n_channels)])
+    return np.asarray(out)
+
+
+def linear_colour_floor(sim_dir: Path, *, pieces: int = 1) -> tuple[float, str]:
+    """Mean Macbeth ΔE*ab of the best linear map(s) from the camera's channels to XYZ.
 
     Takes the brightest test Macbeth capture of ``sim_dir`` whose noise-free
     response stays below 0.95 (no saturation), averages each channel's
-    noise-free response over the inner half of each of the 24 patches, fits a
-    linear map (channels → XYZ, least squares over the patches) to the
-    patches' ideal XYZ, and scores it like ``l3 evaluate`` (white-normalised
+    noise-free response over the inner half of each of the 24 patches,
+    subtracts the dark-current mean (the manifest's dark current x exposure
+    time: the noise-free image contains it, the ideal XYZ does not), fits a
+    linear map (channels → XYZ, least squares over the patches, no offset) to
+    the patches' ideal XYZ, and scores it like ``l3 evaluate`` (white-normalised
     ΔE*ab with the ideal white patch as white point). No noise, no
-    demosaicking: a floor for any pipeline that is linear in the pixel values
-    at one response level (Luther-Ives condition).
+    demosaicking: the Luther-Ives floor of a single linear colour transform.
+
+    With ``pieces`` > 1 the patches are split into that many groups by their
+    mean response (equal counts, dark to bright) and each group gets its own
+    map: a piecewise-linear map over response levels, as L3 uses (one kernel
+    per level). It is fitted and scored on the same patches (in sample), so it
+    shows how far below the single-map floor a per-level map can go, not what
+    L3 reaches on unseen data; the single-map floor therefore does not bound L3.
 
     Returns (mean ΔE*ab, stem of the capture used).
 
@@ -226,32 +263,26 @@ def linear_colour_floor(sim_dir: Path) -> tuple[float, str]:
     import colour
     import numpy as np
 
-    from l3cli.cfa import CFA
     from l3cli.io.image import read_image
 
     man = read_manifest(sim_dir)
-    cfa = CFA.from_spec(man["camera"]["cfa_pattern"])
     best = None
     for cap in sorted(man["captures"], key=lambda c: c["lux"]):
         if cap["scene"] != "macbeth":
             continue
         nf, _ = read_image(Path(sim_dir) / cap["noise_free"])
-        nf = nf.reshape(nf.shape[0], nf.shape[1])
         if nf.max() < 0.95:
-            best = (cap, nf)
+            best = cap
     if best is None:
         raise SystemExit(f"{sim_dir}: every Macbeth capture saturates")
-    cap, nf = best
-    cmap = cfa.channel_map(*nf.shape)
-    feats = []
-    for x0, y0, x1, y1 in cap["chart"]["patches"]:
-        dx, dy = (x1 - x0) // 4, (y1 - y0) // 4
-        sl = np.s_[y0 + dy:y1 - dy, x0 + dx:x1 - dx]
-        feats.append([nf[sl][cmap[sl] == c].mean() for c in range(cfa.n_channels)])
-    a = np.asarray(feats, dtype=np.float64)
+    cap = best
+    a = patch_electrons(sim_dir, cap["stem"])
     ref = np.asarray(cap["chart"]["reference_xyz"], dtype=np.float64)
-    m, *_ = np.linalg.lstsq(a, ref, rcond=None)
-    est = a @ m
+    est = np.empty_like(ref)
+    order = np.argsort(a.mean(axis=1))
+    for group in np.array_split(order, pieces):
+        m, *_ = np.linalg.lstsq(a[group], ref[group], rcond=None)
+        est[group] = a[group] @ m
     wi = cap["chart"]["white_index"]
     est = est * (ref[wi, 1] / est[wi, 1])
     white = ref[wi] / ref[wi, 1]

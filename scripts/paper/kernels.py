@@ -99,18 +99,29 @@ def analyse(build: Path, camera: str, title: str) -> tuple:
                 allw = sum(tot.values())
                 sums[lab] = {c: tot[c] / allw for c in chans}
         ax = axes[-1, j]
-        ax.bar(range(len(chans)), [sums[lab][c] for c in chans], color=["0.6", "g", "r", "b"][:len(chans)])
+        ax.bar(range(len(chans)), [sums[lab][c] for c in chans], color=[{"W": "0.6", "R": "r", "G": "g", "B": "b"}.get(c, "0.3") for c in chans])
         ax.set_xticks(range(len(chans)), chans)
         ax.set_ylim(0, 1)
         ax.set_title("share of Σ|w| per channel (Y)", fontsize=7)
     fig.suptitle(f"{title}: L3 kernels for output Y (smoothed table)", fontsize=9)
     fig.tight_layout()
-    return save_figure(fig, f"kernels_{camera}"), labels, chosen, sums, lvals, chans
+    n_sat = (int(counts[:, w_bit, sat_lv].sum()), int(counts[:, 0, sat_lv].sum()))
+    return save_figure(fig, f"kernels_{camera}"), labels, chosen, sums, lvals, chans, n_sat
 
 
 def main(build: Path) -> None:
-    fig_link, labels, chosen, sums, lvals, chans = analyse(build, "rgbw", "RGBW")
-    fig2, labels2, chosen2, sums2, lvals2, _ = analyse(build, "rgbw-ircut", "RGBW + IR-cut filter")
+    fig_link, labels, chosen, sums, lvals, chans, n_sat = analyse(build, "rgbw", "RGBW")
+    fig2, labels2, chosen2, sums2, lvals2, _, n_sat2 = analyse(build, "rgbw-ircut", "RGBW + IR-cut filter")
+
+    def shift(ws: list[float], labs: list[str], n: tuple[int, int]) -> str:
+        if "saturate (W)" not in labs or "high" not in labs:
+            return "No trained class has saturated W pixels, so the shift at saturation cannot be seen."
+        hi, sat = ws[labs.index("high")], ws[labs.index("saturate (W)")]
+        verdict = (f"down by {100 * (1 - sat / hi):.0f} %: the published shift from W to R, G, B"
+                   if sat < 0.8 * hi else "no clear shift, unlike the published kernels")
+        return (f"From the unsaturated to the saturated-W class of the same level bin W's share goes from "
+                f"{hi:.2f} to {sat:.2f} ({verdict}; training patches in that bin: {n[0]} with saturated W, "
+                f"{n[1]} without).")
 
     rows = [[lab, chosen[lab][1], f"{lvals[chosen[lab][1]]:.3g}"] + [sums[lab][c] for c in chans] for lab in labels]
     table = md_table(["class", "level bin", "level (norm. raw)"] + [f"{c} share" for c in chans], rows)
@@ -138,19 +149,17 @@ Published: weights spread over the patch at low levels (denoising),
 concentrate at the centre at high levels, and move from W to R, G, B when W
 saturates. Ours: the W share of the weights is
 {', '.join(f'{lab} {v:.2f}' for lab, v in zip(labels, wshare, strict=True))}.
-{f'W gets little weight at every usable level (at most {max(wshare):.2f} of the total)' if max(wshare) < 0.3 else 'The weights move from W to R, G, B as the level rises'}:
-our W pixel (clear silicon and no IR-cut filter, as in
-`sample_configs/rgbw.toml`) responds out to 1060 nm, so above the darkest
-levels its IR-contaminated signal predicts the visible XYZ target worse than
-R, G, B do, and the regression leans on it only where its extra photons
-matter most. The published camera's W pixel was evidently more useful at
-mid levels; with ours, the "move away from W at saturation" has little left
-to move.
+In the dark the kernels lean on W, whose extra photons matter most there;
+above it W's share drops: our W pixel (clear silicon and no IR-cut filter, as
+in `sample_configs/rgbw.toml`) responds out to 1060 nm, and its
+infrared-contaminated signal predicts the visible XYZ target worse than R, G
+and B do. {shift(wshare, labels, n_sat)}
 
 **The same camera behind an IR-cut filter** (`rgbw-ircut`, ISETCam's
 `ircf_public`; trained and tested like the others, see experiment 2): W
 share {', '.join(f'{lab} {v:.2f}' for lab, v in zip(labels2, wshare2, strict=True))}.
-{f'With W limited to the visible, the kernels lean on W most in the dark ({wshare2[0]:.2f}) and drop it when it saturates (high {wshare2[2]:.2f} → saturated {wshare2[3]:.2f}, same level bin), R, G, B taking over — the published behaviour, if weaker' if len(wshare2) == 4 and wshare2[3] < 0.5 * wshare2[2] else 'Even with the IR-cut filter the published shift from W to R, G, B at saturation is not clearly reproduced'}.
+With W limited to the visible, W keeps more of the weight at high levels.
+{shift(wshare2, labels2, n_sat2)}
 
 ![RGBW + IR-cut kernels]({fig2})
 

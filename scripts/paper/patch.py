@@ -131,11 +131,10 @@ size is used on a machine, by numba compiling its kernels, ~20 s, cached
 afterwards).
 {'l3 renders larger patches at much less than their coefficient ratio: classifying each pixel (which grows only with the side of the patch, not its area) costs as much as the multiply-adds at 5x5, so the published doubling/tripling of cost does not carry over.' if res[5]['mpix_per_s'] / res[9]['mpix_per_s'] < 0.7 * res[9]['coeffs'] / res[5]['coeffs'] else 'Render time grows roughly with the coefficient count, as published.'}
 {'Unlike the published result, larger patches gain clearly here' if min(d7, d9) < -0.3 else 'As published, larger patches gain little'}: our RGBW
-mosaic repeats every 4x4 pixels and has only 2 R and 2 B pixels per repeat,
-so a 5x5 patch holds 1–3 pixels of each, too few to estimate colour in
-noise; a 7x7 or 9x9 patch covers whole repeats. Larger patches also need more
-training data per class (more coefficients, so more classes fall below
-`--min-samples` and are filled by the spline).
+mosaic (one R, G, B and W per 2x2 repeat) puts 4–9 pixels of each channel in
+a 5x5 patch; a 7x7 or 9x9 patch averages more of them against noise, but
+needs more training data per class (more coefficients, so more classes fall
+below `--min-samples` and are filled by the spline).
 """
     write_outputs(build, "patch", md, {str(p): {k: (v if not isinstance(v, dict) else {str(a): b for a, b in v.items()})
                                                 for k, v in res[p].items()} for p in PATCHES})

@@ -1,13 +1,16 @@
 #!/usr/bin/env python3
-"""Experiment 2: RGBW vs the same camera with W replaced by G, and both vs a
-conventional pipeline, across light levels.
+"""Experiment 2: the 2x2 RGBW camera vs the same camera with W replaced by G
+(an RGGB Bayer), and both vs a conventional pipeline, across light levels,
+each camera with its own auto exposure.
 
-``rgbw.py BUILD`` reads the ``l3 evaluate`` reports ``BUILD/eval/{rgbw,rgbw-g,
-rgbw-ircut,bayer,bayer-baseline}.json`` of the held-out Macbeth captures and writes
-``BUILD/sections/rgbw.md``, ``BUILD/rgbw.json`` and docs/figures/rgbw_*.png.
+``rgbw.py BUILD`` reads the ``l3 evaluate`` reports ``BUILD/eval/{rgbw,bayer,
+rgbw-lab,bayer-lab,rgbw-ircut,bayer-baseline}.json`` of the held-out Macbeth
+captures and writes ``BUILD/sections/rgbw.md``, ``BUILD/rgbw.json`` and
+docs/figures/rgbw_*.png.
 
 Published (Jiang et al. 2017, RGBW section): mean Macbeth ΔE*ab 1.70 for the
-RGBW camera and 1.65 for the same camera with W replaced by G.
+RGBW camera (one R, G, B and W per 2x2 repeat) and 1.65 for the same camera
+with W replaced by G (a Bayer).
 """
 
 from __future__ import annotations
@@ -28,52 +31,122 @@ from common import (
     write_outputs,
 )
 
-PUBLISHED = {"rgbw": 1.70, "rgbw-g": 1.65}
-RUNS = [("rgbw", "L3, RGBW"), ("rgbw-g", "L3, RGBW with W→G"), ("rgbw-ircut", "L3, RGBW + IR-cut"),
-        ("bayer", "L3, Bayer RGGB"),
-        ("bayer-baseline", "Menon demosaic + 3x3 matrix, Bayer RGGB")]
+PUBLISHED = {"rgbw": 1.70, "bayer": 1.65}
+MAIN = [("rgbw", "L3, RGBW"), ("bayer", "L3, Bayer (RGBW with W→G)"),
+        ("rgbw-ircut", "L3, RGBW + IR-cut"),
+        ("bayer-baseline", "Menon demosaic + 3x3 matrix, Bayer")]
+# training variants: CIELAB target; the chart left out of training
+VARIANTS = [("rgbw-lab", "RGBW, Lab target"), ("bayer-lab", "Bayer, Lab target"),
+            ("rgbw-nochart", "RGBW, chart not in training"), ("bayer-nochart", "Bayer, chart not in training")]
+RUNS = MAIN + VARIANTS
+SIMS = {"rgbw-lab": "rgbw", "bayer-lab": "bayer", "rgbw-nochart": "rgbw", "bayer-nochart": "bayer",
+        "bayer-baseline": "bayer"}
+CAMERAS = [("rgbw", "RGBW"), ("bayer", "Bayer"), ("rgbw-ircut", "RGBW + IR-cut")]
+PATCHES = ("dark skin", "light skin", "blue sky", "foliage", "blue flower", "bluish green",
+           "orange", "purplish blue", "moderate red", "purple", "yellow green", "orange yellow",
+           "blue", "green", "red", "yellow", "magenta", "cyan", "white", "neutral 8",
+           "neutral 6.5", "neutral 5", "neutral 3.5", "black")
+# the issue's bar: RGBW within 15 % of the Bayer, both at most 3.0 (goal 2.0)
+BAR_RATIO, BAR_DE, GOAL_DE = 0.15, 3.0, 2.0
+
+
+def _exposures(sim: Path) -> dict[float, float]:
+    """``{lux: exposure time in s}`` of the Macbeth captures of a simulation folder."""
+    return {float(c["lux"]): float(c["exposure_s"]) for c in captures(sim).values() if c["scene"] == "macbeth"}
 
 
 def main(build: Path) -> None:
-    sims = {r: r for r, _ in RUNS} | {"bayer-baseline": "bayer"}
-    de, sc = {}, {}
+    from common import patch_electrons
+
+    sims = {r: build / "sim" / SIMS.get(r, r) / "test" for r, _ in RUNS}
+    de, sc, patches = {}, {}, {}
     for run, _ in RUNS:
         rep = report(build / "eval" / f"{run}.json")
-        sim = build / "sim" / sims[run] / "test"
-        de[run] = by_scene(rep, sim, "macbeth", "macbeth_de_mean")
-        sc[run] = by_scene(rep, sim, "macbeth", "scielab_mean")
+        de[run] = by_scene(rep, sims[run], "macbeth", "macbeth_de_mean")
+        sc[run] = by_scene(rep, sims[run], "macbeth", "scielab_mean")
+        caps = captures(sims[run])
+        patches[run] = {float(c["lux"]): rep[s]["macbeth_patches"]["de_ab"] for s, c in caps.items()
+                        if c["scene"] == "macbeth" and s in rep and rep[s].get("macbeth_patches")}
     luxes = sorted(de["rgbw"])
-    n_train = len({c["lux"] for c in captures(build / "sim" / "rgbw" / "train").values()})
+    train_lux = sorted({c["lux"] for c in captures(build / "sim" / "rgbw" / "train").values()})
     mean = {r: float(np.mean([de[r][x] for x in luxes])) for r, _ in RUNS}
-    mid = luxes[1:-1]
-    mean_mid = {r: float(np.mean([de[r][x] for x in mid])) for r, _ in RUNS}
+    lit = luxes[1:]
+    mean_lit = {r: float(np.mean([de[r][x] for x in lit])) for r, _ in RUNS}
+    expo = {c: _exposures(build / "sim" / c / "test") for c, _ in CAMERAS}
+    max_t = max(expo["rgbw"].values())
+    capped = {c: [x for x in luxes if expo[c][x] >= max_t * 0.999] for c, _ in CAMERAS}
+    floor = {r: linear_colour_floor(sims[r])[0] for r, _ in MAIN}
+    floor3 = {r: linear_colour_floor(sims[r], pieces=3)[0] for r, _ in MAIN}
+    ratio = mean["rgbw"] / mean["bayer"]
+    bar = {"ratio": ratio, "within_15_percent": abs(ratio - 1) <= BAR_RATIO,
+           "both_at_most_3": max(mean["rgbw"], mean["bayer"]) <= BAR_DE,
+           "both_at_most_2": max(mean["rgbw"], mean["bayer"]) <= GOAL_DE}
+    # photo-electrons on the white patch at the lowest and highest test levels
+    stems = {c: {float(v["lux"]): k for k, v in captures(build / "sim" / c / "test").items()
+                 if v["scene"] == "macbeth"} for c in ("rgbw", "bayer")}
+    chans = {"rgbw": ("R", "G", "W", "B"), "bayer": ("R", "G", "G", "B")}
+    white_e = {}
+    for c in ("rgbw", "bayer"):
+        from l3cli.cfa import CFA
+        cfa = CFA.from_spec(json_camera(build / "sim" / c / "test")["cfa_pattern"])
+        for x in (luxes[0], luxes[-1]):
+            e = patch_electrons(build / "sim" / c / "test", stems[c][x])[18]
+            white_e[(c, x)] = {ch: float(e[cfa.channels.index(ch)]) for ch in dict.fromkeys(chans[c])}
 
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.0))
-    for run, label in RUNS:
+    for run, label in MAIN:
         axes[0].plot(luxes, [de[run][x] for x in luxes], "o-", label=label)
         axes[1].plot(luxes, [sc[run][x] for x in luxes], "o-", label=label)
     for ax, t in zip(axes, ("Macbeth mean ΔE*ab", "S-CIELAB mean ΔE*ab (Macbeth capture)"), strict=True):
         plain_log(ax, x=True)
-        ax.set_xlabel("scene illuminance (lux), exposure fixed")
+        ax.set_xlabel("scene illuminance (lux), auto exposure")
         ax.set_title(t)
     axes[0].axhline(PUBLISHED["rgbw"], color="k", lw=0.8, ls="--", label="published RGBW (1.70)")
     axes[0].legend(fontsize=6)
     fig.tight_layout()
     fig_link = save_figure(fig, "rgbw_vs_light")
 
-    rows = [[f"{x:g}"] + [de[r][x] for r, _ in RUNS] for x in luxes]
-    rows.append(["mean, all levels"] + [mean[r] for r, _ in RUNS])
-    rows.append([f"mean, {mid[0]:g}–{mid[-1]:g} lux"] + [mean_mid[r] for r, _ in RUNS])
-    floor = {r: linear_colour_floor(build / "sim" / sims[r] / "test")[0] for r, _ in RUNS}
-    rows.append(["linear colour floor (noise-free)"] + [floor[r] for r, _ in RUNS])
-    rows.append(["published"] + [PUBLISHED.get(r) for r, _ in RUNS])
-    table = md_table(["lux"] + [lab for _, lab in RUNS], rows)
-    sc_rows = [[f"{x:g}"] + [sc[r][x] for r, _ in RUNS] for x in luxes]
-    sc_table = md_table(["lux"] + [lab for _, lab in RUNS], sc_rows)
-    best = min(luxes, key=lambda x: de["rgbw"][x])
-    diff = mean["rgbw"] - mean["rgbw-g"]
-    n_better = sum(de["rgbw"][x] < de["rgbw-g"][x] for x in luxes)
+    rows = [[f"{x:g}"] + [de[r][x] for r, _ in MAIN] for x in luxes]
+    rows.append(["mean, all levels"] + [mean[r] for r, _ in MAIN])
+    rows.append([f"mean, {lit[0]:g}–{lit[-1]:g} lux"] + [mean_lit[r] for r, _ in MAIN])
+    rows.append(["one linear map, noise-free (not a bound on L3)"] + [floor[r] for r, _ in MAIN])
+    rows.append(["3 linear maps by response level, noise-free, in sample"] + [floor3[r] for r, _ in MAIN])
+    rows.append(["published"] + [PUBLISHED.get(r) for r, _ in MAIN])
+    table = md_table(["lux"] + [lab for _, lab in MAIN], rows)
+    v_rows = [[f"{x:g}"] + [de[r][x] for r, _ in VARIANTS] for x in luxes]
+    v_rows.append(["mean, all levels"] + [mean[r] for r, _ in VARIANTS])
+    v_rows.append([f"mean, {lit[0]:g}–{lit[-1]:g} lux"] + [mean_lit[r] for r, _ in VARIANTS])
+    v_table = md_table(["lux"] + [lab for _, lab in VARIANTS], v_rows)
+    sc_rows = [[f"{x:g}"] + [sc[r][x] for r, _ in MAIN] for x in luxes]
+    sc_table = md_table(["lux"] + [lab for _, lab in MAIN], sc_rows)
+    ex_rows = [[f"{x:g}"] + [f"{expo[c][x] * 1000:.0f}" for c, _ in CAMERAS] for x in luxes]
+    ex_table = md_table(["lux"] + [f"{lab}, ms" for _, lab in CAMERAS], ex_rows)
+    lo, hi = luxes[0], luxes[-1]
+    worst = sorted(range(24), key=lambda i: -patches["rgbw"][lo][i])[:4]
+    worst_txt = ", ".join(f"{PATCHES[i]} {patches['rgbw'][lo][i]:.1f}" for i in worst)
+    greys = float(np.mean(patches["rgbw"][lo][18:24]))
+    colours = float(np.mean(patches["rgbw"][lo][:18]))
+    n_better = sum(de["rgbw"][x] < de["bayer"][x] for x in luxes)
+
+    below = {c: [x for x in luxes if de[c][x] < floor[c]] for c in ("rgbw", "bayer")}
+    below_txt = "; L3 itself is below it at " + "; ".join(
+        f"{', '.join(f'{x:g}' for x in below[c])} lux ({lab})"
+        for c, lab in (("rgbw", "RGBW"), ("bayer", "Bayer")) if below[c]) if any(below.values()) else ""
+
+    ir_lo = de["rgbw-ircut"][lo]
+    if ir_lo <= 1.1 * de["bayer"][lo] < de["rgbw"][lo]:
+        dark_cause = (f"The RGBW camera's extra loss there is the near infrared: behind an IR-cut filter it gives "
+                      f"{ir_lo:.2f} at {lo:g} lux, as good as the Bayer; without one, W and R carry 700–1060 nm "
+                      "light that the XYZ target does not see, and the noisy visible-light colour differences "
+                      "the kernel must separate it from are shrunk further.")
+    else:
+        dark_cause = (f"Behind an IR-cut filter the RGBW camera gives {ir_lo:.2f} at {lo:g} lux "
+                      f"(Bayer {de['bayer'][lo]:.2f}).")
+
+    def rng(c: str) -> str:
+        v = [de[c][x] for x in luxes if x not in capped[c]] or [de[c][x] for x in luxes]
+        return f"{min(v):.2f}–{max(v):.2f}"
 
     def versus(a: str, b: str, metric: dict) -> str:
         better = [x for x in luxes if metric[a][x] < metric[b][x]]
@@ -83,23 +156,58 @@ def main(build: Path) -> None:
             txt += f", worse at {', '.join(f'{x:g}' for x in worse)} lux"
         return txt
 
+    def e_txt(c: str, x: float) -> str:
+        return ", ".join(f"{ch} {v:.0f}" for ch, v in white_e[(c, x)].items())
+
+    def yes(flag: bool) -> str:
+        return "met" if flag else "**not met**"
+
     md = f"""## 2. RGBW vs Bayer, and both vs a conventional pipeline
 
 Cameras (`scripts/paper/cameras.py`): the L3 RGBW camera
 (`sample_configs/rgbw.toml`: 1.4 µm pixels, f/4, ISETCam's interleaved RGBW
-filters, no IR-cut filter), the same camera with every W pixel replaced by G
-(the paper's comparison; 12 of its 16 pixels are then G), and the same pixel
-and filters in an RGGB Bayer mosaic, which `l3 baseline` (a Bayer-only
+filter curves, no IR-cut filter, and — as in the paper — exactly one R, G, B
+and W in each 2x2 repeat, R G / W B), and the same camera with its W pixel
+replaced by G, which makes it an RGGB Bayer with the same pixel, optics and
+R, G, B filters (the paper's comparison camera; `l3 baseline`, a Bayer-only
 conventional pipeline: Menon 2007 demosaicking + a 3x3 matrix fitted by
-least squares on the same training data) can also render. Each L3 table is
-trained on the Macbeth chart and the four bundled natural photos at
-{n_train} light levels, smoothed (`l3 smooth`), and tested on Macbeth captures at
-light levels *not* used in training, with a fixed exposure so the light level
-sets the response level (W saturates on the bright patches at the highest
-level). Mean Macbeth ΔE*ab over the 24 patches (white-normalised, as
-ISETCam's `macbethColorError`):
+least squares on the same training data, can render it too). A 4x4 RGBW
+layout with R and B on 2 of 16 pixels is kept as `sample_configs/rgbw-4x4.toml`
+but not used here. Each L3 table is trained (`l3 train`, XYZ target unless
+the column says Lab) on the Macbeth chart and the four bundled natural photos
+at {len(train_lux)} light levels ({', '.join(f'{x:g}' for x in train_lux)} lux),
+smoothed (`l3 smooth`), and tested on Macbeth captures at light levels *not*
+used in training. Every camera uses its own auto exposure (its TOML's
+`[exposure]`: the brightest pixel at 95 % of white, at most
+{max_t * 1000:.0f} ms), as the paper's simulations did. Exposure times of the
+test captures:
+
+{ex_table}
+
+Auto exposure reaches its target at every level where the time is below
+{max_t * 1000:.0f} ms; there the raw response is the same at every light level
+(only the noise draw and the small dark current change), so a light level
+"not used in training" is new only where the exposure is capped
+({', '.join(f'{x:g}' for x in capped['rgbw']) or 'none'} lux for RGBW,
+{', '.join(f'{x:g}' for x in capped['bayer']) or 'none'} lux for the Bayer): these
+under-exposed levels are the real test of generalisation over response level.
+Because W, which sees about four times the light of G, reaches the target
+first, the RGBW camera's R, G and B pixels collect far fewer electrons than
+the Bayer's at the same light level once the exposure is no longer capped
+(white patch, noise-free photo-electrons at {hi:g} lux: RGBW {e_txt('rgbw', hi)};
+Bayer {e_txt('bayer', hi)}; at {lo:g} lux, both capped: RGBW {e_txt('rgbw', lo)};
+Bayer {e_txt('bayer', lo)}).
+
+Mean Macbeth ΔE*ab over the 24 patches (white-normalised, as ISETCam's
+`macbethColorError`):
 
 {table}
+
+The same cameras trained differently (mean Macbeth ΔE*ab; test captures as
+above): in CIELAB (`l3 train --target lab`), and on the natural photos
+alone (the chart not in training, so its colours are out of sample too):
+
+{v_table}
 
 S-CIELAB mean ΔE*ab of the same Macbeth captures (96 dpi, 1 m):
 
@@ -107,49 +215,90 @@ S-CIELAB mean ΔE*ab of the same Macbeth captures (96 dpi, 1 m):
 
 ![Macbeth ΔE vs light level]({fig_link})
 
-- **RGBW vs W→G.** Published: RGBW 1.70 vs W→G 1.65, a small loss for RGBW.
-  Ours: {mean['rgbw']:.2f} vs {mean['rgbw-g']:.2f} averaged over the test
-  levels (RGBW {'worse' if diff > 0 else 'better'} by {abs(diff):.2f}; better at
-  {n_better} of {len(luxes)} levels). Our W→G camera keeps the RGBW layout, so
-  R and B are only 2 of 16 pixels each; its colour suffers much more than the
-  paper's comparison camera did. Absolute values: our best RGBW level
-  ({best:g} lux) gives {de['rgbw'][best]:.2f}, {'above' if de['rgbw'][best] > PUBLISHED['rgbw'] else 'below'} the published
-  1.70{' — l3 falls short of the published accuracy' if de['rgbw'][best] > PUBLISHED['rgbw'] else ''}. The published
-  values come from ISETCam simulations of many more scenes; ours from five
-  scenes at 320x240 pixels, so many classes are trained from few samples or
-  filled by the spline prior. More important, the row "linear colour
-  floor" is the mean ΔE of the *best* linear map from the camera's channels
-  to XYZ on noise-free, perfectly demosaicked patch means (least squares over
-  the 24 patches, `common.linear_colour_floor`): {floor['rgbw']:.2f} for RGBW
-  and {floor['bayer']:.2f} for the Bayer camera. Our simulated sensors (ISETCam's
-  filter curves under the daylight simulator) are that far from the Luther
-  condition, so a pipeline that is linear at a given level — as L3 is within
-  each class — is unlikely to reach 1.70 on them (the least-squares fit is
-  not the ΔE-optimal linear map, but the gap is large). Either the published
-  simulation's sensors, illuminant or scene set gave better-conditioned
-  colour, or its ΔE was computed on a different basis; we could not pin
-  this down.
-- **IR.** Our RGBW camera (`sample_configs/rgbw.toml`) has no IR-cut filter,
-  so W integrates 700–1060 nm light that the XYZ target does not see; the
-  same camera behind an IR-cut filter gives {mean['rgbw-ircut']:.2f}
-  (mean over levels; {versus('rgbw-ircut', 'rgbw', de)} than without). See
-  experiment 7 for what this does to the kernels.
+- **RGBW vs W→G (a Bayer).** Published: RGBW 1.70 vs Bayer 1.65 (RGBW 3 %
+  worse). Ours, mean over the {len(luxes)} test levels: {mean['rgbw']:.2f} vs
+  {mean['bayer']:.2f} (RGBW/Bayer = {ratio:.2f}; RGBW better at {n_better} of
+  {len(luxes)} levels); {mean_lit['rgbw']:.2f} vs {mean_lit['bayer']:.2f} without
+  the lowest level. The issue's bar: RGBW within 15 % of the Bayer —
+  {yes(bar['within_15_percent'])}; both at most {BAR_DE:.1f} — {yes(bar['both_at_most_3'])};
+  goal both at most {GOAL_DE:.1f} — {yes(bar['both_at_most_2'])}.
+- **What limits the dark level.** At {lo:g} lux (exposure capped at
+  {max_t * 1000:.0f} ms for both cameras) RGBW gives {de['rgbw'][lo]:.2f} and the Bayer
+  {de['bayer'][lo]:.2f}: the error sits on the saturated patches ({worst_txt}; mean of
+  the 18 coloured patches {colours:.1f}, of the 6 greys {greys:.1f}), i.e. colours
+  pulled toward grey. A Macbeth patch mean averages the noise away, so this is
+  bias, not noise: each class's kernel is the minimum-mean-squared-error
+  linear estimate from noisy pixels, which shrinks the noisy colour
+  differences (R−G, B−G) toward the class mean. {dark_cause}
+- **What limits the bright levels.** Where auto exposure reaches its target
+  the error is {rng('rgbw')} (RGBW) and {rng('bayer')} (Bayer),
+  close to the row "one linear map": the mean ΔE of the best single linear map
+  from the camera's channels to XYZ on noise-free, dark-subtracted, perfectly
+  demosaicked patch means (least squares over the 24 patches, no offset,
+  `common.linear_colour_floor`): {floor['rgbw']:.2f} for RGBW, {floor['bayer']:.2f}
+  for the Bayer. Our simulated sensors (ISETCam's filter curves under the
+  daylight simulator, no IR-cut filter) are that far from the Luther
+  condition. This is *not* a bound on L3: L3 fits one map per response level
+  (and contrast class), and a piecewise-linear map can go below the
+  single-map floor — three maps over dark / mid / bright patches reach
+  {floor3['rgbw']:.2f} (RGBW) and {floor3['bayer']:.2f} (Bayer) on the same noise-free
+  patches (in sample, so an optimistic figure){below_txt}.
+- **The chart in training.** Under auto exposure the bright test captures of
+  the chart have the same response as its bright training captures (only the
+  noise differs), so the main table's bright levels are close to in-sample
+  for the chart's colours. Trained on the four natural photos alone, the mean
+  over {lit[0]:g}–{lit[-1]:g} lux is {mean_lit['rgbw-nochart']:.2f} (RGBW) and
+  {mean_lit['bayer-nochart']:.2f} (Bayer) instead of {mean_lit['rgbw']:.2f} and
+  {mean_lit['bayer']:.2f}. The natural photos are RGB images given spectra by
+  a smooth three-function basis (Mallett & Yuksel 2019) whose near-infrared
+  part is a linear function of r, g, b (`l3cli.simulate.scenes`): they teach
+  a relation between visible colour and near-infrared light that the chart's
+  measured reflectances do not follow, and the camera whose W and R see the
+  near infrared suffers most. This, more than noise, is what keeps our RGBW
+  camera above the published value: the paper trained on many ISETCam scenes
+  with measured spectra.
+- **Training target.** Training in CIELAB (`l3 train --target lab`, which
+  makes the ridge loss roughly a ΔE loss, as the paper suggests) is worse,
+  not better: {mean['rgbw-lab']:.2f} (RGBW) and {mean['bayer-lab']:.2f} (Bayer) over
+  all levels. Lab is a non-linear function of the raw values within a class
+  (cube root of Y, ratios for a*, b*), and one affine kernel per class fits it
+  worse than it fits XYZ, which is linear in the raw values for a fixed
+  spectrum. XYZ stays the target.
+- **IR.** The RGBW camera has no IR-cut filter, so W and R integrate
+  700–1060 nm light that the XYZ target does not see; the same camera behind
+  an IR-cut filter gives {mean['rgbw-ircut']:.2f} (mean over levels;
+  {versus('rgbw-ircut', 'rgbw', de)} than without). See experiment 7 for what
+  this does to the kernels.
 - **L3 vs the conventional pipeline (Bayer camera).** Macbeth ΔE: L3 is
   {versus('bayer', 'bayer-baseline', de)}; S-CIELAB: L3 is
   {versus('bayer', 'bayer-baseline', sc)}. RGBW L3 vs the Bayer baseline:
-  Macbeth ΔE {versus('rgbw', 'bayer-baseline', de)}. L3 wins at mid and high
-  levels (and with saturation, where the baseline's matrix has no answer);
-  in the dark its Macbeth ΔE is worse than the baseline's although its
-  S-CIELAB is similar: the errors concentrate on the saturated patches (red,
-  yellow, magenta) while the greys stay low, the signature of colours pulled
-  toward grey by the ridge regularisation that the noisy dark classes need.
-  The paper reports L3 ahead of the conventional pipeline; on our data it
-  is not, in the dark.
+  Macbeth ΔE {versus('rgbw', 'bayer-baseline', de)}. The paper reports L3
+  ahead of the conventional pipeline{', as here' if all(de['bayer'][x] < de['bayer-baseline'][x] for x in luxes) else '; here it is not at every level'}.
+- **Why the published values are lower.** The paper's 1.70 / 1.65 come from
+  ISETCam simulations of many more training scenes with measured spectra;
+  ours from five scenes at 320x240 pixels (four of them RGB photos with
+  synthetic spectra), with the chart also seen in training (other levels,
+  other noise). Without the lowest level our means
+  are {mean_lit['rgbw']:.2f} (RGBW) and {mean_lit['bayer']:.2f} (Bayer),
+  {mean_lit['rgbw'] - PUBLISHED['rgbw']:.2f} and {mean_lit['bayer'] - PUBLISHED['bayer']:.2f} above the
+  published values; the all-level mean is raised by the under-exposed
+  {lo:g} lux test.
 """
     write_outputs(build, "rgbw", md, {"macbeth_de": {r: {str(k): v for k, v in de[r].items()} for r, _ in RUNS},
                                       "scielab": {r: {str(k): v for k, v in sc[r].items()} for r, _ in RUNS},
-                                      "mean": mean, "linear_colour_floor": floor, "mean_mid_levels": mean_mid, "mid_levels": mid,
-                                      "published": PUBLISHED})
+                                      "exposure_s": {c: {str(k): v for k, v in expo[c].items()} for c, _ in CAMERAS},
+                                      "mean": mean, "linear_colour_floor": floor,
+                                      "linear_colour_floor_3_pieces": floor3,
+                                      "mean_lit_levels": mean_lit, "lit_levels": lit,
+                                      "white_patch_electrons": {f"{c}@{x:g}": v for (c, x), v in white_e.items()},
+                                      "bar": bar, "published": PUBLISHED})
+
+
+def json_camera(sim: Path) -> dict:
+    """The camera record of a simulation folder's manifest."""
+    import json
+
+    return json.loads((sim / "manifest.json").read_text())["camera"]
 
 
 if __name__ == "__main__":
