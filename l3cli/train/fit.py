@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from l3cli import __version__
 from l3cli.cfa import CFA
@@ -40,7 +41,7 @@ from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
 __all__ = ["TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
-           "define_classes",
+           "define_classes", "definition_from_histogram",
            "collect_stats", "table_from_stats", "fallback_sources", "train"]
 
 log = logging.getLogger(__name__)
@@ -255,7 +256,18 @@ def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
 
     hist = map_reduce(histogram_task, items, reduce=fold, client=client,
                       label="classes   ", show_progress=show_progress and need_hist)
-    cfa = first["cfa"]
+    return definition_from_histogram(first["cfa"], hist, opts)
+
+
+def definition_from_histogram(cfa: CFA, hist: ContrastHistogram | None,
+                              opts: TrainOptions) -> ClassDefinition:
+    """The class definition of ``opts`` from the summed pass-1 histogram.
+
+    ``hist`` may be None when both the level range and the contrast
+    thresholds are given. The histogram does not depend on the number of
+    levels or contrast bins, so one histogram serves every such layout
+    (:mod:`l3cli.train.tune`).
+    """
     if opts.level_range is not None:
         lo, hi = opts.level_range
     else:
@@ -336,12 +348,15 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
     kernels = np.zeros((nc, q, n_out), dtype=np.float64)
     lambdas = np.full((nc, n_out), np.nan)
     lam_rel = np.full((nc, n_out), np.nan)
-    for c in np.flatnonzero(trained):
-        sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c],
-                          grid=opts.lambda_grid)
-        kernels[c] = sol.kernel
-        lambdas[c] = sol.lam
-        lam_rel[c] = sol.lam_rel
+    # Many small eigenproblems: BLAS threads only fight each other (10-30x slower
+    # on a busy machine), so the solves run single-threaded.
+    with threadpool_limits(1, user_api="blas"):
+        for c in np.flatnonzero(trained):
+            sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c],
+                              grid=opts.lambda_grid)
+            kernels[c] = sol.kernel
+            lambdas[c] = sol.lam
+            lam_rel[c] = sol.lam_rel
     src = fallback_sources(d, trained)
     kernels = kernels[src]
     prov = dict(provenance or {})
