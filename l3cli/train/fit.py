@@ -40,21 +40,43 @@ from l3cli.train.data import Pair, load_pair
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
-__all__ = ["TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
+__all__ = ["DEFAULT_PATCH", "DEFAULT_LEVELS", "DEFAULT_CONTRAST_BINS", "DEFAULT_PAIRS_TARGET",
+           "DEFAULT_SIMULATION_TARGET", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
            "define_classes", "definition_from_histogram",
            "collect_stats", "table_from_stats", "fallback_sources", "train"]
 
 log = logging.getLogger(__name__)
 
+# Defaults of l3 train (the CLI imports them). Measured by leave-one-image-out
+# S-CIELAB on the bundled Infinite-ISP frames/ (docs/training.md, "Defaults").
+#: Default patch size.
+DEFAULT_PATCH = 7
 #: Default number of response levels.
-DEFAULT_LEVELS = 24
+DEFAULT_LEVELS = 36
+#: Default contrast bins per level.
+DEFAULT_CONTRAST_BINS = 3
+#: Default target space of pairs folders: the linear version of the renders' display sRGB
+#: (``l3 render`` still writes display sRGB PNG/JPEG/TIFF).
+DEFAULT_PAIRS_TARGET = "linear-srgb"
+#: Default target space of simulate folders (their ideal targets are XYZ).
+DEFAULT_SIMULATION_TARGET = "xyz"
+
+
+def default_target_space(pairs: Sequence[Pair]) -> str:
+    """The default target space for these inputs: :data:`DEFAULT_PAIRS_TARGET`
+    when every input is a pairs folder, else :data:`DEFAULT_SIMULATION_TARGET`."""
+    pairs = list(pairs)
+    if pairs and all(p.align for p in pairs):
+        return DEFAULT_PAIRS_TARGET
+    return DEFAULT_SIMULATION_TARGET
 
 
 class TrainOptions:
     """Options of :func:`train` (keyword-only; see ``l3 train --help``)."""
 
-    def __init__(self, *, patch: int = 5, levels: int = DEFAULT_LEVELS, spacing: str = "log",
-                 contrast_bins: int = 2, saturation: float = 0.95,
+    def __init__(self, *, patch: int = DEFAULT_PATCH, levels: int = DEFAULT_LEVELS,
+                 spacing: str = "log", contrast_bins: int = DEFAULT_CONTRAST_BINS,
+                 saturation: float = 0.95,
                  level_range: tuple[float, float] | None = None,
                  contrast_threshold: float | None = None, merge_positions: bool = True,
                  target_space: str = "xyz", sample_fraction: float = 1.0, seed: int = 0,

@@ -23,6 +23,7 @@ them).
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -46,7 +47,7 @@ from l3cli.train.data import Pair
 from l3cli.train.fit import TrainOptions, table_from_stats
 
 __all__ = ["TuneGrid", "Candidate", "CandidateResult", "TuneResult", "DEFAULT_FOLDS",
-           "tune", "format_candidates"]
+           "tune", "format_candidates", "replace_opts", "read_train_config"]
 
 log = logging.getLogger(__name__)
 
@@ -245,3 +246,60 @@ def format_candidates(record: dict) -> str:
                    f"{r['contrast_bins']:>4}  {r['cv_mean']:>11.4f}  {units}")
     return "\n".join(out)
 
+
+
+def read_train_config(path: str | os.PathLike, allowed: set[str]) -> tuple[dict, TuneGrid | None]:
+    """The ``[train]`` table of a TOML config (for Makefiles): options and tune grid.
+
+    Keys are ``l3 train``'s long option names (``contrast-bins`` or
+    ``contrast_bins``; ``tune = true`` runs the search); a ``[train.tune]``
+    sub-table sets the searched values (:meth:`TuneGrid.from_dict`).
+
+    Parameters
+    ----------
+    path
+        The TOML file.
+    allowed
+        Option names (underscored) the caller accepts.
+
+    Returns
+    -------
+    options, grid
+        Option values by underscored name, and the grid (None when absent).
+
+    Raises
+    ------
+    ConfigError
+        Unreadable TOML, no ``[train]`` table, or an unknown key (named with the file).
+    """
+    import tomllib
+
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config ({exc.strerror})") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+    section = doc.get("train")
+    if not isinstance(section, dict):
+        raise ConfigError(f"{path}: no [train] table")
+    section = dict(section)
+    grid_d = section.pop("tune", None)
+    opts = {}
+    if isinstance(grid_d, dict):
+        opts["tune"] = True
+        try:
+            grid = TuneGrid.from_dict(grid_d)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{path}: bad [train.tune] table ({exc})") from exc
+    else:
+        grid = None
+        if grid_d is not None:
+            opts["tune"] = bool(grid_d)
+    for key, value in section.items():
+        name = {"target": "target_space"}.get(key, key).replace("-", "_")
+        if name not in allowed:
+            raise ConfigError(f"{path}: unknown [train] key {key!r}")
+        opts[name] = value
+    return opts, grid
