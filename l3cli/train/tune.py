@@ -8,11 +8,14 @@ single image), with S-CIELAB (ISETCam's 10° opponent transform, 96 dpi at
 scores them; the folds come from additive statistics (:mod:`l3cli.train.cv`),
 never from retraining.
 
-The search has two stages so that its cost stays a few dozen candidates:
+The search has three stages so that its cost stays a few dozen candidates:
 
-1. every target space x every patch size, at the starting levels and
-   contrast bins (``--levels`` / ``--contrast-bins``);
-2. for the best space and patch, every levels x contrast-bins pair.
+1. every target space x every patch size, at the starting levels, contrast
+   bins and contrast rule (``--levels``, ``--contrast-bins``,
+   ``--contrast-threshold``);
+2. for the best space and patch, every levels x contrast-bins pair;
+3. for the best of those, every contrast threshold of the grid (a fixed
+   threshold, or ``"quantile"``: the per-level quantiles of the data).
 
 The best candidate's table is solved from the statistics of all the
 training images (the statistics already collected), and its provenance
@@ -63,6 +66,7 @@ class TuneGrid:
     patches: tuple[int, ...] = (5, 7)
     levels: tuple[int, ...] = (12, 24, 36)
     contrast_bins: tuple[int, ...] = (1, 2, 3)
+    contrast_thresholds: tuple[float | None, ...] = (None, 0.1, 0.2)
     folds: int = DEFAULT_FOLDS
 
     def __post_init__(self) -> None:
@@ -76,17 +80,23 @@ class TuneGrid:
                 raise ConfigError(f"tune {name} {list(vals)} not allowed; use values >= {lo}")
         if any(p % 2 == 0 for p in self.patches):
             raise ConfigError(f"tune patches {list(self.patches)} must be odd")
+        if any(t is not None and not t > 0 for t in self.contrast_thresholds):
+            raise ConfigError(f"tune contrast thresholds {list(self.contrast_thresholds)} "
+                              "must be > 0 (or \"quantile\")")
         if self.folds < 2:
             raise ConfigError(f"tune folds {self.folds} not allowed; use 2 or more")
 
     @classmethod
     def from_dict(cls, d: dict) -> TuneGrid:
         """From a config table (``[train.tune]``): keys as the attributes."""
-        known = {"spaces", "patches", "levels", "contrast_bins", "folds"}
+        known = {"spaces", "patches", "levels", "contrast_bins", "contrast_thresholds", "folds"}
         extra = set(d) - known
         if extra:
             raise ConfigError(f"unknown tune keys {sorted(extra)}; allowed: {sorted(known)}")
         kw = {k: (int(v) if k == "folds" else tuple(v)) for k, v in d.items()}
+        if "contrast_thresholds" in kw:
+            kw["contrast_thresholds"] = tuple(None if t == "quantile" else float(t)
+                                              for t in kw["contrast_thresholds"])
         return cls(**kw)
 
 
@@ -98,11 +108,13 @@ class Candidate:
     patch: int
     levels: int
     contrast_bins: int
+    contrast_threshold: float | None = None
 
     def as_dict(self) -> dict:
-        """JSON form."""
+        """JSON form (``contrast_threshold`` None: per-level quantiles)."""
         return {"target": self.target_space, "patch": self.patch, "levels": self.levels,
-                "contrast_bins": self.contrast_bins}
+                "contrast_bins": self.contrast_bins,
+                "contrast_threshold": self.contrast_threshold}
 
 
 @dataclass
@@ -132,9 +144,18 @@ class TuneResult:
     record: dict = field(default_factory=dict)
 
 
-def _stage2(grid: TuneGrid, space: str, patch: int, done: set[Candidate]) -> list[Candidate]:
-    return [c for lv in grid.levels for nb in grid.contrast_bins
-            if (c := Candidate(space, patch, lv, nb)) not in done]
+def _next_stage(stage: int, grid: TuneGrid, best: Candidate,
+                done: set[Candidate]) -> list[Candidate]:
+    b = best
+    if stage == 2:
+        cands = [Candidate(b.target_space, b.patch, lv, nb, b.contrast_threshold)
+                 for lv in grid.levels for nb in grid.contrast_bins]
+    elif b.contrast_bins == 1:  # one bin: no contrast threshold to choose
+        cands = []
+    else:
+        cands = [Candidate(b.target_space, b.patch, b.levels, b.contrast_bins, t)
+                 for t in grid.contrast_thresholds]
+    return [c for c in cands if c not in done]
 
 
 def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid | None = None,
@@ -175,8 +196,12 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     start_levels = base.levels if base.levels in grid.levels else grid.levels[0]
     start_bins = (base.contrast_bins if base.contrast_bins in grid.contrast_bins
                   else grid.contrast_bins[0])
-    plan = [Candidate(s, p, start_levels, start_bins) for p in grid.patches for s in grid.spaces]
-    n_total = len(plan) + len(grid.levels) * len(grid.contrast_bins) - 1
+    start_t = base.contrast_threshold
+    plan = [Candidate(s, p, start_levels, start_bins, start_t)
+            for p in grid.patches for s in grid.spaces]
+    stage_ends = [len(plan)]
+    n_total = (len(plan) + len(grid.levels) * len(grid.contrast_bins) - 1
+               + len(grid.contrast_thresholds))
     hists: dict[int, object] = {}
     layout = None
     layout_key = None
@@ -184,7 +209,7 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
 
     def stats_for(c: Candidate):
         nonlocal layout, layout_key
-        key = (c.patch, c.levels, c.contrast_bins)
+        key = (c.patch, c.levels, c.contrast_bins, c.contrast_threshold)
         if key != layout_key:
             opts = replace_opts(base, c)
             if c.patch not in hists:
@@ -195,9 +220,10 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         return layout
 
     for k in progress(range(n_total), label="tune      ", length=n_total, enabled=show_progress):
-        if k == len(plan):
-            best1 = min(results, key=lambda r: r.mean).candidate
-            plan += _stage2(grid, best1.target_space, best1.patch, {r.candidate for r in results})
+        while k == len(plan) and len(stage_ends) < 3:  # a stage is done: plan the next
+            best_c = min(results, key=lambda r: r.mean).candidate
+            plan += _next_stage(len(stage_ends) + 1, grid, best_c, {r.candidate for r in results})
+            stage_ends.append(len(plan))
         if k >= len(plan):
             continue
         c = plan[k]
@@ -228,7 +254,7 @@ def replace_opts(base: TrainOptions, c: Candidate) -> TrainOptions:
     """``base`` with the candidate's target space, patch, levels and contrast bins."""
     d = base.as_dict()
     d.update(target_space=c.target_space, patch=c.patch, levels=c.levels,
-             contrast_bins=c.contrast_bins)
+             contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold)
     return TrainOptions(**d)
 
 
@@ -236,14 +262,18 @@ def format_candidates(record: dict) -> str:
     """The candidate table of a tune record (best marked ``*``), sorted by score."""
     rows = sorted(record["candidates"], key=lambda r: r["cv_mean"])
     chosen = record["chosen"]
-    keys = ("target", "patch", "levels", "contrast_bins")
-    out = [f"  {'':1} {'target':<12} {'patch':>5} {'levels':>6} {'bins':>4}  "
+    keys = ("target", "patch", "levels", "contrast_bins", "contrast_threshold")
+    out = [f"  {'':1} {'target':<12} {'patch':>5} {'levels':>6} {'bins':>4} {'threshold':>9}  "
            f"{'CV S-CIELAB':>11}  per held-out unit"]
     for r in rows:
-        mark = "*" if all(r[k] == chosen[k] for k in keys) else ""
+        mark = "*" if all(r.get(k) == chosen.get(k) for k in keys) else ""
         units = " ".join(f"{v:.3f}" for v in r["cv_units"])
+        thr = r.get("contrast_threshold")
+        thr = "quantile" if thr is None else f"{thr:g}"
+        if r["contrast_bins"] == 1:
+            thr = "-"
         out.append(f"  {mark:1} {r['target']:<12} {r['patch']:>5} {r['levels']:>6} "
-                   f"{r['contrast_bins']:>4}  {r['cv_mean']:>11.4f}  {units}")
+                   f"{r['contrast_bins']:>4} {thr:>9}  {r['cv_mean']:>11.4f}  {units}")
     return "\n".join(out)
 
 
