@@ -162,3 +162,16 @@ def test_cli_config_unknown_key(tmp_path: Path, runner):
     res = runner.invoke(cli, ["train", str(folder), "-o", str(tmp_path / "t.npz"),
                               "--config", str(cfg)])
     assert res.exit_code == 1 and "bad.toml" in res.output and "patchsize" in res.output
+
+
+def test_tune_grid_from_config_values():
+    g = TuneGrid.from_dict({"spaces": ["xyz"], "levels": [8, 16],
+                            "contrast_thresholds": ["quantile", 0.2], "folds": 4})
+    assert g.spaces == ("xyz",) and g.levels == (8, 16) and g.folds == 4
+    assert g.contrast_thresholds == (None, 0.2)
+    from l3cli.errors import ConfigError
+
+    for bad in ({"spaces": ["lab?"]}, {"patches": [4]}, {"folds": 1}, {"levels": [1]},
+                {"contrast_thresholds": [0]}, {"colour": 1}):
+        with pytest.raises(ConfigError):
+            TuneGrid.from_dict(bad)

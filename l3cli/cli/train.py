@@ -7,11 +7,29 @@ import click
 from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, workers_opt
 from l3cli.train.fit import (
     DEFAULT_CONTRAST_BINS,
+    DEFAULT_CONTRAST_THRESHOLD,
     DEFAULT_LEVELS,
     DEFAULT_PAIRS_TARGET,
     DEFAULT_PATCH,
     DEFAULT_SIMULATION_TARGET,
 )
+
+
+class _Threshold(click.ParamType):
+    """A positive float, or ``quantile`` (None: per-level quantiles of the data)."""
+
+    name = "T|quantile"
+
+    def convert(self, value, param, ctx):
+        if value is None or value == "quantile":
+            return None
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is neither a number nor 'quantile'", param, ctx)
+        if not v > 0:
+            self.fail(f"{value!r} must be > 0", param, ctx)
+        return v
 
 
 def _read_config(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
@@ -40,8 +58,10 @@ def _read_config(ctx: click.Context, param: click.Parameter, value: str | None) 
                    "(just above its noise floor to near saturation).")
 @click.option("--contrast-bins", type=click.IntRange(min=1), default=DEFAULT_CONTRAST_BINS,
               show_default=True, help="Contrast bins per level (2 = flat / textured).")
-@click.option("--contrast-threshold", type=float, default=None,
-              help="Fixed relative-contrast threshold; default: the median of the data per level.")
+@click.option("--contrast-threshold", type=_Threshold(), default=DEFAULT_CONTRAST_THRESHOLD,
+              show_default=True,
+              help="Relative-contrast threshold (bin k starts at k x T), or 'quantile': "
+                   "thresholds at the per-level quantiles of the data.")
 @click.option("--saturation", type=float, default=0.95, show_default=True,
               help="Normalised value at or above which a pixel counts as saturated.")
 @click.option("--merge-positions/--no-merge-positions", default=True, show_default=True,

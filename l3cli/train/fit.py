@@ -40,7 +40,8 @@ from l3cli.train.data import Pair, load_pair
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
-__all__ = ["DEFAULT_PATCH", "DEFAULT_LEVELS", "DEFAULT_CONTRAST_BINS", "DEFAULT_PAIRS_TARGET",
+__all__ = ["DEFAULT_PATCH", "DEFAULT_LEVELS", "DEFAULT_CONTRAST_BINS",
+           "DEFAULT_CONTRAST_THRESHOLD", "DEFAULT_PAIRS_TARGET",
            "DEFAULT_SIMULATION_TARGET", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
            "define_classes", "definition_from_histogram",
            "collect_stats", "table_from_stats", "fallback_sources", "train"]
@@ -55,6 +56,9 @@ DEFAULT_PATCH = 7
 DEFAULT_LEVELS = 36
 #: Default contrast bins per level.
 DEFAULT_CONTRAST_BINS = 3
+#: Default contrast rule: thresholds at multiples of this relative contrast (None would
+#: place them at per-level quantiles of the data; ``--contrast-threshold quantile``).
+DEFAULT_CONTRAST_THRESHOLD = 0.1
 #: Default target space of pairs folders: the linear version of the renders' display sRGB
 #: (``l3 render`` still writes display sRGB PNG/JPEG/TIFF).
 DEFAULT_PAIRS_TARGET = "linear-srgb"
@@ -78,7 +82,8 @@ class TrainOptions:
                  spacing: str = "log", contrast_bins: int = DEFAULT_CONTRAST_BINS,
                  saturation: float = 0.95,
                  level_range: tuple[float, float] | None = None,
-                 contrast_threshold: float | None = None, merge_positions: bool = True,
+                 contrast_threshold: float | None = DEFAULT_CONTRAST_THRESHOLD,
+                 merge_positions: bool = True,
                  target_space: str = "xyz", sample_fraction: float = 1.0, seed: int = 0,
                  min_samples_factor: float = 3.0,
                  lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID)) -> None:
@@ -100,7 +105,10 @@ class TrainOptions:
         self.contrast_bins = int(contrast_bins)
         self.saturation = float(saturation)
         self.level_range = level_range
-        self.contrast_threshold = contrast_threshold
+        if contrast_threshold is not None and not float(contrast_threshold) > 0:
+            raise ConfigError(f"contrast threshold {contrast_threshold} is not allowed; use > 0")
+        self.contrast_threshold = (None if contrast_threshold is None
+                                   else float(contrast_threshold))
         self.merge_positions = bool(merge_positions)
         self.target_space = check_space(target_space)
         self.sample_fraction = float(sample_fraction)

@@ -47,7 +47,7 @@ from l3cli.train.cv import (
 )
 from l3cli.train.cvscore import DEFAULT_OPPONENT
 from l3cli.train.data import Pair
-from l3cli.train.fit import TrainOptions, table_from_stats
+from l3cli.train.fit import TrainOptions, default_target_space, table_from_stats
 
 __all__ = ["TuneGrid", "Candidate", "CandidateResult", "TuneResult", "DEFAULT_FOLDS",
            "tune", "format_candidates", "replace_opts", "read_train_config"]
@@ -60,18 +60,23 @@ DEFAULT_FOLDS = 5
 
 @dataclass(frozen=True)
 class TuneGrid:
-    """The values searched by :func:`tune` (see the module notes)."""
+    """The values searched by :func:`tune` (see the module notes).
 
-    spaces: tuple[str, ...] = CV_SPACES
+    ``spaces`` None: the default target space of the inputs (the linear version
+    of the renders' space, :func:`l3cli.train.fit.default_target_space`) and
+    ``srgb`` (the renders' encoding).
+    """
+
+    spaces: tuple[str, ...] | None = None
     patches: tuple[int, ...] = (5, 7)
-    levels: tuple[int, ...] = (12, 24, 36)
+    levels: tuple[int, ...] = (24, 36, 48)
     contrast_bins: tuple[int, ...] = (1, 2, 3)
     contrast_thresholds: tuple[float | None, ...] = (None, 0.1, 0.2)
     folds: int = DEFAULT_FOLDS
 
     def __post_init__(self) -> None:
-        bad = [s for s in self.spaces if s not in CV_SPACES]
-        if bad or not self.spaces:
+        bad = [s for s in self.spaces or () if s not in CV_SPACES]
+        if bad or self.spaces == ():
             raise ConfigError(f"tune spaces {list(self.spaces)} not allowed; choose from "
                               f"{', '.join(CV_SPACES)}")
         for name, vals, lo in (("patches", self.patches, 1), ("levels", self.levels, 2),
@@ -197,8 +202,9 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     start_bins = (base.contrast_bins if base.contrast_bins in grid.contrast_bins
                   else grid.contrast_bins[0])
     start_t = base.contrast_threshold
+    spaces = grid.spaces or (default_target_space(pairs), "srgb")
     plan = [Candidate(s, p, start_levels, start_bins, start_t)
-            for p in grid.patches for s in grid.spaces]
+            for p in grid.patches for s in spaces]
     stage_ends = [len(plan)]
     n_total = (len(plan) + len(grid.levels) * len(grid.contrast_bins) - 1
                + len(grid.contrast_thresholds))
