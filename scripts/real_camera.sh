@@ -9,14 +9,14 @@
 #    ColorChecker ΔE with the bundled chart corners), 4-pixel border excluded.
 # 2. Blackmagic Pocket 4K DNG vs LibRaw's AHD rendering: train on the left
 #    half, render and evaluate the right half.
-# Extra `l3 train` options can be given in L3_TRAIN_OPTS (default below).
+# Extra `l3 train` options can be given in L3_TRAIN_OPTS (default: none, l3 train's defaults).
 set -euo pipefail
 L3=${1:-l3}
 OUT=${2:-real_camera_out}
 here=$(cd "$(dirname "$0")/.." && pwd)
 DATA=${3:-$here/../shared/data}
 PY=${PYTHON:-python3}
-TRAIN_OPTS=${L3_TRAIN_OPTS:---target linear-srgb --patch 7}
+TRAIN_OPTS=${L3_TRAIN_OPTS:-}
 IISP=$DATA/raw/infinite_isp
 mkdir -p "$OUT"
 

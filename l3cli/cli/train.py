@@ -82,7 +82,8 @@ def _read_config(ctx: click.Context, param: click.Parameter, value: str | None) 
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
 @click.option("--tune", is_flag=True, default=False,
-              help="Choose target space, patch, levels and contrast bins by cross-validation "
+              help="Choose target space, patch, levels, contrast bins and contrast threshold by "
+                   "cross-validation "
                    "over the training images (S-CIELAB of held-out images); prints the "
                    "candidates and records them in the table (docs/training.md).")
 @click.option("--config", type=click.Path(dir_okay=False), callback=_read_config,
