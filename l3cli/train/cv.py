@@ -45,7 +45,8 @@ from l3cli.train.fit import (
 )
 from l3cli.train.stats import ClassStats, accumulate
 
-__all__ = ["CV_SPACES", "CVImage", "Unit", "load_cv_images", "make_units", "make_folds",
+__all__ = ["CV_SPACES", "CVImage", "Unit", "load_cv_images", "make_units", "make_folds", "histogram",
+           "space_stats", "display_xyz",
            "LayoutStats", "layout_stats", "fold_stats", "score_fold", "fold_scores"]
 
 #: Target spaces collected by one statistics pass, in channel order.

@@ -165,7 +165,7 @@ def _next_stage(stage: int, grid: TuneGrid, best: Candidate,
 
 def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid | None = None,
          *, show_progress: bool | None = False, opponent: str = DEFAULT_OPPONENT) -> TuneResult:
-    """Search target space, patch, levels and contrast bins by cross-validation.
+    """Search target space, patch, levels, contrast bins and rule by cross-validation.
 
     Parameters
     ----------
