@@ -5,15 +5,28 @@ them from here. The module imports nothing, so the CLI can use it without
 slowing ``l3 --help``.
 """
 
-# l3 train (:class:`l3cli.train.TrainOptions`) and the class definition
-#: Patch size (odd): the kernel sees PATCH x PATCH raw pixels.
-PATCH = 5
-#: Number of response-level bins.
-LEVELS = 24
+# l3 train (:class:`l3cli.train.TrainOptions`) and the class definition.
+# The class layout and target space depend on what is trained from; each set was
+# measured on its kind of input (docs/training.md, "Defaults"):
+#: Pairs folders (a real camera's raws and renders): leave-one-image-out S-CIELAB
+#: on the bundled Infinite-ISP frames/ (1.373 against 2.66 for the simulation set).
+#: The target is the linear version of the renders' display sRGB (renders are still
+#: written as display sRGB).
+PAIRS_LAYOUT = {"patch": 7, "levels": 36, "contrast_bins": 3, "contrast_threshold": 0.1,
+                "target_space": "linear-srgb"}
+#: Simulate folders (ideal XYZ targets): the paper's layout, measured by make paper's
+#: experiments 4 and 5 (the pairs layout leaves small simulations with untrained classes).
+#: ``contrast_threshold`` None: thresholds at the per-level quantiles of the data.
+SIMULATION_LAYOUT = {"patch": 5, "levels": 24, "contrast_bins": 2, "contrast_threshold": None,
+                     "target_space": "xyz"}
+#: Patch size (odd) of :class:`l3cli.train.TrainOptions`: the kernel sees PATCH x PATCH pixels.
+PATCH = SIMULATION_LAYOUT["patch"]
+#: Number of response-level bins (library default).
+LEVELS = SIMULATION_LAYOUT["levels"]
 #: Spacing of the level cut points (``"log"`` or ``"linear"``).
 LEVEL_SPACING = "log"
-#: Contrast bins per level (2 = flat / textured).
-CONTRAST_BINS = 2
+#: Contrast bins per level (library default; 2 = flat / textured).
+CONTRAST_BINS = SIMULATION_LAYOUT["contrast_bins"]
 #: Normalised raw value at or above which a pixel counts as saturated.
 SATURATION = 0.95
 #: Share classes between CFA positions whose patch layouts coincide.

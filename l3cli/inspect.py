@@ -262,6 +262,18 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
     else:
         out.append("")
         out.append("smoothing: not smoothed")
+    tuned = s["provenance"].get("tune")
+    if tuned:
+        from l3cli.train.tune import format_candidates
+
+        ch = tuned["chosen"]
+        out.append("")
+        out.append(f"tuned by cross-validation ({len(tuned['folds'])} folds, "
+                   f"{tuned['metric']}): chose {ch['target']}, patch {ch['patch']}, "
+                   f"{ch['levels']} levels, {ch['contrast_bins']} contrast bins, threshold "
+                   f"{ch.get('contrast_threshold') or 'quantile'} "
+                   f"(CV {ch['cv_mean']:.4f})")
+        out.append(format_candidates(tuned))
     if classes != "none":
         if table is None:
             raise ConfigError("a class list needs the table")
@@ -277,7 +289,7 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
                        f"{r['contrast']:>3} {r['samples']:>9}  {r['status']:<16} "
                        f"{r['source']:>5}  {lam}")
     if provenance:
-        prov = {k: v for k, v in s["provenance"].items() if k not in ("smoothing",)}
+        prov = {k: v for k, v in s["provenance"].items() if k not in ("smoothing", "tune")}
         out.append("")
         out.append("provenance:")
         for k in sorted(prov):

@@ -17,14 +17,14 @@
 #    train on the left half, render and evaluate the right half; and five
 #    crops of it as DNGs whose white balance differs per shot (train on 3,
 #    evaluate 2; the as-shot white balance is an input, issue 15).
-# Extra `l3 train` options can be given in L3_TRAIN_OPTS (default below).
+# Extra `l3 train` options can be given in L3_TRAIN_OPTS (default: none, l3 train's defaults).
 set -euo pipefail
 L3=${1:-l3}
 OUT=${2:-real_camera_out}
 here=$(cd "$(dirname "$0")/.." && pwd)
 DATA=${3:-}
 PY=${PYTHON:-python3}
-TRAIN_OPTS=${L3_TRAIN_OPTS:---target linear-srgb --patch 7}
+TRAIN_OPTS=${L3_TRAIN_OPTS:-}
 if [ -n "$DATA" ]; then
     IISP=$DATA/raw/infinite_isp
     RAW_EXT=raw

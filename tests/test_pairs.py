@@ -176,7 +176,8 @@ def test_cli_train_on_pairs_folder(dng_pairs: Path, tmp_path: Path, runner):
                               "--patch", "3"])
     assert res.exit_code == 0, res.output
     assert "offset (dy=4, dx=4)" in res.output  # -v reports the alignment of y
-    assert load_table(out).output_space == "srgb"  # the renders' own encoding by default
+    # the linear version of the renders' space by default (l3 render writes display sRGB)
+    assert load_table(out).output_space == "linear-srgb"
     res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(out), "--levels", "3",
                               "--patch", "3", "--target", "linear-srgb"])
     assert res.exit_code == 0, res.output

@@ -28,6 +28,12 @@ from l3cli.table import TransformTable, load_table, save_table
 RGBW = "WGWR/BWGW/WRWG/GWBW"  # sample_configs/rgbw-4x4.toml
 CFAS = ["RGGB", "GRBG", RGBW, "RGBW/GWRB/BRWG/WBGR", "R G/NIR B", "RGB/GBR/BRG"]
 
+#: The class layout these smoothing tests were designed with (the defaults
+#: before issue 14): small simulated training sets, 24 levels, 2 median-split
+#: contrast bins, 5x5 patches.
+LAYOUT = ("--patch", "5", "--levels", "24", "--contrast-bins", "2",
+          "--contrast-threshold", "quantile")
+
 
 def plausible_table(spec="RGGB", *, patch=5, n_levels=10, seed=0, empty_fraction=0.3,
                     noise=0.05) -> TransformTable:
@@ -502,7 +508,7 @@ def scarce(tmp_path_factory):
                   *[a for lux in (3, 10, 30, 100, 300) for a in ("--lux", str(lux))]])
     _run(runner, ["simulate", cam, "-o", str(root / "held"), "--scene", "macbeth",
                   "--size", "240x160", "--seed", "2", "--lux", "20", "--lux", "200"])
-    _run(runner, ["train", str(root / "train"), "-o", str(root / "raw.npz")])
+    _run(runner, ["train", str(root / "train"), "-o", str(root / "raw.npz"), *LAYOUT])
     _run(runner, ["smooth", str(root / "raw.npz"), "-o", str(root / "smooth.npz")])
     return root
 
@@ -629,7 +635,7 @@ def test_plentiful_data_smoothing_costs_at_most_two_percent(tmp_path):
                   *[a for lux in (3, 30, 300) for a in ("--lux", str(lux))]])
     _run(runner, ["simulate", cam, "-o", str(tmp_path / "held"), "--scene", "macbeth",
                   "--size", "240x160", "--seed", "4", "--lux", "20", "--lux", "200"])
-    _run(runner, ["train", str(tmp_path / "train"), "-o", str(tmp_path / "raw.npz")])
+    _run(runner, ["train", str(tmp_path / "train"), "-o", str(tmp_path / "raw.npz"), *LAYOUT])
     _run(runner, ["smooth", str(tmp_path / "raw.npz"), "-o", str(tmp_path / "smooth.npz")])
     de_raw = _macbeth_de(runner, tmp_path, tmp_path / "raw.npz", tmp_path / "held", "raw")
     de_sm = _macbeth_de(runner, tmp_path, tmp_path / "smooth.npz", tmp_path / "held", "smooth")
@@ -651,7 +657,7 @@ def test_rgbw_trained_table_renders_a_flat_field_uniform_after_smoothing(tmp_pat
                   "--size", "96x72", "--seed", "1", "--lux", "10", "--lux", "100"])
     _run(runner, ["simulate", cam, "-o", str(tmp_path / "held"), "--scene", "macbeth",
                   "--size", "240x160", "--seed", "2", "--lux", "50"])
-    _run(runner, ["train", str(tmp_path / "train"), "-o", str(tmp_path / "raw.npz")])
+    _run(runner, ["train", str(tmp_path / "train"), "-o", str(tmp_path / "raw.npz"), *LAYOUT])
     _run(runner, ["smooth", str(tmp_path / "raw.npz"), "-o", str(tmp_path / "smooth.npz")])
     sm = load_table(tmp_path / "smooth.npz")
     cfa, greys = _flat_values(tmp_path / "held")

@@ -7,12 +7,45 @@ import click
 from l3cli import defaults
 from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, workers_opt
 
+_P, _S = defaults.PAIRS_LAYOUT, defaults.SIMULATION_LAYOUT
+
+
+class _Threshold(click.ParamType):
+    """A positive float, or ``quantile`` (None: per-level quantiles of the data)."""
+
+    name = "T|quantile"
+
+    def convert(self, value, param, ctx):
+        if value is None or value == "quantile":
+            return value
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is neither a number nor 'quantile'", param, ctx)
+        if not v > 0:
+            self.fail(f"{value!r} must be > 0", param, ctx)
+        return v
+
+
+def _read_config(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+    """``--config FILE``: its ``[train]`` table becomes the options' defaults."""
+    if value is None:
+        return
+    from l3cli.train.tune import read_train_config
+
+    allowed = {p.name for p in ctx.command.params if p.name not in ("config", "inputs")}
+    options, grid = read_train_config(value, allowed)
+    ctx.default_map = {**(ctx.default_map or {}), **options}
+    ctx.meta["l3.tune_grid"] = grid
+
 
 def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
     """--patch: an odd size >= 1 (the rule of :func:`l3cli.classify.check_patch`)."""
     from l3cli.classify import check_patch
     from l3cli.errors import ConfigError
 
+    if value is None:  # the default of the inputs' kind (l3cli.defaults)
+        return None
     try:
         return check_patch(value, "")
     except ConfigError as exc:
@@ -22,20 +55,27 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @click.command(short_help="Learn a transform table from simulate or pairs folders.")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(file_okay=False))
 @output_opt
-@click.option("--patch", type=int, default=defaults.PATCH, show_default=True, callback=_odd,
-              help="Patch size (odd): the kernel sees PATCH x PATCH raw pixels.")
-@click.option("--levels", type=click.IntRange(min=2), default=defaults.LEVELS, show_default=True,
-              help="Number of response-level bins.")
+@click.option("--patch", type=int, default=None, callback=_odd,
+              help="Patch size (odd): the kernel sees PATCH x PATCH raw pixels "
+                   f"[default: {_P['patch']} for pairs folders, {_S['patch']} for simulate folders].")
+@click.option("--levels", type=click.IntRange(min=2), default=None,
+              help="Number of response-level bins "
+                   f"[default: {_P['levels']} for pairs folders, {_S['levels']} for simulate "
+                   "folders].")
 @click.option("--spacing", type=click.Choice(["log", "linear"]), default=defaults.LEVEL_SPACING,
               show_default=True, help="Spacing of the level cut points.")
 @click.option("--level-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
               help="First and last level cut (normalised raw units); default: from the data "
                    "(just above its noise floor to near saturation).")
-@click.option("--contrast-bins", type=click.IntRange(min=1), default=defaults.CONTRAST_BINS,
-              show_default=True,
-              help="Contrast bins per level (2 = flat / textured).")
-@click.option("--contrast-threshold", type=float, default=None,
-              help="Fixed relative-contrast threshold; default: the median of the data per level.")
+@click.option("--contrast-bins", type=click.IntRange(min=1), default=None,
+              help="Contrast bins per level (2 = flat / textured) "
+                   f"[default: {_P['contrast_bins']} for pairs folders, "
+                   f"{_S['contrast_bins']} for simulate folders].")
+@click.option("--contrast-threshold", type=_Threshold(), default=None,
+              help="Relative-contrast threshold (bin k starts at k x T), or 'quantile': "
+                   "thresholds at the per-level quantiles of the data "
+                   f"[default: {_P['contrast_threshold']} for pairs folders, quantile for "
+                   "simulate folders].")
 @click.option("--saturation", type=float, default=defaults.SATURATION, show_default=True,
               help="Normalised value at or above which a pixel counts as saturated.")
 @click.option("--merge-positions/--no-merge-positions", default=defaults.MERGE_POSITIONS,
@@ -43,8 +83,9 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Share classes between CFA positions whose patch layouts coincide.")
 @click.option("--target", "target_space",
               type=click.Choice(["xyz", "linear-srgb", "srgb", "lab"]), default=None,
-              help="Colour space the table renders into [default: srgb (the renders' own "
-                   "encoding) when every input is a pairs folder, else xyz].")
+              help=f"Colour space the table renders into [default: {_P['target_space']} (the "
+                   f"renders' space, linear) when every input is a pairs folder, else "
+                   f"{_S['target_space']}].")
 @click.option("--sample-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
               default=defaults.SAMPLE_FRACTION, show_default=True,
               help="Use this random fraction of the pixels of each image (fixed by --seed).")
@@ -71,6 +112,15 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @click.option("--white-balance", "white_balance", metavar="R,G,B", default=None,
               help="White-balance multipliers for every training raw instead of their own "
                    "(implies --as-shot-wb).")
+@click.option("--tune", is_flag=True, default=False,
+              help="Choose target space, patch, levels, contrast bins and contrast threshold by "
+                   "cross-validation "
+                   "over the training images (S-CIELAB of held-out images); prints the "
+                   "candidates and records them in the table (docs/training.md).")
+@click.option("--config", type=click.Path(dir_okay=False), callback=_read_config,
+              is_eager=True, expose_value=False,
+              help="TOML file whose [train] table sets these options (keys as the long "
+                   "option names; a [train.tune] table sets the searched values).")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -78,7 +128,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           level_range: tuple[float, float] | None, contrast_bins: int,
           contrast_threshold: float | None, saturation: float, merge_positions: bool,
           target_space: str, sample_fraction: float, min_samples_factor: float,
-          seed: int, scaled_renders: bool = False, workers: int | None = None,
+          seed: int, scaled_renders: bool = False, tune: bool = False,
+          workers: int | None = None,
           scheduler: str | None = None, as_shot_wb: bool | None = None,
           white_balance: str | None = None, embedded_preview: bool = False,
           by: str | None = None) -> None:
@@ -99,6 +150,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     from l3cli.table import save_table
     from l3cli.train import TrainOptions, find_pairs
     from l3cli.train import train as train_table
+    from l3cli.train.fit import layout_defaults
 
     check_outputs([(output, "-o")], inputs)
     if embedded_preview:
@@ -115,8 +167,16 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
         pairs = preview_pairs(list(inputs), work)
     else:
         pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
-    if target_space is None:  # pairs folders reproduce their renders' encoding
-        target_space = "srgb" if all(p.align for p in pairs) else "xyz"
+    # the layout's defaults depend on what is trained from (l3cli.defaults)
+    layout = layout_defaults(pairs)
+    patch = layout["patch"] if patch is None else patch
+    levels = layout["levels"] if levels is None else levels
+    contrast_bins = layout["contrast_bins"] if contrast_bins is None else contrast_bins
+    if contrast_threshold is None:
+        contrast_threshold = layout["contrast_threshold"]
+    elif contrast_threshold == "quantile":
+        contrast_threshold = None
+    target_space = target_space or layout["target_space"]
     gains = None
     if white_balance is not None:
         from l3cli.errors import InputError
@@ -144,10 +204,31 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         min_samples_factor=min_samples_factor, white_balance=as_shot_wb,
                         wb_override=None if gains is None else gains.tolist(), by=by)
     show = not quiet()
-    table = train_table(pairs, opts, workers=workers, scheduler=scheduler, show_progress=show)
+    if tune:
+        table = _tune(pairs, opts, workers, scheduler, show)
+    else:
+        table = train_table(pairs, opts, workers=workers, scheduler=scheduler,
+                            show_progress=show)
     save_table(output, table)
     n_tr = int((~table.empty).sum())
     logging.getLogger(__name__).info("wrote %s", output)
     if show:
         click.echo(f"{output}: {n_tr} of {table.empty.size} classes trained from "
                    f"{len(pairs)} captures ({int(table.counts.sum())} samples)", err=True)
+
+
+def _tune(pairs, opts, workers, scheduler, show):
+    """``--tune``: the cross-validated search; prints the candidate table."""
+    from l3cli.train.tune import format_candidates
+    from l3cli.train.tune import tune as run_tune
+
+    if workers is not None or scheduler is not None:
+        raise click.UsageError("--tune runs in this process; drop --workers/--scheduler")
+    grid = click.get_current_context().meta.get("l3.tune_grid")
+    res = run_tune(pairs, opts, grid, show_progress=show)
+    if not (click.get_current_context().find_root().obj or {}).get("quiet"):
+        rec = res.record
+        click.echo(f"tune: {len(rec['candidates'])} candidates, {len(rec['folds'])} folds, "
+                   f"{rec['seconds']:.0f} s; {rec['metric']}", err=True)
+        click.echo(format_candidates(rec), err=True)
+    return res.table

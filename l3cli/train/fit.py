@@ -29,6 +29,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from l3cli import __version__, defaults
 from l3cli.cfa import CFA
@@ -40,11 +41,33 @@ from l3cli.table import TransformTable
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID, solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
-__all__ = ["TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
-           "define_classes",
+__all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
+           "define_classes", "definition_from_histogram",
            "collect_stats", "table_from_stats", "fallback_sources", "train"]
 
 log = logging.getLogger(__name__)
+
+def pairs_kind(pairs: Sequence[Pair]) -> str:
+    """``"pairs"`` when every input is a rendered pair (a real camera), else ``"simulation"``."""
+    pairs = list(pairs)
+    return "pairs" if pairs and all(p.align for p in pairs) else "simulation"
+
+
+def layout_defaults(pairs: Sequence[Pair]) -> dict:
+    """The default class layout and target space for these inputs.
+
+    :data:`l3cli.defaults.PAIRS_LAYOUT` when every input is a pairs folder,
+    else :data:`l3cli.defaults.SIMULATION_LAYOUT` (keys ``patch``, ``levels``,
+    ``contrast_bins``, ``contrast_threshold``, ``target_space``).
+    """
+    kind = pairs_kind(pairs)
+    return dict(defaults.PAIRS_LAYOUT if kind == "pairs" else defaults.SIMULATION_LAYOUT)
+
+
+def default_target_space(pairs: Sequence[Pair]) -> str:
+    """The default target space for these inputs (:func:`layout_defaults`)."""
+    return layout_defaults(pairs)["target_space"]
+
 
 class TrainOptions:
     """Options of :func:`train` (keyword-only; see ``l3 train --help``)."""
@@ -79,7 +102,10 @@ class TrainOptions:
         self.contrast_bins = int(contrast_bins)
         self.saturation = float(saturation)
         self.level_range = level_range
-        self.contrast_threshold = contrast_threshold
+        if contrast_threshold is not None and not float(contrast_threshold) > 0:
+            raise ConfigError(f"contrast threshold {contrast_threshold} is not allowed; use > 0")
+        self.contrast_threshold = (None if contrast_threshold is None
+                                   else float(contrast_threshold))
         self.merge_positions = bool(merge_positions)
         self.target_space = check_space(target_space)
         self.sample_fraction = float(sample_fraction)
@@ -271,7 +297,18 @@ def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
 
     hist = map_reduce(histogram_task, items, reduce=fold, client=client,
                       label="classes   ", show_progress=show_progress and need_hist)
-    cfa = first["cfa"]
+    return definition_from_histogram(first["cfa"], hist, opts)
+
+
+def definition_from_histogram(cfa: CFA, hist: ContrastHistogram | None,
+                              opts: TrainOptions) -> ClassDefinition:
+    """The class definition of ``opts`` from the summed pass-1 histogram.
+
+    ``hist`` may be None when both the level range and the contrast
+    thresholds are given. The histogram does not depend on the number of
+    levels or contrast bins, so one histogram serves every such layout
+    (:mod:`l3cli.train.tune`).
+    """
     if opts.level_range is not None:
         lo, hi = opts.level_range
     else:
@@ -352,12 +389,15 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
     kernels = np.zeros((nc, q, n_out), dtype=np.float64)
     lambdas = np.full((nc, n_out), np.nan)
     lam_rel = np.full((nc, n_out), np.nan)
-    for c in np.flatnonzero(trained):
-        sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c],
-                          grid=opts.lambda_grid)
-        kernels[c] = sol.kernel
-        lambdas[c] = sol.lam
-        lam_rel[c] = sol.lam_rel
+    # Many small eigenproblems: BLAS threads only fight each other (10-30x slower
+    # on a busy machine), so the solves run single-threaded.
+    with threadpool_limits(1, user_api="blas"):
+        for c in np.flatnonzero(trained):
+            sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c],
+                              grid=opts.lambda_grid)
+            kernels[c] = sol.kernel
+            lambdas[c] = sol.lam
+            lam_rel[c] = sol.lam_rel
     src = fallback_sources(d, trained)
     kernels = kernels[src]
     prov = dict(provenance or {})

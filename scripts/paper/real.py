@@ -31,7 +31,9 @@ def train_opts() -> str:
     """The default ``l3 train`` options of scripts/real_camera.sh."""
     text = (ROOT / "scripts" / "real_camera.sh").read_text()
     m = re.search(r"TRAIN_OPTS=\$\{L3_TRAIN_OPTS:-(.*)\}", text)
-    return m.group(1).strip() if m else "(see the script)"
+    if not m:
+        return "(see the script)"
+    return m.group(1).strip() or "(no options: the defaults)"
 
 
 def collect(build: Path) -> None:

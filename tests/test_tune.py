@@ -1,0 +1,177 @@
+"""Cross-validation and ``l3 train --tune`` (l3cli.train.cv, cvscore, tune)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_align import scene
+from test_pairs import write_headerless
+
+from l3cli.cli.main import cli
+from l3cli.colourspace import D65_XYZ, convert, srgb_encode
+from l3cli.io.image import write_image
+from l3cli.metrics.scielab import scielab
+from l3cli.render import render_mosaic
+from l3cli.table import load_table
+from l3cli.train import TrainOptions, find_pairs
+from l3cli.train.cv import (
+    display_xyz,
+    fold_scores,
+    fold_stats,
+    layout_stats,
+    load_cv_images,
+    make_folds,
+    make_units,
+)
+from l3cli.train.cvscore import ReferenceSCIELAB, lab_from_xyz
+from l3cli.train.fit import table_from_stats
+from l3cli.train.stats import ClassStats, accumulate
+from l3cli.train.tune import TuneGrid, tune
+
+H, W = 128, 160
+OPTS = dict(patch=5, levels=4, contrast_bins=1, level_range=(0.02, 0.6))
+
+
+def _pairs(folder: Path, scenes: dict[str, tuple[int, float]]) -> Path:
+    """A pairs folder: per stem (scene seed, gain of the 'pipeline')."""
+    folder.mkdir()
+    for stem, (seed, gain) in scenes.items():
+        lin = scene(H, W, seed=seed)
+        write_headerless(folder, stem, lin)
+        write_image(folder / f"{stem}.png", srgb_encode(np.clip(gain * lin, 0, 1)), space="srgb")
+    return folder
+
+
+def test_lab_matches_colour_science():
+    import colour
+
+    xyz = np.random.default_rng(1).uniform(0, 1.2, (50, 3)).astype(np.float32)
+    xyz[:5] *= 0.001  # the linear part near black
+    want = colour.XYZ_to_Lab(xyz / D65_XYZ[1], colour.XYZ_to_xy(D65_XYZ))
+    np.testing.assert_allclose(lab_from_xyz(xyz, D65_XYZ), want, atol=2e-3)
+
+
+def test_reference_scielab_matches_the_library():
+    rng = np.random.default_rng(2)
+    ref = convert(scene(96, 112, seed=3), "linear-srgb", "xyz")
+    test = np.clip(ref + 0.02 * rng.standard_normal(ref.shape).astype(np.float32), 0, None)
+    fast = ReferenceSCIELAB(ref, white=D65_XYZ, opponent="isetcam-10deg", border=4).mean(test)
+    want = scielab(ref[4:-4, 4:-4] * 100, test[4:-4, 4:-4] * 100, white_point=D65_XYZ * 100,
+                   opponent="isetcam-10deg").mean
+    assert fast == pytest.approx(want, rel=2e-3)
+
+
+def test_folds_leave_whole_images_out(tmp_path: Path):
+    """Two identical images and one different: each fold's statistics are those
+    of the other images alone, so the different image is scored by a table
+    that never saw it (and each copy by a table that saw the other copy)."""
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "a2": (5, 1.0), "b": (6, 0.6)})
+    pairs = find_pairs([folder])
+    opts = TrainOptions(target_space="linear-srgb", **OPTS)
+    images = load_cv_images(pairs, opts)
+    units = make_units(images)
+    assert [u.columns for u in units] == [None] * 3
+    folds = make_folds(units, 5)
+    assert sorted(sum(folds, [])) == [0, 1, 2] and all(len(f) == 1 for f in folds)
+    layout = layout_stats(images, units, opts, None)
+    scores = fold_scores(images, units, folds, layout, opts)
+
+    # independent: statistics of the images kept, accumulated directly
+    def trained_on(keep):
+        st = ClassStats.zeros(layout.definition, 3, target_space="linear-srgb")
+        for i in keep:
+            accumulate(st, images[i].mosaic, images[i].targets[:, :, :3], mask=images[i].mask)
+        return st
+
+    without_b = trained_on([0, 1])
+    fold = fold_stats(layout, [2], "linear-srgb")
+    np.testing.assert_array_equal(fold.n, without_b.n)
+    np.testing.assert_allclose(fold.xty, without_b.xty, rtol=1e-9, atol=1e-6)
+    table = table_from_stats(without_b, opts)
+    out = display_xyz(render_mosaic(table, images[2].mosaic), "linear-srgb", True)
+    ref = images[2].targets[:, :, 6:9]
+    want = scielab(ref[4:-4, 4:-4] * 100, out[4:-4, 4:-4] * 100, white_point=D65_XYZ * 100,
+                   opponent="isetcam-10deg").mean
+    assert scores[2] == pytest.approx(want, rel=5e-3)
+    # the copies see each other; the different pipeline is not learnt from them
+    assert scores[0] == pytest.approx(scores[1], rel=1e-4)
+    assert scores[2] > 1.5 * scores[0]
+    # trained on all three, b would score far better: the fold did not see it
+    full = table_from_stats(trained_on([0, 1, 2]), opts)
+    seen = images[2].scorer.mean(display_xyz(render_mosaic(full, images[2].mosaic),
+                                             "linear-srgb", True))
+    assert seen < 0.8 * scores[2]
+
+
+def test_single_image_is_cut_into_blocks(tmp_path: Path):
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
+    opts = TrainOptions(target_space="linear-srgb", **OPTS)
+    images = load_cv_images(find_pairs([folder]), opts)
+    units = make_units(images)
+    assert len(units) == 3 and units[0].columns[0] == 0 and units[-1].columns[1] == W
+    layout = layout_stats(images, units, opts, None)
+    # a guard band of half a patch at each inner edge is left out of the blocks
+    kept = sum(int(s.n.sum()) for s in layout.units)
+    assert kept == int(images[0].mask.sum()) - int(
+        images[0].mask[:, [c for u in units[1:] for c in
+                           range(u.columns[0] - 2, u.columns[0] + 2)]].sum())
+
+
+def test_tune_picks_the_known_best_space(tmp_path: Path):
+    """Renders that are display-encoded linear images: a linear kernel can only
+    fit them in the linear space, so linear-srgb must win over srgb."""
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    grid = TuneGrid(spaces=("linear-srgb", "srgb"), patches=(5,), levels=(4,),
+                    contrast_bins=(1,))
+    res = tune(find_pairs([folder]), TrainOptions(**OPTS), grid)
+    assert res.best.candidate.target_space == "linear-srgb"
+    by_space = {r.candidate.target_space: r.mean for r in res.results}
+    assert by_space["linear-srgb"] < by_space["srgb"]
+    assert res.table.output_space == "linear-srgb"
+    assert res.record["chosen"]["target"] == "linear-srgb"
+    assert len(res.record["candidates"]) == 2
+
+
+def test_cli_tune_with_config_and_inspect(tmp_path: Path, runner):
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    cfg = tmp_path / "train.toml"
+    cfg.write_text('[train]\nlevel-range = [0.02, 0.6]\n[train.tune]\n'
+                   'spaces = ["linear-srgb", "srgb"]\npatches = [5]\nlevels = [4]\n'
+                   'contrast_bins = [1]\nfolds = 3\n')
+    out = tmp_path / "t.npz"
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(out), "--config", str(cfg)])
+    assert res.exit_code == 0, res.output
+    assert "CV S-CIELAB" in res.output
+    table = load_table(out)
+    rec = table.provenance["tune"]
+    assert rec["chosen"]["target"] == "linear-srgb" and len(rec["folds"]) == 3
+    assert table.provenance["options"]["level_range"] == [0.02, 0.6]
+    shown = runner.invoke(cli, ["inspect", str(out)])
+    assert shown.exit_code == 0 and "tuned by cross-validation" in shown.output
+    js = runner.invoke(cli, ["inspect", str(out), "--json"])
+    assert json.loads(js.output)["provenance"]["tune"]["chosen"]["target"] == "linear-srgb"
+
+
+def test_cli_config_unknown_key(tmp_path: Path, runner):
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[train]\npatchsize = 5\n")
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(tmp_path / "t.npz"),
+                              "--config", str(cfg)])
+    assert res.exit_code == 1 and "bad.toml" in res.output and "patchsize" in res.output
+
+
+def test_tune_grid_from_config_values():
+    g = TuneGrid.from_dict({"spaces": ["xyz"], "levels": [8, 16],
+                            "contrast_thresholds": ["quantile", 0.2], "folds": 4})
+    assert g.spaces == ("xyz",) and g.levels == (8, 16) and g.folds == 4
+    assert g.contrast_thresholds == (None, 0.2)
+    from l3cli.errors import ConfigError
+
+    for bad in ({"spaces": ["lab?"]}, {"patches": [4]}, {"folds": 1}, {"levels": [1]},
+                {"contrast_thresholds": [0]}, {"colour": 1}):
+        with pytest.raises(ConfigError):
+            TuneGrid.from_dict(bad)
