@@ -29,6 +29,25 @@ scheduler_opt = click.option(
 )
 
 
+def _gains(ctx: click.Context, param: click.Parameter, value: str | None):
+    """``--white-balance R,G,B``: the gains as an array (green-normalised), or None."""
+    if value is None:
+        return None
+    from l3cli.errors import InputError
+    from l3cli.whitebalance import parse_gains
+
+    try:
+        return parse_gains(value)
+    except InputError as exc:
+        raise click.BadParameter(str(exc).split(": ", 1)[-1]) from None
+
+
+def white_balance_opt(help: str):
+    """``--white-balance R,G,B`` (parsed into gains) with the command's own help text."""
+    return click.option("--white-balance", "white_balance", metavar="R,G,B", default=None,
+                        callback=_gains, help=help)
+
+
 def quiet(ctx: click.Context | None = None) -> bool:
     """True when progress output should be hidden (-q, or stderr not a TTY)."""
     import sys

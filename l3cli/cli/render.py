@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from l3cli.cli.options import output_opt, quiet, scheduler_opt, workers_opt
+from l3cli.cli.options import output_opt, quiet, scheduler_opt, white_balance_opt, workers_opt
 from l3cli.cli.paths import FORMATS as _FORMATS
 
 
@@ -21,14 +21,14 @@ from l3cli.cli.paths import FORMATS as _FORMATS
 @click.option("--half", is_flag=True, help="EXR: write half floats (16-bit) instead of 32-bit.")
 @click.option("--quality", type=click.IntRange(1, 100), default=95, show_default=True,
               help="JPEG quality (4:4:4 chroma).")
-@click.option("--white-balance", "white_balance", metavar="R,G,B", default=None,
+@white_balance_opt(
               help="White-balance multipliers for every raw instead of each raw's as-shot "
                    "white balance (for tables trained with white-balanced input; needed for "
                    "raws that carry none).")
 @workers_opt
 @scheduler_opt
 def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
-           compression: str | None, half: bool, quality: int, white_balance: str | None,
+           compression: str | None, half: bool, quality: int, white_balance,
            workers: int | None, scheduler: str | None) -> None:
     """Render RAW files with TABLE.npz into OUT (-o).
 
@@ -44,16 +44,7 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
     from l3cli.render import check_white_balance, render_files, table_for_task
 
     table = table_for_task(table_path)  # a bad table fails before anything is created
-    gains = None
-    if white_balance is not None:
-        from l3cli.errors import InputError
-        from l3cli.whitebalance import parse_gains
-
-        try:
-            gains = parse_gains(white_balance)
-        except InputError as exc:
-            raise click.BadParameter(str(exc).split(": ", 1)[-1],
-                                     param_hint="--white-balance") from None
+    gains = white_balance
     plan = plan_outputs(raws, output, fmt, protect=[table_path])
     options = _write_options(plan.targets[0][1], compression, half, quality)
     check_white_balance(table, list(raws), gains, table_name=Path(table_path).name)

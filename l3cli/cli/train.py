@@ -5,7 +5,14 @@ from __future__ import annotations
 import click
 
 from l3cli import defaults
-from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, workers_opt
+from l3cli.cli.options import (
+    output_opt,
+    quiet,
+    scheduler_opt,
+    seed_opt,
+    white_balance_opt,
+    workers_opt,
+)
 
 _P, _S = defaults.PAIRS_LAYOUT, defaults.SIMULATION_LAYOUT
 
@@ -109,7 +116,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Normalise every raw by its as-shot white balance and condition the "
                    "colour on the shot's white (docs/real-camera.md) [default: on when every "
                    "input is a pairs folder and every raw carries a white balance].")
-@click.option("--white-balance", "white_balance", metavar="R,G,B", default=None,
+@white_balance_opt(
               help="White-balance multipliers for every training raw instead of their own "
                    "(implies --as-shot-wb).")
 @click.option("--tune", is_flag=True, default=False,
@@ -131,7 +138,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           seed: int, scaled_renders: bool = False, tune: bool = False,
           workers: int | None = None,
           scheduler: str | None = None, as_shot_wb: bool | None = None,
-          white_balance: str | None = None, embedded_preview: bool = False,
+          white_balance=None, embedded_preview: bool = False,
           by: str | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
@@ -177,16 +184,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     elif contrast_threshold == "quantile":
         contrast_threshold = None
     target_space = target_space or layout["target_space"]
-    gains = None
-    if white_balance is not None:
-        from l3cli.errors import InputError
-        from l3cli.whitebalance import parse_gains
-
-        try:
-            gains = parse_gains(white_balance)
-        except InputError as exc:
-            raise click.BadParameter(str(exc).split(": ", 1)[-1],
-                                     param_hint="--white-balance") from None
+    gains = white_balance
+    if gains is not None:
         if as_shot_wb is False:
             raise click.BadParameter("--white-balance needs white-balanced training; drop "
                                      "--no-as-shot-wb", param_hint="--white-balance")
