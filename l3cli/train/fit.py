@@ -118,7 +118,7 @@ class TrainOptions:
         self.white_balance = bool(white_balance)
         self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
         self.target_adapt = target_adapt
-        self.by = by  # condition bins (l3cli.conditions): None or "iso"
+        self.by = by  # condition bins: None or one of l3cli.conditions.CONDITIONS
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
