@@ -229,8 +229,11 @@ def smooth_conditions(values: np.ndarray, kernels: np.ndarray, counts: np.ndarra
     treated like the level axis in :func:`smooth_levels`: per class, one
     Whittaker smoother over the bins (abscissa ``ln value``, weights = the
     bin's samples per coefficient), interpolating bins where the class has no
-    samples between trained bins and extrapolating the end value as a
-    constant beyond them.
+    samples between trained bins. Bins beyond the first/last trained bin of a
+    class are left alone (the pooled kernel stands in there at render time):
+    on a simulated ISO sweep with one shot per ISO, copying the end bin's
+    kernel outwards raised the held-out RMSE from 0.00363 to 0.00451
+    (docs/real-camera.md).
 
     Parameters
     ----------
@@ -251,7 +254,8 @@ def smooth_conditions(values: np.ndarray, kernels: np.ndarray, counts: np.ndarra
     -------
     kernels, filled
         float64 smoothed kernels; bool (n_bins, n_classes) bins that had no
-        samples of the class and received a fitted value.
+        samples of the class, lie between two that had, and received a fitted
+        value.
     """
     x = np.log(np.asarray(values, dtype=np.float64))
     k = np.asarray(kernels, dtype=np.float64)
@@ -266,10 +270,6 @@ def smooth_conditions(values: np.ndarray, kernels: np.ndarray, counts: np.ndarra
         lo, hi = int(have[0]), int(have[-1]) + 1
         y = k[lo:hi, c].reshape(hi - lo, -1)
         z, _ = whittaker(x[lo:hi], y, w[lo:hi, c], strength=strength, grid=grid)
-        full = np.empty((nb, y.shape[1]))
-        full[lo:hi] = z
-        full[:lo] = z[0]
-        full[hi:] = z[-1]
-        out[:, c] = full.reshape(nb, *k.shape[2:])
-        filled[:, c] = w[:, c] <= 0
+        out[lo:hi, c] = z.reshape(hi - lo, *k.shape[2:])
+        filled[lo:hi, c] = w[lo:hi, c] <= 0
     return out, filled
