@@ -6,7 +6,6 @@ import click
 
 from l3cli import defaults
 from l3cli.cli.options import output_opt, quiet, scheduler_opt, seed_opt, workers_opt
-from l3cli.conditions import CONDITIONS
 
 _P, _S = defaults.PAIRS_LAYOUT, defaults.SIMULATION_LAYOUT
 
@@ -98,7 +97,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Accept pairs-folder renders that are resized copies of their raws (e.g. "
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
-@click.option("--by", "by", type=click.Choice(list(CONDITIONS)),
+@click.option("--by", "by", type=click.Choice(["iso", "exposure", "white-balance"]),
               default=None,
               help="Learn one set of kernels per ISO, exposure time or as-shot white "
                    "balance (its b/r) of the training raws, from their metadata, into the "
