@@ -244,3 +244,12 @@ def test_training_raw_without_the_condition_is_a_one_line_error(runner, tmp_path
     assert res.exit_code == 1
     assert f"{dng}: the metadata give no exposure time (s); --by exposure needs it" \
         in res.output and "Traceback" not in res.output
+
+
+def test_train_offers_every_condition():
+    """The CLI spells the choices out (its help must not import numpy); they match the library's."""
+    from l3cli.cli.train import train
+    from l3cli.conditions import CONDITIONS
+
+    opt = next(p for p in train.params if p.name == "by")
+    assert tuple(opt.type.choices) == CONDITIONS
