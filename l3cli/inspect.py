@@ -164,9 +164,9 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "conditions": None if table.conditions is None else {
             "by": table.conditions.by,
             "bins": [{"value": float(v), "samples": int(c.sum()),
-                      "trained_classes": int((c > 0).sum())}
-                     for v, c in zip(table.conditions.values, table.conditions.counts,
-                                     strict=True)]},
+                      "trained_classes": int((c > 0).sum()), "filled_classes": int(f.sum())}
+                     for v, c, f in zip(table.conditions.values, table.conditions.counts,
+                                        table.conditions.filled, strict=True)]},
         "provenance": table.provenance,
     }
 
@@ -228,11 +228,15 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
                    "to its white")
     if s.get("conditions"):
         cond = s["conditions"]
-        out.append(f"condition bins ({cond['by']}; render interpolates between neighbours, "
-                   "untrained classes use the pooled kernel):")
+        from l3cli.conditions import LABELS
+
+        out.append(f"condition bins (--by {cond['by']}, {LABELS[cond['by']]}; render "
+                   "interpolates between neighbours in log value, classes neither trained nor "
+                   "filled use the pooled kernel):")
         for b in cond["bins"]:
             out.append(f"  {cond['by']} {b['value']:g}: {b['samples']} samples, "
-                       f"{b['trained_classes']} classes trained")
+                       f"{b['trained_classes']} classes trained, "
+                       f"{b.get('filled_classes', 0)} filled from neighbouring bins")
     out.append("")
     out.append(f"levels ({lay['level_spacing']} spacing):")
     out.append(f"  {'bin':>3}  {'from':>9}  {'to':>9}  {'samples':>10}  {'unsat':>10}  "

@@ -131,16 +131,16 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
         given), or one is given for a table trained without.
     """
     check_fits(table, raw, table_name=table_name)
-    if table.conditions is not None:  # per-ISO kernels, interpolated for this raw
+    if table.conditions is not None:  # per-bin kernels, interpolated for this raw
         import dataclasses
 
-        from l3cli.conditions import kernels_for, raw_condition
+        from l3cli.conditions import LABELS, kernels_for, raw_condition
 
         value = raw_condition(raw, table.conditions.by)
         if value is None:
             logging.getLogger(__name__).warning(
                 "%s: no %s in the metadata; rendering with the pooled kernels",
-                raw.path, table.conditions.by.upper())
+                raw.path, LABELS[table.conditions.by])
         k = kernels_for(table, value)
         table = dataclasses.replace(table, kernels=k, conditions=None)
     if table.white_balance is None:

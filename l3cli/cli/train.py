@@ -104,10 +104,12 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Accept pairs-folder renders that are resized copies of their raws (e.g. "
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
-@click.option("--by", "by", type=click.Choice(["iso"]), default=None,
-              help="Learn one set of kernels per ISO of the training raws (from their "
-                   "metadata) into the table; `l3 render` interpolates between the two "
-                   "nearest ISOs of each raw.")
+@click.option("--by", "by", type=click.Choice(["iso", "exposure", "white-balance"]),
+              default=None,
+              help="Learn one set of kernels per ISO, exposure time or as-shot white "
+                   "balance (its b/r) of the training raws, from their metadata, into the "
+                   "table; `l3 render` interpolates each raw's kernels between the two "
+                   "nearest bins (in log value). Off by default.")
 @click.option("--embedded-preview", is_flag=True, default=False,
               help="Train each raw of the INPUT folders against the JPEG preview the raw "
                    "embeds (rawpy's thumbnail; full size, or a resized copy trained at its "

@@ -104,7 +104,8 @@ def write_capture(folder: Path, cap: Capture, model: CameraModel) -> dict[str, A
     raw_path = write_raw(folder / f"{cap.stem}.dng", cap.dn, cam.cfa.cfa,
                          black_level=float(ro.black_level_dn), white_level=float(ro.white_level_dn),
                          make="l3", model=f"simulated {cam.name}",
-                         description=f"l3 simulate: {cap.stem}", **kwargs)
+                         description=f"l3 simulate: {cap.stem}",
+                         shot={"exposure_time": float(cap.exposure_s)}, **kwargs)
     target = folder / f"{cap.stem}.target.exr"
     write_image(target, cap.target, space="xyz")
     nf = folder / f"{cap.stem}.noisefree.exr"

@@ -8,6 +8,9 @@ this order:
    each other (exactly, after the step);
 2. :mod:`l3cli.smooth.spline` -- every coefficient is a smooth function of
    ``ln level`` (weighted smoothing spline); the same fit fills empty classes;
+   in a condition-indexed table (``l3 train --by``) the per-bin kernels are
+   also smooth functions of ``ln`` condition value, and a class a bin lacks is
+   filled from the neighbouring bins (not the pooled kernel);
 3. :mod:`l3cli.smooth.uniformity` -- a uniform scene renders uniform (the
    per-channel sums of the weights and the offsets agree across positions).
 
@@ -33,7 +36,12 @@ import numpy as np
 
 from l3cli import __version__
 from l3cli.errors import ConfigError
-from l3cli.smooth.spline import DEFAULT_STRENGTH, DEFAULT_STRENGTH_GRID, smooth_levels
+from l3cli.smooth.spline import (
+    DEFAULT_STRENGTH,
+    DEFAULT_STRENGTH_GRID,
+    smooth_conditions,
+    smooth_levels,
+)
 from l3cli.smooth.symmetry import orbit_weights, symmetrize_kernels, symmetry_map
 from l3cli.smooth.uniformity import fillable, make_uniform, missing_channels, uniformity_error
 from l3cli.table import TransformTable
@@ -132,6 +140,17 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
             "extrapolation": "constant beyond the first/last trained level",
             "lambda_median": float(np.median(finite)) if finite.size else None,
         }
+    conditions = table.conditions
+    if spline and conditions is not None:
+        from l3cli.conditions import Conditioned
+
+        ck, cfilled = smooth_conditions(conditions.values, conditions.kernels, conditions.counts,
+                                        d.n_coeffs, strength=spline_strength)
+        conditions = Conditioned(conditions.by, conditions.values, ck.astype(np.float32),
+                                 conditions.counts, conditions.filled | cfilled)
+        record["spline"]["conditions"] = {
+            "by": conditions.by, "abscissa": "ln(condition value)",
+            "filled_per_bin": [int(f.sum()) for f in cfilled]}
     if uniformity:
         before = uniformity_error(kernels, d, mask=~empty)
         trained = ~empty
@@ -181,7 +200,7 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
     return TransformTable(definition=d, kernels=kernels.astype(np.float32), counts=table.counts,
                           lambdas=table.lambdas, empty=empty, source_class=src,
                           output_space=table.output_space, provenance=prov,
-                          white_balance=table.white_balance, conditions=table.conditions)
+                          white_balance=table.white_balance, conditions=conditions)
 
 
 def filled_classes(table: TransformTable) -> dict[str, list[int]]:

@@ -118,7 +118,7 @@ class TrainOptions:
         self.white_balance = bool(white_balance)
         self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
         self.target_adapt = target_adapt
-        self.by = by  # condition bins (l3cli.conditions): None or "iso"
+        self.by = by  # condition bins: None or one of l3cli.conditions.CONDITIONS
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
@@ -453,10 +453,13 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
         raise InputError("no training pairs")
     prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
             "seed": opts.seed}
+    groups: dict[float, list[int]] = {}
+    if opts.by:  # read every raw's condition first: a raw without it fails before any work
+        from l3cli.conditions import group_pairs
+
+        groups = group_pairs(pairs, opts.by)
     with dask_client(workers, scheduler) as client:
         definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
-        stats = collect_stats(pairs, definition, opts, client=client,
-                              show_progress=show_progress)
         model = None
         stats_opts = opts
         if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
@@ -467,9 +470,6 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
                 stats_opts = copy.copy(opts)
                 stats_opts.target_adapt = adapt
         if opts.by:
-            from l3cli.conditions import group_pairs
-
-            groups = group_pairs(pairs, opts.by)
             parts = [collect_stats([pairs[i] for i in idx], definition, stats_opts,
                                    index_offset=min(idx), client=client,
                                    show_progress=show_progress) for idx in groups.values()]
