@@ -79,7 +79,13 @@ from l3cli.metrics.macbeth import (
 )
 from l3cli.metrics.mtf import LUMINANCE_WEIGHTS, MTFResult, slanted_edge_mtf
 from l3cli.metrics.psnr import psnr
-from l3cli.metrics.scielab import SRGB_WHITE_XYZ, SCIELABResult, samples_per_degree, scielab
+from l3cli.metrics.scielab import (
+    DEFAULT_OPPONENT,
+    SRGB_WHITE_XYZ,
+    SCIELABResult,
+    samples_per_degree,
+    scielab,
+)
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -484,7 +490,7 @@ def evaluate_item(
     dpi: float = 96.0,
     distance: float = 1.0,
     filters: str = "distribution",
-    opponent: str = "hpe",
+    opponent: str = DEFAULT_OPPONENT,
     chart_corners: Sequence[float] | None = None,
     edge_roi: Sequence[int] | None = None,
     pixel_pitch_um: float | None = None,
@@ -503,7 +509,7 @@ def evaluate_item(
     filters
         S-CIELAB filter version (``distribution`` or ``original``).
     opponent
-        S-CIELAB XYZ -> opponent matrix (``hpe``, ``isetcam-2deg``, ``isetcam-10deg``).
+        S-CIELAB XYZ -> opponent matrix: ``xyz10`` (default, ISETCam's), ``xyz2`` or ``hpe``.
     chart_corners
         Eight numbers, the chart's outer corners (TL, TR, BR, BL) in the image,
         for a chart in real images; the reference image's patches are the ideal.
@@ -640,7 +646,7 @@ def evaluate(
     dpi: float = 96.0,
     distance: float = 1.0,
     filters: str = "distribution",
-    opponent: str = "hpe",
+    opponent: str = DEFAULT_OPPONENT,
     chart_corners: Sequence[float] | None = None,
     edge_roi: Sequence[int] | None = None,
     pixel_pitch_um: float | None = None,

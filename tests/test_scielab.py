@@ -22,6 +22,11 @@ from l3cli.metrics.scielab import (
 
 WHITE = np.array(SRGB_WHITE_XYZ)
 
+#: ISETCam's xyz2opp for the 10-degree observer, as METRICS.md prints it.
+XYZ10_TO_OPPONENT = np.array(
+    [[288.5613, 659.7617, -130.5654], [-464.8864, 326.2702, 62.4200], [79.8787, -554.7976, 481.4746]]
+) / 1000
+
 
 def plain_cielab_de(xyz_a, xyz_b):
     """ΔE*ab straight from colour-science, white (95.047, 100, 108.883)."""
@@ -119,10 +124,10 @@ def test_unknown_filter_version():
         scielab(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), version="hires2")
 
 
-def test_opponent_matrix_is_hpe_then_poirson_wandell():
+def test_opponent_matrix_hpe_is_hpe_then_poirson_wandell():
     from l3cli.metrics.scielab import xyz_to_opponent_matrix
 
-    m = xyz_to_opponent_matrix()
+    m = xyz_to_opponent_matrix("hpe")
     # D65 white -> HPE LMS is (100, 100, 100) (normalised for D65, to 4 digits),
     # so the opponent luminance of white is 100 * (0.990 - 0.106 - 0.094).
     opp = m @ WHITE
@@ -130,27 +135,59 @@ def test_opponent_matrix_is_hpe_then_poirson_wandell():
     assert math.isfinite(np.linalg.cond(m))
 
 
-@pytest.mark.parametrize("opponent", ["hpe", "isetcam-2deg", "isetcam-10deg"])
-def test_uniform_invariance_for_every_opponent_matrix(opponent):
+def test_default_opponent_matrix_is_isetcams_xyz10():
+    from l3cli.metrics.scielab import DEFAULT_OPPONENT, xyz_to_opponent_matrix
+
+    assert DEFAULT_OPPONENT == "xyz10"
+    np.testing.assert_array_equal(xyz_to_opponent_matrix(), XYZ10_TO_OPPONENT)
+    # the old names are aliases of the new ones
+    np.testing.assert_array_equal(xyz_to_opponent_matrix("isetcam-10deg"), XYZ10_TO_OPPONENT)
+    np.testing.assert_array_equal(xyz_to_opponent_matrix("isetcam-2deg"), xyz_to_opponent_matrix("xyz2"))
+
+
+@pytest.mark.parametrize("opponent", ["xyz10", "xyz2", "hpe", "isetcam-2deg", "isetcam-10deg"])
+@pytest.mark.parametrize("edges", ["symmetric", "wrap"])
+def test_uniform_invariance_for_every_opponent_matrix(opponent, edges):
     a = np.array([40.0, 42.0, 30.0])
     b = np.array([38.0, 40.0, 36.0])
-    res = scielab(np.broadcast_to(a, (20, 24, 3)), np.broadcast_to(b, (20, 24, 3)), opponent=opponent)
+    res = scielab(np.broadcast_to(a, (20, 24, 3)), np.broadcast_to(b, (20, 24, 3)), opponent=opponent,
+                  edges=edges)
     np.testing.assert_allclose(res.delta_e_ab, plain_cielab_de(a, b), rtol=1e-5)
 
 
 def test_unknown_opponent_matrix():
-    with pytest.raises(ConfigError, match="hpe, isetcam-2deg, isetcam-10deg"):
+    with pytest.raises(ConfigError, match="xyz10, xyz2, hpe"):
         scielab(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), opponent="smith-pokorny")
 
 
-def test_fft_and_direct_filtering_agree():
+def test_unknown_edge_handling():
+    with pytest.raises(ConfigError, match="symmetric, wrap"):
+        scielab(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)), edges="nearest")
+
+
+@pytest.mark.parametrize("edges", ["symmetric", "wrap"])
+def test_fft_and_direct_filtering_agree(edges):
     from l3cli.metrics.scielab import _convolve_fft, _convolve_separable
 
     rng = np.random.default_rng(7)
     plane = rng.uniform(0, 50, size=(70, 90))
-    for spd in (23, 66):
+    for spd in (23, 66, 150):  # 150: the filter (149 samples) is longer than the image
         for parts in scielab_filter_1d(spd, version="distribution"):
-            np.testing.assert_allclose(_convolve_fft(plane, parts), _convolve_separable(plane, parts), atol=1e-10)
+            np.testing.assert_allclose(
+                _convolve_fft(plane, parts, edges), _convolve_separable(plane, parts, edges), atol=1e-10
+            )
+
+
+def test_wrap_is_circular():
+    # a circularly shifted image gives the circularly shifted ΔE map, which a
+    # padded filter cannot: the content that wraps around is seen at the borders.
+    rng = np.random.default_rng(8)
+    ref = rng.uniform(10, 80, size=(40, 52, 3))
+    test = ref + rng.normal(0, 3, size=ref.shape)
+    base = scielab(ref, test, samples_per_deg=23, edges="wrap").delta_e_ab
+    shifted = scielab(np.roll(ref, (7, -11), (0, 1)), np.roll(test, (7, -11), (0, 1)),
+                      samples_per_deg=23, edges="wrap").delta_e_ab
+    np.testing.assert_allclose(shifted, np.roll(base, (7, -11), (0, 1)), rtol=1e-4, atol=1e-5)
 
 
 def test_large_uniform_image_stays_uniform():
@@ -161,22 +198,29 @@ def test_large_uniform_image_stays_uniform():
     np.testing.assert_allclose(res.delta_e_ab, plain_cielab_de(a[0, 0], b[0, 0]), rtol=1e-5)
 
 
-def _independent_scielab(ref_xyz, test_xyz, spd, version):
+def _independent_scielab(ref_xyz, test_xyz, spd, version, opponent="xyz10", edges="symmetric"):
     """S-CIELAB written out from METRICS.md with other building blocks.
 
-    Filters as full 2-D Gaussians on a grid (ISETCam ``gauss2``: sd = HWHM /
-    sqrt(2 ln 2), x = 1..n - round(n/2)), summed with their weights and
-    normalised; the Hunt-Pointer-Estevez matrix from colour-science (Hunt
-    model), normalised so that D65 gives equal L, M, S; direct 2-D convolution
-    with symmetric boundaries (scipy.signal.convolve2d); CIELAB and ΔE from
+    Clip XYZ to [0, white]; XYZ -> opponent with the ``xyz10`` matrix as
+    METRICS.md prints it, or (``opponent="hpe"``) the Hunt-Pointer-Estevez
+    matrix from colour-science (Hunt model), normalised so that D65 gives equal
+    L, M, S, then Poirson & Wandell's LMS -> opponent matrix. Filters as full
+    2-D Gaussians on a grid (ISETCam ``gauss2``: sd = HWHM / sqrt(2 ln 2),
+    x = 1..n - round(n/2)), summed with their weights and normalised; direct
+    2-D convolution with symmetric or circular boundaries
+    (scipy.signal.convolve2d); back with the inverse matrix; CIELAB and ΔE from
     colour-science.
     """
-    from colour.appearance.hunt import MATRIX_XYZ_TO_HPE
     from scipy.signal import convolve2d
 
-    hpe = np.asarray(MATRIX_XYZ_TO_HPE, dtype=np.float64)
-    hpe = hpe / (hpe @ (WHITE / 100))[:, None]  # D65 -> (1, 1, 1)
-    opp = np.array([[0.990, -0.106, -0.094], [-0.669, 0.742, -0.027], [-0.212, -0.354, 0.911]]) @ hpe
+    if opponent == "xyz10":
+        opp = XYZ10_TO_OPPONENT
+    else:
+        from colour.appearance.hunt import MATRIX_XYZ_TO_HPE
+
+        hpe = np.asarray(MATRIX_XYZ_TO_HPE, dtype=np.float64)
+        hpe = hpe / (hpe @ (WHITE / 100))[:, None]  # D65 -> (1, 1, 1)
+        opp = np.array([[0.990, -0.106, -0.094], [-0.669, 0.742, -0.027], [-0.212, -0.354, 0.911]]) @ hpe
     n = spd if spd % 2 else spd - 1
     x = np.arange(1, n + 1) - math.floor(n / 2 + 0.5)
     xx, yy = np.meshgrid(x, x)
@@ -188,17 +232,22 @@ def _independent_scielab(ref_xyz, test_xyz, spd, version):
             g = np.exp(-0.5 * (xx**2 + yy**2) / sd**2)
             k += weight * g / g.sum()
         kernels.append(k / k.sum())
+    boundary = {"symmetric": "symm", "wrap": "wrap"}[edges]
     xy = colour.XYZ_to_xy(WHITE / 100)
     labs = []
     for img in (ref_xyz, test_xyz):
         o = np.clip(img, 0, WHITE) @ opp.T
-        f = np.stack([convolve2d(o[..., c], kernels[c], mode="same", boundary="symm") for c in range(3)], -1)
+        f = np.stack([convolve2d(o[..., c], kernels[c], mode="same", boundary=boundary) for c in range(3)], -1)
         labs.append(colour.XYZ_to_Lab(f @ np.linalg.inv(opp).T / 100, xy))
     return colour.delta_E(labs[0], labs[1], method="CIE 1976")
 
 
-@pytest.mark.parametrize("version", ["distribution", "original"])
-def test_matches_an_independent_implementation(version):
+@pytest.mark.parametrize(
+    ("version", "opponent", "edges"),
+    [("distribution", "xyz10", "symmetric"), ("original", "xyz10", "symmetric"),
+     ("distribution", "xyz10", "wrap"), ("distribution", "hpe", "symmetric")],
+)
+def test_matches_an_independent_implementation(version, opponent, edges):
     """Cross-check against S-CIELAB re-implemented from METRICS.md with other libraries."""
     from scipy.ndimage import gaussian_filter
 
@@ -208,8 +257,8 @@ def test_matches_an_independent_implementation(version):
     ref = (0.05 + 0.85 * base) @ np.diag(WHITE)
     ref[20:50, 30:34] = WHITE * 0.9  # a sharp bright bar
     test = ref + rng.normal(0, 1.5, ref.shape) + np.array([1.0, 0.0, -2.0])
-    expected = _independent_scielab(ref, test, 66, version)
-    got = scielab(ref, test, samples_per_deg=66, version=version)
+    expected = _independent_scielab(ref, test, 66, version, opponent, edges)
+    got = scielab(ref, test, samples_per_deg=66, version=version, opponent=opponent, edges=edges)
     # the HPE matrices agree to the 4 digits ISETCam publishes (measured: 4e-5 relative)
     assert got.mean == pytest.approx(float(expected.mean()), rel=1e-3)
     np.testing.assert_allclose(got.delta_e_ab, expected, rtol=1e-3, atol=1e-3)

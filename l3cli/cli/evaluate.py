@@ -59,9 +59,11 @@ class _GreedyOption(click.Option):
               help="Viewing distance for S-CIELAB (metres).")
 @click.option("--filters", type=click.Choice(["distribution", "original"]), default="distribution",
               show_default=True, help="S-CIELAB filter set (ISETCam's default, or the 1997 paper's).")
-@click.option("--opponent", type=click.Choice(["hpe", "isetcam-2deg", "isetcam-10deg"]), default="hpe",
-              show_default=True, help="S-CIELAB XYZ -> opponent matrix (HPE LMS then Poirson-Wandell, "
-                                      "or ISETCam's precomputed xyz2opp).")
+@click.option("--opponent", type=click.Choice(["xyz10", "xyz2", "hpe", "isetcam-10deg", "isetcam-2deg"]),
+              default="xyz10", show_default=True,
+              help="S-CIELAB XYZ -> opponent matrix: ISETCam's xyz2opp for the 10° (as the paper) or "
+                   "2° observer, or HPE LMS then Poirson-Wandell (l3's former default). "
+                   "isetcam-10deg/-2deg: old names of xyz10/xyz2.")
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False),
               help="Write figures (ΔE map + histogram, MTF, Macbeth, crops) into this folder.")
 @click.option("--chart", "chart", callback=_numbers(8), metavar="x0,y0,x1,y1,x2,y2,x3,y3",
