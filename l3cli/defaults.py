@@ -14,6 +14,16 @@ LEVELS = 24
 LEVEL_SPACING = "log"
 #: Contrast bins per level (2 = flat / textured).
 CONTRAST_BINS = 2
+#: Edge-angle bins of the orientation class dimension (0 = off; even).
+ORIENTATION_BINS = 0
+#: Structure-tensor coherence at or below which a patch counts as isotropic.
+COHERENCE = 0.5
+#: Block size (pixels) of the context guide (0 = no context dimension).
+CONTEXT_BLOCK = 0
+#: Context bins (quantiles of the training data's context feature).
+CONTEXT_BINS = 3
+#: Context feature: ``"mean"`` (the guide) or ``"ratio"`` (patch level / guide).
+CONTEXT_RULE = "ratio"
 #: Normalised raw value at or above which a pixel counts as saturated.
 SATURATION = 0.95
 #: Share classes between CFA positions whose patch layouts coincide.

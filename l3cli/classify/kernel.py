@@ -29,6 +29,12 @@ import numpy as np  # noqa: E402
 from l3cli import defaults  # noqa: E402
 from l3cli.cfa import CFA  # noqa: E402
 from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # noqa: E402
+from l3cli.classify.features import (  # noqa: E402
+    CONTEXT_EPS,
+    CONTEXT_RULES,
+    context_map,
+    orientation_centres,
+)
 from l3cli.classify.levels import level_lookup  # noqa: E402
 from l3cli.errors import InputError  # noqa: E402
 from l3cli.render_rows import render_row4, render_row_any  # noqa: E402
@@ -72,6 +78,20 @@ class KernelTables(NamedTuple):
     eps: np.float32
     #: Number of saturation patterns, ``2 ** n_channels``.
     n_sat: int
+    #: Entries of the orientation axis (1 = off).
+    n_or: int
+    #: float32 (max(N, 1),): cos 2θ_j of the angle-bin centres.
+    ori_c: np.ndarray
+    #: float32 (max(N, 1),): sin 2θ_j of the angle-bin centres.
+    ori_s: np.ndarray
+    #: float32 squared coherence threshold.
+    coh2: np.float32
+    #: 0 = no context, 1 = the guide, 2 = patch level / guide.
+    ctx_mode: int
+    #: float32 (n_context - 1,) context cut points (one unused entry when off).
+    xcuts: np.ndarray
+    #: float32 ``eps`` of the ratio rule.
+    ctx_eps: np.float32
 
 
 def kernel_tables(definition: ClassDefinition) -> KernelTables:
@@ -88,6 +108,12 @@ def kernel_tables(definition: ClassDefinition) -> KernelTables:
             cnt_inv[p, present] = 1.0 / counts[present]
             wc[p, present] = 1.0 / present.sum()
         lut = level_lookup(definition.level_cuts)
+        nb_or = definition.orientation_bins
+        oc, os_ = orientation_centres(nb_or) if nb_or else (np.zeros(1, np.float32),) * 2
+        ctx_mode = 0 if not definition.context_block else 1 + CONTEXT_RULES.index(
+            definition.context_rule)
+        xcuts = definition.context_cuts.astype(np.float32) if ctx_mode else np.zeros(
+            1, np.float32)
         tables["kernel"] = KernelTables(
             idx_pattern=cfa.index_pattern.astype(np.int64), cnt_inv=cnt_inv, wc=wc,
             group=definition.position_group.astype(np.int64), lut=lut.lut,
@@ -95,6 +121,9 @@ def kernel_tables(definition: ClassDefinition) -> KernelTables:
             ccuts=np.ascontiguousarray(definition.contrast_cuts, dtype=np.float32),
             sat_thr=np.float32(definition.saturation_threshold),
             eps=np.float32(definition.contrast_eps), n_sat=int(definition.n_saturation),
+            n_or=int(definition.n_orientation), ori_c=oc, ori_s=os_,
+            coh2=np.float32(definition.coherence_threshold ** 2), ctx_mode=int(ctx_mode),
+            xcuts=xcuts, ctx_eps=np.float32(CONTEXT_EPS),
         )
     return tables["kernel"]
 
@@ -137,8 +166,8 @@ def _tile_kernel(S: int):
 
     @nb.njit(cache=True, parallel=True)
     def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
-               lut_base, cuts, ccuts, sat_thr, eps, n_sat, mode, out_cls, out_lev, out_con,
-               out_sat, K, n_out, outf):
+               lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
+               xcuts, ctx_eps, ctx, mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -146,6 +175,9 @@ def _tile_kernel(S: int):
         ncc = ccuts.shape[1]
         nlut = lut.shape[0]
         ccf = ccuts.ravel()
+        n_cx = xcuts.shape[0] + 1 if ctx_mode else 1
+        n_ob = ori_c.shape[0]
+        extra = n_or > 1 or n_cx > 1
         twp_max = tc + S - 1
         # along-row tables in tile coordinates (tile columns start at multiples of pw)
         mask = np.zeros((ph, nch, twp_max), dtype=np.float32)
@@ -205,6 +237,18 @@ def _tile_kernel(S: int):
             kbr = np.empty(tw, dtype=np.int32)
             ccr = np.empty(tw, dtype=np.float32)
             rows_c = np.empty(S, dtype=np.int64)
+            if n_or > 1:  # structure-tensor sums (see classify.features)
+                ring_xx = np.empty((S, tw), dtype=np.float32)
+                ring_yy = np.empty((S, tw), dtype=np.float32)
+                ring_xy = np.empty((S, tw), dtype=np.float32)
+            else:
+                ring_xx = np.empty((1, 1), dtype=np.float32)
+                ring_yy = ring_xx
+                ring_xy = ring_xx
+            gxx = np.empty(twp, dtype=np.float32)
+            gyy = np.empty(twp, dtype=np.float32)
+            gxy = np.empty(twp, dtype=np.float32)
+            exb = np.empty(tw, dtype=np.int32)
             for k in range(nbr):
                 slot = k % S
                 py = (y0 + i0 + k - r) % ph
@@ -230,6 +274,25 @@ def _tile_kernel(S: int):
                     for dx in range(1, S):
                         b |= bits[x + dx]
                     ring_b[slot, x] = b
+                if n_or > 1 and k >= ph:
+                    # quads of band rows k - ph and k: same-colour differences
+                    for xx in range(twp - pw):
+                        gx = (pb[k - ph, xx + pw] - pb[k - ph, xx]) + (pb[k, xx + pw] - pb[k, xx])
+                        gy = (pb[k, xx] - pb[k - ph, xx]) + (pb[k, xx + pw] - pb[k - ph, xx + pw])
+                        gxx[xx] = gx * gx
+                        gyy[xx] = gy * gy
+                        gxy[xx] = gx * gy
+                    for x in range(tw):
+                        a = gxx[x]
+                        q = gyy[x]
+                        e = gxy[x]
+                        for dx in range(1, S - pw):
+                            a += gxx[x + dx]
+                            q += gyy[x + dx]
+                            e += gxy[x + dx]
+                        ring_xx[slot, x] = a
+                        ring_yy[slot, x] = q
+                        ring_xy[slot, x] = e
                 i = k - (S - 1)  # tile output row whose window is now complete
                 if i < 0:
                     continue
@@ -292,6 +355,45 @@ def _tile_kernel(S: int):
                         ccr[x] = ccf[kbr[x]]
                     for x in range(tw):
                         clsr[x] += np.int32(spr[x] >= ccr[x])
+                if extra:
+                    for x in range(tw):
+                        exb[x] = 0
+                    if n_or > 1:
+                        for x in range(tw):
+                            sl = (i + ph) % S
+                            jxx = ring_xx[sl, x]
+                            jyy = ring_yy[sl, x]
+                            jxy = ring_xy[sl, x]
+                            for dy in range(ph + 1, S):
+                                sl = (i + dy) % S
+                                jxx += ring_xx[sl, x]
+                                jyy += ring_yy[sl, x]
+                                jxy += ring_xy[sl, x]
+                            u = jxx - jyy
+                            v = np.float32(2.0) * jxy
+                            tt = jxx + jyy
+                            ob = 0
+                            if u * u + v * v > coh2 * (tt * tt):
+                                best = u * ori_c[0] + v * ori_s[0]
+                                ob = 1
+                                for j in range(1, n_ob):
+                                    pr = u * ori_c[j] + v * ori_s[j]
+                                    if pr > best:
+                                        best = pr
+                                        ob = j + 1
+                            exb[x] = ob
+                    if n_cx > 1:
+                        for x in range(tw):
+                            cv = ctx[i0 + i, x0 + x]
+                            if ctx_mode == 2:
+                                cv = max(lev[x], np.float32(0.0)) / (max(cv, np.float32(0.0))
+                                                                     + ctx_eps)
+                            xb = 0
+                            for j in range(n_cx - 1):
+                                xb += np.int32(cv >= xcuts[j])
+                            exb[x] = exb[x] * n_cx + xb
+                    for x in range(tw):
+                        clsr[x] = clsr[x] * (n_or * n_cx) + exb[x]
                 if mode == MODE_CLASSES:
                     for x in range(tw):
                         out_cls[i0 + i, x0 + x] = clsr[x]
@@ -379,9 +481,12 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
                                                                          _NO_I32)
     K = kernels if kernels is not None else _NO_F32
     outf = out.reshape(-1) if out is not None else _NO_OUT
+    ctx = _NO_F32
+    if definition.context_block and mode != MODE_FEATURES:
+        ctx = context_map(mosaic, definition.cfa, definition.context_block, rows=(y0, y1))
     with _slp_vectorize():
-        _tile_kernel(S)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, mode, cls_o, lev_o, con_o,
-                        sat_o, K, n_out, outf)
+        _tile_kernel(S)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, ctx, mode, cls_o, lev_o,
+                        con_o, sat_o, K, n_out, outf)
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,

@@ -56,6 +56,22 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Accept pairs-folder renders that are resized copies of their raws (e.g. "
                    "reduced-size camera JPEGs) and train them at their reduced resolution, "
                    "resampled onto the raw's pixels; without it such pairs are refused.")
+@click.option("--orientation-bins", type=click.IntRange(min=0, max=16),
+              default=defaults.ORIENTATION_BINS, show_default=True,
+              help="Edge-angle classes from the patch's structure tensor (even N; 0 = off); "
+                   "patches with coherence <= --coherence form one isotropic class.")
+@click.option("--coherence", type=click.FloatRange(min=0, max=1, max_open=True),
+              default=defaults.COHERENCE, show_default=True,
+              help="Structure-tensor coherence at or below which a patch is isotropic.")
+@click.option("--context-block", type=click.IntRange(min=0), default=defaults.CONTEXT_BLOCK,
+              show_default=True,
+              help="Context classes from a low-resolution guide of BLOCK x BLOCK pixel means "
+                   "(0 = off).")
+@click.option("--context-bins", type=click.IntRange(min=2), default=defaults.CONTEXT_BINS,
+              show_default=True, help="Context bins (quantiles of the training data).")
+@click.option("--context-rule", type=click.Choice(["mean", "ratio"]),
+              default=defaults.CONTEXT_RULE, show_default=True,
+              help="Context feature: the guide's level, or the patch level relative to it.")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -64,7 +80,10 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           contrast_threshold: float | None, saturation: float, merge_positions: bool,
           target_space: str, sample_fraction: float, min_samples_factor: float,
           seed: int, scaled_renders: bool = False, workers: int | None = None,
-          scheduler: str | None = None) -> None:
+          scheduler: str | None = None, orientation_bins: int = defaults.ORIENTATION_BINS,
+          coherence: float = defaults.COHERENCE, context_block: int = defaults.CONTEXT_BLOCK,
+          context_bins: int = defaults.CONTEXT_BINS,
+          context_rule: str = defaults.CONTEXT_RULE) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -90,7 +109,10 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         contrast_bins=contrast_bins, contrast_threshold=contrast_threshold,
                         saturation=saturation, merge_positions=merge_positions,
                         target_space=target_space, sample_fraction=sample_fraction, seed=seed,
-                        min_samples_factor=min_samples_factor)
+                        min_samples_factor=min_samples_factor,
+                        orientation_bins=orientation_bins, coherence=coherence,
+                        context_block=context_block, context_bins=context_bins,
+                        context_rule=context_rule)
     show = not quiet()
     table = train_table(pairs, opts, workers=workers, scheduler=scheduler, show_progress=show)
     save_table(output, table)

@@ -57,7 +57,12 @@ class TrainOptions:
                  merge_positions: bool = defaults.MERGE_POSITIONS,
                  target_space: str = "xyz", sample_fraction: float = defaults.SAMPLE_FRACTION,
                  seed: int = defaults.SEED, min_samples_factor: float = defaults.MIN_SAMPLES_FACTOR,
-                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID)) -> None:
+                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID),
+                 orientation_bins: int = defaults.ORIENTATION_BINS,
+                 coherence: float = defaults.COHERENCE,
+                 context_block: int = defaults.CONTEXT_BLOCK,
+                 context_bins: int = defaults.CONTEXT_BINS,
+                 context_rule: str = defaults.CONTEXT_RULE) -> None:
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
@@ -68,6 +73,16 @@ class TrainOptions:
             raise ConfigError(f"saturation threshold {saturation} is not allowed; use (0, 1.5]")
         if min_samples_factor <= 1.0:
             raise ConfigError(f"min samples factor {min_samples_factor} must be > 1")
+        if orientation_bins < 0 or orientation_bins % 2 or orientation_bins > 16:
+            raise ConfigError(f"--orientation-bins {orientation_bins} is not allowed; use 0 "
+                              "(off) or an even number from 2 to 16")
+        if not 0.0 <= coherence < 1.0:
+            raise ConfigError(f"--coherence {coherence} is not allowed; use [0, 1)")
+        if context_block < 0:
+            raise ConfigError(f"--context-block {context_block} is not allowed; use 0 (off) "
+                              "or a block size in pixels")
+        if context_block and context_bins < 2:
+            raise ConfigError(f"--context-bins {context_bins} is not allowed; use 2 or more")
         self.patch = check_patch(patch, "--patch")
         self.levels = int(levels)
         self.spacing = spacing
@@ -81,11 +96,24 @@ class TrainOptions:
         self.seed = int(seed)
         self.min_samples_factor = float(min_samples_factor)
         self.lambda_grid = np.asarray(lambda_grid, dtype=np.float64)
+        self.orientation_bins = int(orientation_bins)
+        self.coherence = float(coherence)
+        self.context_block = int(context_block)
+        self.context_bins = int(context_bins)
+        self.context_rule = context_rule
 
     def as_dict(self) -> dict:
-        """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
+        """The options as a JSON-serialisable dict (recorded in the table's provenance).
+
+        The feature options appear only when a feature is on, so the
+        provenance of a table without them is as before.
+        """
         d = dict(vars(self))
         d["lambda_grid"] = self.lambda_grid.tolist()
+        if not self.orientation_bins:
+            del d["orientation_bins"], d["coherence"]
+        if not self.context_block:
+            del d["context_block"], d["context_bins"], d["context_rule"]
         return d
 
 
@@ -100,7 +128,8 @@ def sample_mask(shape: tuple[int, int], fraction: float, seed: int, index: int,
 
 def _need_histogram(opts: TrainOptions) -> bool:
     return opts.level_range is None or (opts.contrast_bins > 1 and
-                                        opts.contrast_threshold is None)
+                                        opts.contrast_threshold is None) or \
+        opts.context_block > 0
 
 
 def _for_workers(pairs: Sequence[Pair], client) -> list[Pair]:
@@ -137,7 +166,8 @@ def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
     frac = min(opts.sample_fraction, 0.25)
     mask = sample_mask(raw.mosaic.shape, frac, opts.seed, i, stream=1)
     hist.add_mosaic(raw.mosaic, raw.cfa, patch=opts.patch,
-                    saturation_threshold=opts.saturation, mask=mask)
+                    saturation_threshold=opts.saturation, mask=mask,
+                    context_block=opts.context_block, context_rule=opts.context_rule)
     return i, raw.cfa, hist
 
 
@@ -266,10 +296,15 @@ def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
         ccuts *= np.arange(1, opts.contrast_bins)[None, :]
     else:
         ccuts = hist.contrast_cuts(cuts, opts.contrast_bins)
+    xcuts = hist.context_cuts(opts.context_bins) if opts.context_block else None
     return ClassDefinition.build(cfa, patch=opts.patch, level_cuts=cuts,
                                  level_spacing=opts.spacing, contrast_cuts=ccuts,
                                  saturation_threshold=opts.saturation,
-                                 merge_positions=opts.merge_positions)
+                                 merge_positions=opts.merge_positions,
+                                 orientation_bins=opts.orientation_bins,
+                                 coherence_threshold=opts.coherence,
+                                 context_block=opts.context_block, context_cuts=xcuts,
+                                 context_rule=opts.context_rule)
 
 
 def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: TrainOptions, *,
