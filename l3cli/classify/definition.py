@@ -161,6 +161,9 @@ class ClassDefinition:
         if nb < 0 or nb % 2 or nb > 16:
             raise ConfigError(f"orientation bins {nb} is not allowed; use 0 (off) or an even "
                               "number from 2 to 16")
+        if nb and self.patch <= max(self.cfa.period):
+            raise ConfigError(f"orientation bins need a patch larger than the CFA period; "
+                              f"patch {self.patch} is too small")
         if nb and not 0.0 <= self.coherence_threshold < 1.0:
             raise ConfigError(f"coherence threshold {self.coherence_threshold} must be in [0, 1)")
         if self.orientation_rule != ORIENTATION_RULE:

@@ -30,12 +30,15 @@ al. 2017). Training and rendering compute it with the same function.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from l3cli.cfa import CFA
 
-__all__ = ["CONTEXT_RULES", "ORIENTATION_RULE", "CONTEXT_EPS", "orientation_centres",
-           "orientation_permutation", "block_means", "context_map", "context_feature"]
+__all__ = ["CONTEXT_RULES", "ORIENTATION_RULE", "CONTEXT_EPS", "ContextGuide",
+           "orientation_centres", "orientation_permutation", "block_means", "context_guide",
+           "context_map", "context_feature"]
 
 #: Context features: the guide value itself, or the patch level over it.
 CONTEXT_RULES = ("mean", "ratio")
@@ -88,7 +91,7 @@ def block_means(mosaic: np.ndarray, cfa: CFA, block: int) -> np.ndarray:
     """Mean of the per-channel means of every ``block x block`` block of a mosaic.
 
     Blocks start at the origin; the last row/column of blocks may be partial
-    (their mean is over the pixels they hold).
+    (each channel's mean is then over the pixels the block holds).
 
     Returns
     -------
@@ -99,16 +102,49 @@ def block_means(mosaic: np.ndarray, cfa: CFA, block: int) -> np.ndarray:
     ph, pw = cfa.period
     pat = cfa.index_pattern
     nch = cfa.n_channels
-    per_ch = np.bincount(pat.ravel(), minlength=nch)
-    # weight of each period position: 1 / (channels * positions of its channel)
-    wpos = (pat.size / (nch * per_ch[pat])).astype(np.float64)
-    wmap = np.tile(wpos, (-(-h // ph), -(-w // pw)))[:h, :w]
-    ys = np.arange(0, h, block)
-    xs = np.arange(0, w, block)
-    s = np.add.reduceat(np.add.reduceat(mosaic.astype(np.float64) * wmap, ys, axis=0), xs,
-                        axis=1)
-    n = np.add.reduceat(np.add.reduceat(wmap, ys, axis=0), xs, axis=1)
-    return (s / n).astype(np.float32)
+    nby, nbx = -(-h // block), -(-w // block)
+    sums = np.zeros((nch, nby, nbx))
+    counts = np.zeros((nch, nby, nbx))
+    for py in range(ph):
+        for px in range(pw):
+            plane = mosaic[py::ph, px::pw]  # one CFA position: a strided view
+            if plane.size == 0:
+                continue
+            ys = (np.arange(0, h, block) - py + ph - 1) // ph  # first plane row of each block
+            xs = (np.arange(0, w, block) - px + pw - 1) // pw
+            n_y = np.diff(np.append(ys, plane.shape[0]))
+            n_x = np.diff(np.append(xs, plane.shape[1]))
+            c = pat[py, px]
+            sums[c] += np.add.reduceat(np.add.reduceat(plane, ys, axis=0, dtype=np.float64), xs,
+                                       axis=1)
+            counts[c] += n_y[:, None] * n_x[None, :]
+    means = sums / np.maximum(counts, 1)
+    return (means.sum(axis=0) / np.maximum((counts > 0).sum(axis=0), 1)).astype(np.float32)
+
+
+class ContextGuide(NamedTuple):
+    """The context guide of a mosaic as the tile kernel reads it.
+
+    The guide at pixel ``(y, x)`` is, in float32,
+    ``row = grid[r0[y]] * (1 - wy[y]) + grid[r1[y]] * wy[y]`` and then
+    ``row[c0[x]] * (1 - wx[x]) + row[c1[x]] * wx[x]`` (bilinear between block
+    centres, constant beyond the outer centres).
+    """
+
+    #: float32 (n_block_rows, n_block_cols): block means (:func:`block_means`).
+    grid: np.ndarray
+    #: int64 (H,): upper block row of each pixel row.
+    r0: np.ndarray
+    #: int64 (H,): lower block row.
+    r1: np.ndarray
+    #: float32 (H,): weight of ``r1``.
+    wy: np.ndarray
+    #: int64 (W,): left block column of each pixel column.
+    c0: np.ndarray
+    #: int64 (W,): right block column.
+    c1: np.ndarray
+    #: float32 (W,): weight of ``c1``.
+    wx: np.ndarray
 
 
 def _interp_weights(n: int, block: int, n_blocks: int) -> tuple[np.ndarray, np.ndarray,
@@ -120,9 +156,17 @@ def _interp_weights(n: int, block: int, n_blocks: int) -> tuple[np.ndarray, np.n
     return i0, i1, (f - i0).astype(np.float32)
 
 
+def context_guide(mosaic: np.ndarray, cfa: CFA, block: int) -> ContextGuide:
+    """The :class:`ContextGuide` of a mosaic (what the tile kernel interpolates)."""
+    h, w = mosaic.shape
+    g = np.ascontiguousarray(block_means(mosaic, cfa, block))
+    return ContextGuide(g, *_interp_weights(h, block, g.shape[0]),
+                        *_interp_weights(w, block, g.shape[1]))
+
+
 def context_map(mosaic: np.ndarray, cfa: CFA, block: int,
                 rows: tuple[int, int] | None = None) -> np.ndarray:
-    """The context guide at every pixel: block means, bilinearly interpolated.
+    """The context guide at every pixel, computed as the tile kernel computes it.
 
     Parameters
     ----------
@@ -140,14 +184,13 @@ def context_map(mosaic: np.ndarray, cfa: CFA, block: int,
     numpy.ndarray
         float32 C-contiguous (y1 - y0, W).
     """
-    h, w = mosaic.shape
+    h, _ = mosaic.shape
     y0, y1 = rows if rows is not None else (0, h)
-    g = block_means(mosaic, cfa, block)
-    r0, r1, wy = _interp_weights(h, block, g.shape[0])
-    c0, c1, wx = _interp_weights(w, block, g.shape[1])
-    r0, r1, wy = r0[y0:y1], r1[y0:y1], wy[y0:y1]
-    cols = g[:, c0] * (1 - wx) + g[:, c1] * wx  # (Hb, W)
-    out = cols[r0] * (1 - wy)[:, None] + cols[r1] * wy[:, None]
+    g, r0, r1, wy, c0, c1, wx = context_guide(mosaic, cfa, block)
+    one = np.float32(1.0)
+    wy = wy[y0:y1, None]
+    rows_ = g[r0[y0:y1]] * (one - wy) + g[r1[y0:y1]] * wy  # (y1 - y0, n_block_cols)
+    out = rows_[:, c0] * (one - wx) + rows_[:, c1] * wx
     return np.ascontiguousarray(out, dtype=np.float32)
 
 

@@ -32,7 +32,8 @@ from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # n
 from l3cli.classify.features import (  # noqa: E402
     CONTEXT_EPS,
     CONTEXT_RULES,
-    context_map,
+    ContextGuide,
+    context_guide,
     orientation_centres,
 )
 from l3cli.classify.levels import level_lookup  # noqa: E402
@@ -146,11 +147,12 @@ def _slp_vectorize():
 
 
 @functools.cache
-def _tile_kernel(S: int):
+def _tile_kernel(S: int, PW: int):
     """The classifier (and renderer) compiled for patch size ``S``.
 
-    ``S`` is a compile-time constant, so the S-tap loops unroll and the loops
-    along a row vectorise. Parallel over tiles of ``_TILE_ROWS`` x
+    ``S`` (and the CFA period's width ``PW``, for the structure tensor's
+    ``S - PW``-tap sums) are compile-time constants, so the tap loops unroll
+    and the loops along a row vectorise. Parallel over tiles of ``_TILE_ROWS`` x
     ``_TILE_COLS`` output pixels; each tile copies its padded band from the
     mosaic (mirror indices at the image borders), reduces every band row to
     horizontal S-tap sums of ``x`` and ``x²`` per channel present in the row
@@ -167,7 +169,7 @@ def _tile_kernel(S: int):
     @nb.njit(cache=True, parallel=True)
     def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
                lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
-               xcuts, ctx_eps, ctx, mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf):
+               xcuts, ctx_eps, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx, mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -249,6 +251,11 @@ def _tile_kernel(S: int):
             gyy = np.empty(twp, dtype=np.float32)
             gxy = np.empty(twp, dtype=np.float32)
             exb = np.empty(tw, dtype=np.int32)
+            jxx = np.empty(tw, dtype=np.float32)
+            jyy = np.empty(tw, dtype=np.float32)
+            jxy = np.empty(tw, dtype=np.float32)
+            bst = np.empty(tw, dtype=np.float32)
+            crow = np.empty(ctx.shape[1], dtype=np.float32)
             for k in range(nbr):
                 slot = k % S
                 py = (y0 + i0 + k - r) % ph
@@ -276,9 +283,9 @@ def _tile_kernel(S: int):
                     ring_b[slot, x] = b
                 if n_or > 1 and k >= ph:
                     # quads of band rows k - ph and k: same-colour differences
-                    for xx in range(twp - pw):
-                        gx = (pb[k - ph, xx + pw] - pb[k - ph, xx]) + (pb[k, xx + pw] - pb[k, xx])
-                        gy = (pb[k, xx] - pb[k - ph, xx]) + (pb[k, xx + pw] - pb[k - ph, xx + pw])
+                    for xx in range(twp - PW):
+                        gx = (pb[k - ph, xx + PW] - pb[k - ph, xx]) + (pb[k, xx + PW] - pb[k, xx])
+                        gy = (pb[k, xx] - pb[k - ph, xx]) + (pb[k, xx + PW] - pb[k - ph, xx + PW])
                         gxx[xx] = gx * gx
                         gyy[xx] = gy * gy
                         gxy[xx] = gx * gy
@@ -286,7 +293,7 @@ def _tile_kernel(S: int):
                         a = gxx[x]
                         q = gyy[x]
                         e = gxy[x]
-                        for dx in range(1, S - pw):
+                        for dx in range(1, S - PW):
                             a += gxx[x + dx]
                             q += gyy[x + dx]
                             e += gxy[x + dx]
@@ -359,39 +366,61 @@ def _tile_kernel(S: int):
                     for x in range(tw):
                         exb[x] = 0
                     if n_or > 1:
+                        # structure tensor: vertical sums of the quad rows (vectorised
+                        # along the row), then the nearest angle-bin centre
+                        sl = (i + ph) % S
                         for x in range(tw):
-                            sl = (i + ph) % S
-                            jxx = ring_xx[sl, x]
-                            jyy = ring_yy[sl, x]
-                            jxy = ring_xy[sl, x]
-                            for dy in range(ph + 1, S):
-                                sl = (i + dy) % S
-                                jxx += ring_xx[sl, x]
-                                jyy += ring_yy[sl, x]
-                                jxy += ring_xy[sl, x]
-                            u = jxx - jyy
-                            v = np.float32(2.0) * jxy
-                            tt = jxx + jyy
-                            ob = 0
-                            if u * u + v * v > coh2 * (tt * tt):
-                                best = u * ori_c[0] + v * ori_s[0]
-                                ob = 1
-                                for j in range(1, n_ob):
-                                    pr = u * ori_c[j] + v * ori_s[j]
-                                    if pr > best:
-                                        best = pr
-                                        ob = j + 1
-                            exb[x] = ob
+                            jxx[x] = ring_xx[sl, x]
+                            jyy[x] = ring_yy[sl, x]
+                            jxy[x] = ring_xy[sl, x]
+                        for dy in range(ph + 1, S):
+                            sl = (i + dy) % S
+                            for x in range(tw):
+                                jxx[x] += ring_xx[sl, x]
+                                jyy[x] += ring_yy[sl, x]
+                                jxy[x] += ring_xy[sl, x]
+                        for x in range(tw):
+                            u = jxx[x] - jyy[x]
+                            v = np.float32(2.0) * jxy[x]
+                            tt = jxx[x] + jyy[x]
+                            jxx[x] = u
+                            jyy[x] = v
+                            jxy[x] = u * u + v * v - coh2 * (tt * tt)  # > 0: oriented
+                            bst[x] = u * ori_c[0] + v * ori_s[0]
+                            exb[x] = 1
+                        for j in range(1, n_ob):
+                            cj = ori_c[j]
+                            sj = ori_s[j]
+                            for x in range(tw):
+                                pr = jxx[x] * cj + jyy[x] * sj
+                                take = pr > bst[x]
+                                bst[x] = pr if take else bst[x]
+                                exb[x] = np.int32(j + 1) if take else exb[x]
+                        for x in range(tw):
+                            exb[x] = exb[x] if jxy[x] > np.float32(0.0) else np.int32(0)
                     if n_cx > 1:
+                        # context guide: rows interpolated once per row, columns per pixel
+                        yy = y0 + i0 + i
+                        r0 = ctx_r0[yy]
+                        r1 = ctx_r1[yy]
+                        wy = ctx_wy[yy]
+                        for j in range(ctx.shape[1]):
+                            crow[j] = ctx[r0, j] * (np.float32(1.0) - wy) + ctx[r1, j] * wy
                         for x in range(tw):
-                            cv = ctx[i0 + i, x0 + x]
-                            if ctx_mode == 2:
-                                cv = max(lev[x], np.float32(0.0)) / (max(cv, np.float32(0.0))
-                                                                     + ctx_eps)
-                            xb = 0
-                            for j in range(n_cx - 1):
-                                xb += np.int32(cv >= xcuts[j])
-                            exb[x] = exb[x] * n_cx + xb
+                            xx = x0 + x
+                            wx = ctx_wx[xx]
+                            bst[x] = (crow[ctx_c0[xx]] * (np.float32(1.0) - wx)
+                                      + crow[ctx_c1[xx]] * wx)
+                        if ctx_mode == 2:
+                            for x in range(tw):
+                                bst[x] = max(lev[x], np.float32(0.0)) / (
+                                    max(bst[x], np.float32(0.0)) + ctx_eps)
+                        for x in range(tw):
+                            exb[x] = exb[x] * n_cx
+                        for j in range(n_cx - 1):
+                            cj = xcuts[j]
+                            for x in range(tw):
+                                exb[x] += np.int32(bst[x] >= cj)
                     for x in range(tw):
                         clsr[x] = clsr[x] * (n_or * n_cx) + exb[x]
                 if mode == MODE_CLASSES:
@@ -436,6 +465,8 @@ def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tup
 _NO_F32 = np.zeros((1, 1), dtype=np.float32)
 _NO_I32 = np.zeros((1, 1), dtype=np.int32)
 _NO_OUT = np.zeros(1, dtype=np.float32)
+_NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
+                         *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
 
 
 def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
@@ -481,12 +512,12 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
                                                                          _NO_I32)
     K = kernels if kernels is not None else _NO_F32
     outf = out.reshape(-1) if out is not None else _NO_OUT
-    ctx = _NO_F32
+    guide = _NO_GUIDE
     if definition.context_block and mode != MODE_FEATURES:
-        ctx = context_map(mosaic, definition.cfa, definition.context_block, rows=(y0, y1))
+        guide = context_guide(mosaic, definition.cfa, definition.context_block)
     with _slp_vectorize():
-        _tile_kernel(S)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, ctx, mode, cls_o, lev_o,
-                        con_o, sat_o, K, n_out, outf)
+        _tile_kernel(S, pw)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o,
+                            lev_o, con_o, sat_o, K, n_out, outf)
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,
