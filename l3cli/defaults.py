@@ -24,6 +24,10 @@ CONTEXT_BLOCK = 0
 CONTEXT_BINS = 3
 #: Context feature: ``"mean"`` (the guide) or ``"ratio"`` (patch level / guide).
 CONTEXT_RULE = "ratio"
+#: Highlight bins (0 = off, 2 = below / at least HIGHLIGHT_FRACTION of the patch saturated).
+HIGHLIGHT_BINS = 0
+#: Fraction of a patch's pixels saturated that makes it a strong highlight.
+HIGHLIGHT_FRACTION = 0.25
 #: Normalised raw value at or above which a pixel counts as saturated.
 SATURATION = 0.95
 #: Share classes between CFA positions whose patch layouts coincide.

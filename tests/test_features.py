@@ -220,3 +220,19 @@ def test_features_off_keep_the_layout():
     d = ClassDefinition.build("RGGB", level_cuts=[0.01, 0.1], contrast_cuts=0.2)
     assert d.n_texture == d.n_contrast and "orientation_bins" not in d.to_dict()
     assert int(d.class_index(1, 0, 2, 1)) == ((1 * 8 + 0) * 3 + 2) * 2 + 1
+
+
+# ---------------------------------------------------------------- highlights
+def test_highlight_bin_counts_saturated_pixels():
+    rng = np.random.default_rng(4)
+    m = (0.3 + 0.3 * rng.random((40, 40))).astype(np.float32)
+    m[rng.random((40, 40)) < 0.3] = 1.0  # clipped pixels scattered over the image
+    d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.01, 0.1], highlight_bins=2,
+                              highlight_fraction=0.25)
+    hl = np.asarray(d.texture_tuple(np.asarray(d.class_tuple(classify(m, d))[3]))[3])
+    sat = (m >= d.saturation_threshold).astype(np.int64)
+    for y in range(2, 38):
+        for x in range(2, 38):
+            n = sat[y - 2:y + 3, x - 2:x + 3].sum()
+            assert hl[y, x] == int(n >= 0.25 * 25), (y, x, n)
+    assert 0 < hl.mean() < 1

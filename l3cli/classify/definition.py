@@ -83,10 +83,16 @@ class ClassDefinition:
         float64 (n_context - 1,): increasing cut points of the context feature.
     context_rule
         ``"mean"`` (the guide) or ``"ratio"`` (patch level / guide).
+    highlight_bins
+        0 (off) or 2: bin 1 when at least ``highlight_fraction`` of the
+        patch's pixels are saturated (how much clips, beside which channels).
+    highlight_fraction
+        The fraction that separates the two highlight bins.
 
     The last class axis, *texture*, combines contrast, orientation and
     context: ``texture = (contrast * n_orientation + orientation) * n_context
-    + context`` (just the contrast bin when both extra features are off).
+    + context) * n_highlight + highlight`` (just the contrast bin when the extra
+    features are off).
 
     Examples
     --------
@@ -115,6 +121,8 @@ class ClassDefinition:
     context_block: int = 0
     context_cuts: np.ndarray = field(default_factory=lambda: np.zeros(0))
     context_rule: str = "mean"
+    highlight_bins: int = 0
+    highlight_fraction: float = 0.0
     _tables: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -183,6 +191,12 @@ class ClassDefinition:
         if self.context_rule not in CONTEXT_RULES:
             raise ConfigError(f"context rule {self.context_rule!r} is not known; use one of "
                               f"{', '.join(CONTEXT_RULES)}")
+        if self.highlight_bins not in (0, 2):
+            raise ConfigError(f"highlight bins {self.highlight_bins} is not allowed; use 0 or 2")
+        if self.highlight_bins and not 0.0 < self.highlight_fraction <= 1.0:
+            raise ConfigError(f"highlight fraction {self.highlight_fraction} must be in (0, 1]")
+        object.__setattr__(self, "highlight_bins", int(self.highlight_bins))
+        object.__setattr__(self, "highlight_fraction", float(self.highlight_fraction))
         object.__setattr__(self, "orientation_bins", nb)
         object.__setattr__(self, "coherence_threshold", float(self.coherence_threshold))
         object.__setattr__(self, "context_block", blk)
@@ -209,6 +223,8 @@ class ClassDefinition:
         context_block: int = 0,
         context_cuts: np.ndarray | None = None,
         context_rule: str = "mean",
+        highlight_bins: int = 0,
+        highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
     ) -> ClassDefinition:
         """Build a definition; ``contrast_cuts`` may be one threshold for all levels.
 
@@ -239,6 +255,8 @@ class ClassDefinition:
             context_block=int(context_block),
             context_cuts=np.zeros(0) if context_cuts is None else np.asarray(context_cuts),
             context_rule=context_rule,
+            highlight_bins=int(highlight_bins),
+            highlight_fraction=float(highlight_fraction) if highlight_bins else 0.0,
         )
 
     @property
@@ -262,9 +280,18 @@ class ClassDefinition:
         return int(self.context_cuts.size + 1) if self.context_block else 1
 
     @property
+    def n_highlight(self) -> int:
+        """Highlight bins (1 when off)."""
+        return self.highlight_bins or 1
+
+    @property
+    def _texture_shape(self) -> tuple[int, int, int, int]:
+        return (self.n_contrast, self.n_orientation, self.n_context, self.n_highlight)
+
+    @property
     def n_texture(self) -> int:
-        """Entries of the last class axis: contrast x orientation x context bins."""
-        return self.n_contrast * self.n_orientation * self.n_context
+        """Entries of the last class axis: contrast x orientation x context x highlight bins."""
+        return self.n_contrast * self.n_orientation * self.n_context * self.n_highlight
 
     @property
     def n_groups(self) -> int:
@@ -296,10 +323,11 @@ class ClassDefinition:
 
     def class_index(self, group: ArrayLike, sat: ArrayLike, level: ArrayLike,
                     contrast: ArrayLike, orientation: ArrayLike = 0,
-                    context: ArrayLike = 0) -> np.ndarray:
-        """Flat class index of (group, saturation pattern, level, contrast[, orientation, context])."""
-        tex = np.ravel_multi_index((contrast, orientation, context),
-                                   (self.n_contrast, self.n_orientation, self.n_context))
+                    context: ArrayLike = 0, highlight: ArrayLike = 0) -> np.ndarray:
+        """Flat class index of (group, saturation pattern, level, contrast[, orientation,
+        context, highlight])."""
+        tex = np.ravel_multi_index((contrast, orientation, context, highlight),
+                                   self._texture_shape)
         return np.ravel_multi_index((group, sat, level, tex), self.shape)
 
     def class_tuple(self, index: ArrayLike) -> tuple[np.ndarray, ...]:
@@ -307,8 +335,8 @@ class ClassDefinition:
         return np.unravel_index(index, self.shape)
 
     def texture_tuple(self, texture: ArrayLike) -> tuple[np.ndarray, ...]:
-        """(contrast, orientation, context) of texture indices."""
-        return np.unravel_index(texture, (self.n_contrast, self.n_orientation, self.n_context))
+        """(contrast, orientation, context, highlight) of texture indices."""
+        return np.unravel_index(texture, self._texture_shape)
 
     def texture_permutation(self, matrix: np.ndarray) -> np.ndarray:
         """int64 (n_texture,): texture index of each texture bin after a D4 move of the patch.
@@ -319,13 +347,13 @@ class ClassDefinition:
         from l3cli.classify.features import orientation_permutation
 
         perm = orientation_permutation(matrix, self.orientation_bins)
-        c, o, x = self.texture_tuple(np.arange(self.n_texture))
-        return np.asarray(self.class_index(0, 0, 0, c, perm[o], x), dtype=np.int64)
+        c, o, x, hl = self.texture_tuple(np.arange(self.n_texture))
+        return np.asarray(self.class_index(0, 0, 0, c, perm[o], x, hl), dtype=np.int64)
 
     @property
     def has_extra_features(self) -> bool:
         """True when orientation or context is on."""
-        return bool(self.orientation_bins or self.context_block)
+        return bool(self.orientation_bins or self.context_block or self.highlight_bins)
 
     def same_as(self, other: ClassDefinition) -> bool:
         """True when both definitions give every pixel the same class."""
@@ -345,6 +373,8 @@ class ClassDefinition:
             and self.context_block == other.context_block
             and np.array_equal(self.context_cuts, other.context_cuts)
             and self.context_rule == other.context_rule
+            and self.highlight_bins == other.highlight_bins
+            and self.highlight_fraction == other.highlight_fraction
         )
 
     # ---------------------------------------------------- cached tables
@@ -384,6 +414,9 @@ class ClassDefinition:
             out["context_block"] = np.array(self.context_block, dtype=np.int64)
             out["context_cuts"] = self.context_cuts.astype(np.float64)
             out["context_rule"] = np.array(self.context_rule)
+        if self.highlight_bins:
+            out["highlight_bins"] = np.array(self.highlight_bins, dtype=np.int64)
+            out["highlight_fraction"] = np.array(self.highlight_fraction, dtype=np.float64)
         return out
 
 
@@ -408,6 +441,8 @@ def describe_difference(a: ClassDefinition, b: ClassDefinition) -> str:
     if a.context_block != b.context_block or a.context_rule != b.context_rule or \
             not np.array_equal(a.context_cuts, b.context_cuts):
         diffs.append("context bins")
+    if (a.highlight_bins, a.highlight_fraction) != (b.highlight_bins, b.highlight_fraction):
+        diffs.append("highlight bins")
     if a.contrast_eps != b.contrast_eps or a.contrast_rule != b.contrast_rule \
             or a.saturation_rule != b.saturation_rule:
         diffs.append("classification rules")

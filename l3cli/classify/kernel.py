@@ -93,6 +93,10 @@ class KernelTables(NamedTuple):
     xcuts: np.ndarray
     #: float32 ``eps`` of the ratio rule.
     ctx_eps: np.float32
+    #: Highlight bins (1 = off).
+    n_hl: int
+    #: float32 saturated pixels per patch from which a patch is a strong highlight.
+    hl_cnt: np.float32
 
 
 def kernel_tables(definition: ClassDefinition) -> KernelTables:
@@ -125,6 +129,8 @@ def kernel_tables(definition: ClassDefinition) -> KernelTables:
             n_or=int(definition.n_orientation), ori_c=oc, ori_s=os_,
             coh2=np.float32(definition.coherence_threshold ** 2), ctx_mode=int(ctx_mode),
             xcuts=xcuts, ctx_eps=np.float32(CONTEXT_EPS),
+            n_hl=int(definition.n_highlight),
+            hl_cnt=np.float32(np.ceil(definition.highlight_fraction * s * s - 1e-9)),
         )
     return tables["kernel"]
 
@@ -169,7 +175,8 @@ def _tile_kernel(S: int, PW: int):
     @nb.njit(cache=True, parallel=True)
     def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
                lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
-               xcuts, ctx_eps, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx, mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf):
+               xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
+               mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -179,7 +186,8 @@ def _tile_kernel(S: int, PW: int):
         ccf = ccuts.ravel()
         n_cx = xcuts.shape[0] + 1 if ctx_mode else 1
         n_ob = ori_c.shape[0]
-        extra = n_or > 1 or n_cx > 1
+        extra = n_or > 1 or n_cx > 1 or n_hl > 1
+        n_ext = n_or * n_cx * n_hl
         twp_max = tc + S - 1
         # along-row tables in tile coordinates (tile columns start at multiples of pw)
         mask = np.zeros((ph, nch, twp_max), dtype=np.float32)
@@ -251,6 +259,8 @@ def _tile_kernel(S: int, PW: int):
             gyy = np.empty(twp, dtype=np.float32)
             gxy = np.empty(twp, dtype=np.float32)
             exb = np.empty(tw, dtype=np.int32)
+            ring_n = np.empty((S if n_hl > 1 else 1, tw), dtype=np.float32)
+            ind = np.empty(twp, dtype=np.float32)
             jxx = np.empty(tw, dtype=np.float32)
             jyy = np.empty(tw, dtype=np.float32)
             jxy = np.empty(tw, dtype=np.float32)
@@ -281,6 +291,14 @@ def _tile_kernel(S: int, PW: int):
                     for dx in range(1, S):
                         b |= bits[x + dx]
                     ring_b[slot, x] = b
+                if n_hl > 1:  # saturated pixels per row window
+                    for xx in range(twp):
+                        ind[xx] = np.float32(1.0) if pb[k, xx] >= sat_thr else np.float32(0.0)
+                    for x in range(tw):
+                        a = ind[x]
+                        for dx in range(1, S):
+                            a += ind[x + dx]
+                        ring_n[slot, x] = a
                 if n_or > 1 and k >= ph:
                     # quads of band rows k - ph and k: same-colour differences
                     for xx in range(twp - PW):
@@ -421,8 +439,17 @@ def _tile_kernel(S: int, PW: int):
                             cj = xcuts[j]
                             for x in range(tw):
                                 exb[x] += np.int32(bst[x] >= cj)
+                    if n_hl > 1:
+                        for x in range(tw):
+                            bst[x] = ring_n[i % S, x]
+                        for dy in range(1, S):
+                            sl = (i + dy) % S
+                            for x in range(tw):
+                                bst[x] += ring_n[sl, x]
+                        for x in range(tw):
+                            exb[x] = exb[x] * n_hl + np.int32(bst[x] >= hl_cnt)
                     for x in range(tw):
-                        clsr[x] = clsr[x] * (n_or * n_cx) + exb[x]
+                        clsr[x] = clsr[x] * n_ext + exb[x]
                 if mode == MODE_CLASSES:
                     for x in range(tw):
                         out_cls[i0 + i, x0 + x] = clsr[x]

@@ -72,6 +72,13 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @click.option("--context-rule", type=click.Choice(["mean", "ratio"]),
               default=defaults.CONTEXT_RULE, show_default=True,
               help="Context feature: the guide's level, or the patch level relative to it.")
+@click.option("--highlight-bins", type=click.Choice(["0", "2"]),
+              default=str(defaults.HIGHLIGHT_BINS), show_default=True,
+              help="2 = split the classes by how much of the patch clips (at least "
+                   "--highlight-fraction of its pixels saturated, or less); 0 = off.")
+@click.option("--highlight-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
+              default=defaults.HIGHLIGHT_FRACTION, show_default=True,
+              help="Fraction of saturated patch pixels that makes a strong highlight.")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -83,7 +90,9 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           scheduler: str | None = None, orientation_bins: int = defaults.ORIENTATION_BINS,
           coherence: float = defaults.COHERENCE, context_block: int = defaults.CONTEXT_BLOCK,
           context_bins: int = defaults.CONTEXT_BINS,
-          context_rule: str = defaults.CONTEXT_RULE) -> None:
+          context_rule: str = defaults.CONTEXT_RULE,
+          highlight_bins: str = str(defaults.HIGHLIGHT_BINS),
+          highlight_fraction: float = defaults.HIGHLIGHT_FRACTION) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -112,7 +121,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         min_samples_factor=min_samples_factor,
                         orientation_bins=orientation_bins, coherence=coherence,
                         context_block=context_block, context_bins=context_bins,
-                        context_rule=context_rule)
+                        context_rule=context_rule, highlight_bins=int(highlight_bins),
+                        highlight_fraction=highlight_fraction)
     show = not quiet()
     table = train_table(pairs, opts, workers=workers, scheduler=scheduler, show_progress=show)
     save_table(output, table)

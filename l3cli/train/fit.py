@@ -62,7 +62,9 @@ class TrainOptions:
                  coherence: float = defaults.COHERENCE,
                  context_block: int = defaults.CONTEXT_BLOCK,
                  context_bins: int = defaults.CONTEXT_BINS,
-                 context_rule: str = defaults.CONTEXT_RULE) -> None:
+                 context_rule: str = defaults.CONTEXT_RULE,
+                 highlight_bins: int = defaults.HIGHLIGHT_BINS,
+                 highlight_fraction: float = defaults.HIGHLIGHT_FRACTION) -> None:
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
@@ -83,6 +85,11 @@ class TrainOptions:
                               "or a block size in pixels")
         if context_block and context_bins < 2:
             raise ConfigError(f"--context-bins {context_bins} is not allowed; use 2 or more")
+        if highlight_bins not in (0, 2):
+            raise ConfigError(f"--highlight-bins {highlight_bins} is not allowed; use 0 or 2")
+        if not 0.0 < highlight_fraction <= 1.0:
+            raise ConfigError(f"--highlight-fraction {highlight_fraction} is not allowed; "
+                              "use (0, 1]")
         self.patch = check_patch(patch, "--patch")
         self.levels = int(levels)
         self.spacing = spacing
@@ -101,6 +108,8 @@ class TrainOptions:
         self.context_block = int(context_block)
         self.context_bins = int(context_bins)
         self.context_rule = context_rule
+        self.highlight_bins = int(highlight_bins)
+        self.highlight_fraction = float(highlight_fraction)
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance).
@@ -114,6 +123,8 @@ class TrainOptions:
             del d["orientation_bins"], d["coherence"]
         if not self.context_block:
             del d["context_block"], d["context_bins"], d["context_rule"]
+        if not self.highlight_bins:
+            del d["highlight_bins"], d["highlight_fraction"]
         return d
 
 
@@ -304,7 +315,9 @@ def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
                                  orientation_bins=opts.orientation_bins,
                                  coherence_threshold=opts.coherence,
                                  context_block=opts.context_block, context_cuts=xcuts,
-                                 context_rule=opts.context_rule)
+                                 context_rule=opts.context_rule,
+                                 highlight_bins=opts.highlight_bins,
+                                 highlight_fraction=opts.highlight_fraction)
 
 
 def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: TrainOptions, *,
