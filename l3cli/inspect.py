@@ -64,7 +64,8 @@ def class_rows(table: TransformTable) -> list[dict[str, Any]]:
     samples, λ per output, status (``trained``, ``filled:<prior>`` or ``empty``)
     and source class."""
     d = table.definition
-    g, s, lev, con = (np.asarray(a) for a in d.class_tuple(np.arange(d.n_classes)))
+    g, s, lev, tex = (np.asarray(a) for a in d.class_tuple(np.arange(d.n_classes)))
+    con, ori, ctx, hl = (np.asarray(a) for a in d.texture_tuple(tex))
     filled = _filled(table)
     members = {gg: np.flatnonzero(d.position_group == gg).tolist() for gg in range(d.n_groups)}
     rows = []
@@ -80,6 +81,8 @@ def class_rows(table: TransformTable) -> list[dict[str, Any]]:
             "class": i, "group": int(g[i]), "positions": members[int(g[i])],
             "saturation": saturation_name(int(s[i]), d.cfa.channels),
             "level": int(lev[i]), "contrast": int(con[i]),
+            **({"orientation": int(ori[i]), "context": int(ctx[i]), "highlight": int(hl[i])}
+               if d.has_extra_features else {}),
             "samples": int(table.counts[i]),
             "lambda": [None if not np.isfinite(v) else float(v) for v in lam],
             "status": status, "source": int(table.source_class[i]),
