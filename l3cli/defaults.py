@@ -27,6 +27,20 @@ LEVELS = SIMULATION_LAYOUT["levels"]
 LEVEL_SPACING = "log"
 #: Contrast bins per level (library default; 2 = flat / textured).
 CONTRAST_BINS = SIMULATION_LAYOUT["contrast_bins"]
+#: Edge-angle bins of the orientation class dimension (0 = off; even).
+ORIENTATION_BINS = 0
+#: Structure-tensor coherence at or below which a patch counts as isotropic.
+COHERENCE = 0.5
+#: Block size (pixels) of the context guide (0 = no context dimension).
+CONTEXT_BLOCK = 0
+#: Context bins (quantiles of the training data's context feature).
+CONTEXT_BINS = 3
+#: Context feature: ``"mean"`` (the guide) or ``"ratio"`` (patch level / guide).
+CONTEXT_RULE = "ratio"
+#: Highlight bins (0 = off, 2 = below / at least HIGHLIGHT_FRACTION of the patch saturated).
+HIGHLIGHT_BINS = 0
+#: Fraction of a patch's pixels saturated that makes it a strong highlight.
+HIGHLIGHT_FRACTION = 0.25
 #: Normalised raw value at or above which a pixel counts as saturated.
 SATURATION = 0.95
 #: Share classes between CFA positions whose patch layouts coincide.

@@ -64,7 +64,8 @@ def class_rows(table: TransformTable) -> list[dict[str, Any]]:
     samples, λ per output, status (``trained``, ``filled:<prior>`` or ``empty``)
     and source class."""
     d = table.definition
-    g, s, lev, con = (np.asarray(a) for a in d.class_tuple(np.arange(d.n_classes)))
+    g, s, lev, tex = (np.asarray(a) for a in d.class_tuple(np.arange(d.n_classes)))
+    con, ori, ctx, hl = (np.asarray(a) for a in d.texture_tuple(tex))
     filled = _filled(table)
     members = {gg: np.flatnonzero(d.position_group == gg).tolist() for gg in range(d.n_groups)}
     rows = []
@@ -80,6 +81,8 @@ def class_rows(table: TransformTable) -> list[dict[str, Any]]:
             "class": i, "group": int(g[i]), "positions": members[int(g[i])],
             "saturation": saturation_name(int(s[i]), d.cfa.channels),
             "level": int(lev[i]), "contrast": int(con[i]),
+            **({"orientation": int(ori[i]), "context": int(ctx[i]), "highlight": int(hl[i])}
+               if d.has_extra_features else {}),
             "samples": int(table.counts[i]),
             "lambda": [None if not np.isfinite(v) else float(v) for v in lam],
             "status": status, "source": int(table.source_class[i]),
@@ -147,7 +150,10 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "patch": d.patch,
         "layout": {
             "groups": [np.flatnonzero(d.position_group == gg).tolist() for gg in range(ng)],
-            "saturation_patterns": ns, "levels": nl, "contrast_bins": nc,
+            "saturation_patterns": ns, "levels": nl, "contrast_bins": d.n_contrast,
+            **({"orientation_bins": d.n_orientation, "context_bins": d.n_context,
+                "highlight_bins": d.n_highlight, "texture_bins": nc}
+               if d.has_extra_features else {}),
             "classes": d.n_classes, "coefficients": d.n_coeffs,
             "level_spacing": d.level_spacing, "saturation_threshold": d.saturation_threshold,
             "contrast_rule": d.contrast_rule, "saturation_rule": d.saturation_rule,
@@ -211,7 +217,9 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
            f"({lay['coefficients']} coefficients per output)",
            f"classes: {lay['classes']} = {len(lay['groups'])} position groups x "
            f"{lay['saturation_patterns']} saturation patterns x {lay['levels']} levels x "
-           f"{lay['contrast_bins']} contrast bins",
+           f"{lay['contrast_bins']} contrast bins"
+           + (f" x {lay['orientation_bins']} orientation x {lay['context_bins']} context x "
+              f"{lay['highlight_bins']} highlight bins" if "texture_bins" in lay else ""),
            "position groups: " + "; ".join(f"{i}: {g}" for i, g in enumerate(lay["groups"])),
            f"saturation threshold {lay['saturation_threshold']:g} ({lay['saturation_rule']}), "
            f"contrast rule {lay['contrast_rule']}",

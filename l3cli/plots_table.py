@@ -131,7 +131,7 @@ def plot_kernels(table: TransformTable, out_dir: str | os.PathLike, *,
                                  squeeze=False)
         fig.subplots_adjust(left=0.03, right=0.90, top=1 - 0.5 / (2.0 * ng + 0.6) - 0.03,
                             bottom=0.02, wspace=0.35, hspace=0.45)
-        cls = [int(d.class_index(g, sat, lev, contrast)) for g in range(ng)]
+        cls = [int(np.ravel_multi_index((g, sat, lev, contrast), d.shape)) for g in range(ng)]
         for o in range(table.n_out):
             vmax = float(np.abs(table.kernels[cls, :-1, o]).max()) or 1.0
             for g in range(ng):
@@ -163,7 +163,7 @@ def _curves(table: TransformTable, g: int, sat: int, contrast: int):
 
     d = table.definition
     ng, ns, nl, nc = d.shape
-    idx = np.array([d.class_index(g, sat, lv, contrast) for lv in range(nl)])
+    idx = np.array([np.ravel_multi_index((g, sat, lv, contrast), d.shape) for lv in range(nl)])
     k = table.kernels[idx].astype(np.float64)
     sums = channel_sums(table.kernels, d)[idx]  # (nl, nch, n_out)
     centre = (d.patch * d.patch) // 2

@@ -229,6 +229,30 @@ def _scalar(arrs, key, path, kind):
     return str(a) if kind == "U" else (int(a) if kind == "i" else float(a))
 
 
+def _extra_features(arrs, path) -> dict:
+    """The optional class features of a table (absent in tables without them)."""
+    out: dict = {}
+    need = {"orientation_bins": ("coherence_threshold", "orientation_rule"),
+            "context_block": ("context_cuts", "context_rule"),
+            "highlight_bins": ("highlight_fraction",)}
+    for key, others in need.items():
+        lacking = [k for k in others if key in arrs and k not in arrs]
+        if lacking:
+            raise TableError(f"{path}: damaged table, missing keys {', '.join(lacking)}")
+    if "orientation_bins" in arrs:
+        out["orientation_bins"] = _scalar(arrs, "orientation_bins", path, "i")
+        out["coherence_threshold"] = _scalar(arrs, "coherence_threshold", path, "f")
+        out["orientation_rule"] = _scalar(arrs, "orientation_rule", path, "U")
+    if "context_block" in arrs:
+        out["context_block"] = _scalar(arrs, "context_block", path, "i")
+        out["context_cuts"] = np.asarray(arrs["context_cuts"], dtype=np.float64)
+        out["context_rule"] = _scalar(arrs, "context_rule", path, "U")
+    if "highlight_bins" in arrs:
+        out["highlight_bins"] = _scalar(arrs, "highlight_bins", path, "i")
+        out["highlight_fraction"] = _scalar(arrs, "highlight_fraction", path, "f")
+    return out
+
+
 def load_table(path: str | os.PathLike) -> TransformTable:
     """Read and validate a table written by :func:`save_table`.
 
@@ -290,6 +314,7 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             contrast_eps=_scalar(arrs, "contrast_eps", path, "f"),
             contrast_rule=_scalar(arrs, "contrast_rule", path, "U"),
             saturation_rule=_scalar(arrs, "saturation_rule", path, "U"),
+            **_extra_features(arrs, path),
         )
     except (ConfigError, TableError) as exc:
         raise TableError(f"{path}: bad class definition: {exc}") from exc

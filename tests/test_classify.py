@@ -235,9 +235,12 @@ def test_kernel_tables_follow_the_kernel_arguments():
     """KernelTables is the documented layout of the kernel's definition arguments."""
     import inspect
 
+    from l3cli.classify.features import ContextGuide
     from l3cli.classify.kernel import KernelTables, _tile_kernel, kernel_tables
 
-    names = list(inspect.signature(_tile_kernel(5).py_func).parameters)
-    assert names[names.index("tc") + 1 : names.index("mode")] == list(KernelTables._fields)
+    names = list(inspect.signature(_tile_kernel(5, 2).py_func).parameters)
+    assert names[names.index("tc") + 1 : names.index("ctx")] == list(KernelTables._fields)
+    # then the image's context guide (ctx = its grid)
+    assert len(names[names.index("ctx") : names.index("mode")]) == len(ContextGuide._fields)
     t = kernel_tables(ClassDefinition.build("RGGB", level_cuts=[0.01, 0.1]))
     assert t.n_sat == 8 and t.group.tolist() == [0, 1, 2, 3] and t.idx_pattern.shape == (2, 2)

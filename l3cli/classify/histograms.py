@@ -7,11 +7,12 @@ the level range and the per-level contrast thresholds.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from l3cli.cfa import CFA
+from l3cli.classify.features import context_feature, context_map
 from l3cli.classify.kernel import patch_features
 from l3cli.errors import InputError
 
@@ -20,6 +21,7 @@ __all__ = ["ContrastHistogram"]
 #: Fine log bins used to learn cut points from training data (additive).
 _LEVEL_EDGES = np.geomspace(1e-6, 2.0, 531)  # ~100 bins per decade
 _CONTRAST_EDGES = np.geomspace(1e-4, 1e2, 301)  # 50 bins per decade
+_CONTEXT_EDGES = np.geomspace(1e-6, 1e3, 901)  # 100 bins per decade
 
 
 @dataclass
@@ -32,6 +34,10 @@ class ContrastHistogram:
     """
 
     counts: np.ndarray  # int64 (len(_LEVEL_EDGES)+1, len(_CONTRAST_EDGES)+1)
+    #: int64 (len(_CONTEXT_EDGES)+1,): the context feature of the same patches
+    #: (all zero unless ``add_mosaic`` was given a context block).
+    context: np.ndarray = field(
+        default_factory=lambda: np.zeros(_CONTEXT_EDGES.size + 1, dtype=np.int64))
 
     @classmethod
     def empty(cls) -> ContrastHistogram:
@@ -39,16 +45,27 @@ class ContrastHistogram:
         return cls(np.zeros((_LEVEL_EDGES.size + 1, _CONTRAST_EDGES.size + 1), dtype=np.int64))
 
     def __add__(self, other: ContrastHistogram) -> ContrastHistogram:
-        return ContrastHistogram(self.counts + other.counts)
+        return ContrastHistogram(self.counts + other.counts, self.context + other.context)
 
     def add_mosaic(self, mosaic: np.ndarray, cfa: CFA, *, patch: int,
-                   saturation_threshold: float, mask: np.ndarray | None = None) -> None:
-        """Add the patches of one mosaic (optionally only where ``mask``)."""
+                   saturation_threshold: float, mask: np.ndarray | None = None,
+                   context_block: int = 0, context_rule: str = "mean") -> None:
+        """Add the patches of one mosaic (optionally only where ``mask``).
+
+        With ``context_block`` the context feature
+        (:func:`~l3cli.classify.features.context_feature`) is counted too.
+        """
         lev, con, sat = patch_features(mosaic, cfa, patch=patch,
                                        saturation_threshold=saturation_threshold)
         keep = sat == 0
         if mask is not None:
             keep &= mask
+        if context_block:
+            ctx = context_map(np.ascontiguousarray(mosaic, dtype=np.float32), cfa,
+                              context_block)
+            feat = context_feature(lev[keep], ctx[keep], context_rule)
+            self.context += np.bincount(np.searchsorted(_CONTEXT_EDGES, feat, side="right"),
+                                        minlength=self.context.size)
         li = np.searchsorted(_LEVEL_EDGES, lev[keep], side="right")
         ci = np.searchsorted(_CONTRAST_EDGES, con[keep], side="right")
         flat = li * (_CONTRAST_EDGES.size + 1) + ci
@@ -78,6 +95,23 @@ class ContrastHistogram:
             if hi <= lo:
                 lo = hi / 10.0
         return lo, hi
+
+    def context_cuts(self, n_bins: int) -> np.ndarray:
+        """``n_bins - 1`` cut points at the quantiles k/n_bins of the context feature.
+
+        Raises
+        ------
+        InputError
+            No patches were counted with a context block.
+        """
+        tot = self.context.astype(np.float64)
+        if tot.sum() == 0:
+            raise InputError("no unsaturated patches to place the context bins")
+        cdf = np.cumsum(tot) / tot.sum()
+        qs = np.arange(1, n_bins) / n_bins
+        idx = [min(int(np.searchsorted(cdf, q)), _CONTEXT_EDGES.size - 1) for q in qs]
+        cuts = np.unique(_CONTEXT_EDGES[idx])  # upper edge of the bin holding quantile q
+        return cuts
 
     def contrast_cuts(self, level_cuts: np.ndarray, n_contrast: int) -> np.ndarray:
         """Per level bin, thresholds at the quantiles k/n_contrast of the contrast."""

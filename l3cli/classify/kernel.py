@@ -29,6 +29,13 @@ import numpy as np  # noqa: E402
 from l3cli import defaults  # noqa: E402
 from l3cli.cfa import CFA  # noqa: E402
 from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # noqa: E402
+from l3cli.classify.features import (  # noqa: E402
+    CONTEXT_EPS,
+    CONTEXT_RULES,
+    ContextGuide,
+    context_guide,
+    orientation_centres,
+)
 from l3cli.classify.levels import level_lookup  # noqa: E402
 from l3cli.errors import InputError  # noqa: E402
 from l3cli.render_rows import render_row4, render_row_any  # noqa: E402
@@ -72,6 +79,24 @@ class KernelTables(NamedTuple):
     eps: np.float32
     #: Number of saturation patterns, ``2 ** n_channels``.
     n_sat: int
+    #: Entries of the orientation axis (1 = off).
+    n_or: int
+    #: float32 (max(N, 1),): cos 2θ_j of the angle-bin centres.
+    ori_c: np.ndarray
+    #: float32 (max(N, 1),): sin 2θ_j of the angle-bin centres.
+    ori_s: np.ndarray
+    #: float32 squared coherence threshold.
+    coh2: np.float32
+    #: 0 = no context, 1 = the guide, 2 = patch level / guide.
+    ctx_mode: int
+    #: float32 (n_context - 1,) context cut points (one unused entry when off).
+    xcuts: np.ndarray
+    #: float32 ``eps`` of the ratio rule.
+    ctx_eps: np.float32
+    #: Highlight bins (1 = off).
+    n_hl: int
+    #: float32 saturated pixels per patch from which a patch is a strong highlight.
+    hl_cnt: np.float32
 
 
 def kernel_tables(definition: ClassDefinition) -> KernelTables:
@@ -88,6 +113,12 @@ def kernel_tables(definition: ClassDefinition) -> KernelTables:
             cnt_inv[p, present] = 1.0 / counts[present]
             wc[p, present] = 1.0 / present.sum()
         lut = level_lookup(definition.level_cuts)
+        nb_or = definition.orientation_bins
+        oc, os_ = orientation_centres(nb_or) if nb_or else (np.zeros(1, np.float32),) * 2
+        ctx_mode = 0 if not definition.context_block else 1 + CONTEXT_RULES.index(
+            definition.context_rule)
+        xcuts = definition.context_cuts.astype(np.float32) if ctx_mode else np.zeros(
+            1, np.float32)
         tables["kernel"] = KernelTables(
             idx_pattern=cfa.index_pattern.astype(np.int64), cnt_inv=cnt_inv, wc=wc,
             group=definition.position_group.astype(np.int64), lut=lut.lut,
@@ -95,6 +126,11 @@ def kernel_tables(definition: ClassDefinition) -> KernelTables:
             ccuts=np.ascontiguousarray(definition.contrast_cuts, dtype=np.float32),
             sat_thr=np.float32(definition.saturation_threshold),
             eps=np.float32(definition.contrast_eps), n_sat=int(definition.n_saturation),
+            n_or=int(definition.n_orientation), ori_c=oc, ori_s=os_,
+            coh2=np.float32(definition.coherence_threshold ** 2), ctx_mode=int(ctx_mode),
+            xcuts=xcuts, ctx_eps=np.float32(CONTEXT_EPS),
+            n_hl=int(definition.n_highlight),
+            hl_cnt=np.float32(np.ceil(definition.highlight_fraction * s * s - 1e-9)),
         )
     return tables["kernel"]
 
@@ -117,11 +153,12 @@ def _slp_vectorize():
 
 
 @functools.cache
-def _tile_kernel(S: int):
+def _tile_kernel(S: int, PW: int):
     """The classifier (and renderer) compiled for patch size ``S``.
 
-    ``S`` is a compile-time constant, so the S-tap loops unroll and the loops
-    along a row vectorise. Parallel over tiles of ``_TILE_ROWS`` x
+    ``S`` (and the CFA period's width ``PW``, for the structure tensor's
+    ``S - PW``-tap sums) are compile-time constants, so the tap loops unroll
+    and the loops along a row vectorise. Parallel over tiles of ``_TILE_ROWS`` x
     ``_TILE_COLS`` output pixels; each tile copies its padded band from the
     mosaic (mirror indices at the image borders), reduces every band row to
     horizontal S-tap sums of ``x`` and ``x²`` per channel present in the row
@@ -137,8 +174,9 @@ def _tile_kernel(S: int):
 
     @nb.njit(cache=True, parallel=True)
     def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
-               lut_base, cuts, ccuts, sat_thr, eps, n_sat, mode, out_cls, out_lev, out_con,
-               out_sat, K, n_out, outf):
+               lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
+               xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
+               mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -146,6 +184,10 @@ def _tile_kernel(S: int):
         ncc = ccuts.shape[1]
         nlut = lut.shape[0]
         ccf = ccuts.ravel()
+        n_cx = xcuts.shape[0] + 1 if ctx_mode else 1
+        n_ob = ori_c.shape[0]
+        extra = n_or > 1 or n_cx > 1 or n_hl > 1
+        n_ext = n_or * n_cx * n_hl
         twp_max = tc + S - 1
         # along-row tables in tile coordinates (tile columns start at multiples of pw)
         mask = np.zeros((ph, nch, twp_max), dtype=np.float32)
@@ -205,6 +247,25 @@ def _tile_kernel(S: int):
             kbr = np.empty(tw, dtype=np.int32)
             ccr = np.empty(tw, dtype=np.float32)
             rows_c = np.empty(S, dtype=np.int64)
+            if n_or > 1:  # structure-tensor sums (see classify.features)
+                ring_xx = np.empty((S, tw), dtype=np.float32)
+                ring_yy = np.empty((S, tw), dtype=np.float32)
+                ring_xy = np.empty((S, tw), dtype=np.float32)
+            else:
+                ring_xx = np.empty((1, 1), dtype=np.float32)
+                ring_yy = ring_xx
+                ring_xy = ring_xx
+            gxx = np.empty(twp, dtype=np.float32)
+            gyy = np.empty(twp, dtype=np.float32)
+            gxy = np.empty(twp, dtype=np.float32)
+            exb = np.empty(tw, dtype=np.int32)
+            ring_n = np.empty((S if n_hl > 1 else 1, tw), dtype=np.float32)
+            ind = np.empty(twp, dtype=np.float32)
+            jxx = np.empty(tw, dtype=np.float32)
+            jyy = np.empty(tw, dtype=np.float32)
+            jxy = np.empty(tw, dtype=np.float32)
+            bst = np.empty(tw, dtype=np.float32)
+            crow = np.empty(ctx.shape[1], dtype=np.float32)
             for k in range(nbr):
                 slot = k % S
                 py = (y0 + i0 + k - r) % ph
@@ -230,6 +291,33 @@ def _tile_kernel(S: int):
                     for dx in range(1, S):
                         b |= bits[x + dx]
                     ring_b[slot, x] = b
+                if n_hl > 1:  # saturated pixels per row window
+                    for xx in range(twp):
+                        ind[xx] = np.float32(1.0) if pb[k, xx] >= sat_thr else np.float32(0.0)
+                    for x in range(tw):
+                        a = ind[x]
+                        for dx in range(1, S):
+                            a += ind[x + dx]
+                        ring_n[slot, x] = a
+                if n_or > 1 and k >= ph:
+                    # quads of band rows k - ph and k: same-colour differences
+                    for xx in range(twp - PW):
+                        gx = (pb[k - ph, xx + PW] - pb[k - ph, xx]) + (pb[k, xx + PW] - pb[k, xx])
+                        gy = (pb[k, xx] - pb[k - ph, xx]) + (pb[k, xx + PW] - pb[k - ph, xx + PW])
+                        gxx[xx] = gx * gx
+                        gyy[xx] = gy * gy
+                        gxy[xx] = gx * gy
+                    for x in range(tw):
+                        a = gxx[x]
+                        q = gyy[x]
+                        e = gxy[x]
+                        for dx in range(1, S - PW):
+                            a += gxx[x + dx]
+                            q += gyy[x + dx]
+                            e += gxy[x + dx]
+                        ring_xx[slot, x] = a
+                        ring_yy[slot, x] = q
+                        ring_xy[slot, x] = e
                 i = k - (S - 1)  # tile output row whose window is now complete
                 if i < 0:
                     continue
@@ -292,6 +380,76 @@ def _tile_kernel(S: int):
                         ccr[x] = ccf[kbr[x]]
                     for x in range(tw):
                         clsr[x] += np.int32(spr[x] >= ccr[x])
+                if extra:
+                    for x in range(tw):
+                        exb[x] = 0
+                    if n_or > 1:
+                        # structure tensor: vertical sums of the quad rows (vectorised
+                        # along the row), then the nearest angle-bin centre
+                        sl = (i + ph) % S
+                        for x in range(tw):
+                            jxx[x] = ring_xx[sl, x]
+                            jyy[x] = ring_yy[sl, x]
+                            jxy[x] = ring_xy[sl, x]
+                        for dy in range(ph + 1, S):
+                            sl = (i + dy) % S
+                            for x in range(tw):
+                                jxx[x] += ring_xx[sl, x]
+                                jyy[x] += ring_yy[sl, x]
+                                jxy[x] += ring_xy[sl, x]
+                        for x in range(tw):
+                            u = jxx[x] - jyy[x]
+                            v = np.float32(2.0) * jxy[x]
+                            tt = jxx[x] + jyy[x]
+                            jxx[x] = u
+                            jyy[x] = v
+                            jxy[x] = u * u + v * v - coh2 * (tt * tt)  # > 0: oriented
+                            bst[x] = u * ori_c[0] + v * ori_s[0]
+                            exb[x] = 1
+                        for j in range(1, n_ob):
+                            cj = ori_c[j]
+                            sj = ori_s[j]
+                            for x in range(tw):
+                                pr = jxx[x] * cj + jyy[x] * sj
+                                take = pr > bst[x]
+                                bst[x] = pr if take else bst[x]
+                                exb[x] = np.int32(j + 1) if take else exb[x]
+                        for x in range(tw):
+                            exb[x] = exb[x] if jxy[x] > np.float32(0.0) else np.int32(0)
+                    if n_cx > 1:
+                        # context guide: rows interpolated once per row, columns per pixel
+                        yy = y0 + i0 + i
+                        r0 = ctx_r0[yy]
+                        r1 = ctx_r1[yy]
+                        wy = ctx_wy[yy]
+                        for j in range(ctx.shape[1]):
+                            crow[j] = ctx[r0, j] * (np.float32(1.0) - wy) + ctx[r1, j] * wy
+                        for x in range(tw):
+                            xx = x0 + x
+                            wx = ctx_wx[xx]
+                            bst[x] = (crow[ctx_c0[xx]] * (np.float32(1.0) - wx)
+                                      + crow[ctx_c1[xx]] * wx)
+                        if ctx_mode == 2:
+                            for x in range(tw):
+                                bst[x] = max(lev[x], np.float32(0.0)) / (
+                                    max(bst[x], np.float32(0.0)) + ctx_eps)
+                        for x in range(tw):
+                            exb[x] = exb[x] * n_cx
+                        for j in range(n_cx - 1):
+                            cj = xcuts[j]
+                            for x in range(tw):
+                                exb[x] += np.int32(bst[x] >= cj)
+                    if n_hl > 1:
+                        for x in range(tw):
+                            bst[x] = ring_n[i % S, x]
+                        for dy in range(1, S):
+                            sl = (i + dy) % S
+                            for x in range(tw):
+                                bst[x] += ring_n[sl, x]
+                        for x in range(tw):
+                            exb[x] = exb[x] * n_hl + np.int32(bst[x] >= hl_cnt)
+                    for x in range(tw):
+                        clsr[x] = clsr[x] * n_ext + exb[x]
                 if mode == MODE_CLASSES:
                     for x in range(tw):
                         out_cls[i0 + i, x0 + x] = clsr[x]
@@ -334,6 +492,8 @@ def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tup
 _NO_F32 = np.zeros((1, 1), dtype=np.float32)
 _NO_I32 = np.zeros((1, 1), dtype=np.int32)
 _NO_OUT = np.zeros(1, dtype=np.float32)
+_NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
+                         *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
 
 
 def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
@@ -379,9 +539,12 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
                                                                          _NO_I32)
     K = kernels if kernels is not None else _NO_F32
     outf = out.reshape(-1) if out is not None else _NO_OUT
+    guide = _NO_GUIDE
+    if definition.context_block and mode != MODE_FEATURES:
+        guide = context_guide(mosaic, definition.cfa, definition.context_block)
     with _slp_vectorize():
-        _tile_kernel(S)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, mode, cls_o, lev_o, con_o,
-                        sat_o, K, n_out, outf)
+        _tile_kernel(S, pw)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o,
+                            lev_o, con_o, sat_o, K, n_out, outf)
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,

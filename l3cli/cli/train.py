@@ -130,6 +130,29 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               is_eager=True, expose_value=False,
               help="TOML file whose [train] table sets these options (keys as the long "
                    "option names; a [train.tune] table sets the searched values).")
+@click.option("--orientation-bins", type=click.IntRange(min=0, max=16),
+              default=defaults.ORIENTATION_BINS, show_default=True,
+              help="Edge-angle classes from the patch's structure tensor (even N; 0 = off); "
+                   "patches with coherence <= --coherence form one isotropic class.")
+@click.option("--coherence", type=click.FloatRange(min=0, max=1, max_open=True),
+              default=defaults.COHERENCE, show_default=True,
+              help="Structure-tensor coherence at or below which a patch is isotropic.")
+@click.option("--context-block", type=click.IntRange(min=0), default=defaults.CONTEXT_BLOCK,
+              show_default=True,
+              help="Context classes from a low-resolution guide of BLOCK x BLOCK pixel means "
+                   "(0 = off).")
+@click.option("--context-bins", type=click.IntRange(min=2), default=defaults.CONTEXT_BINS,
+              show_default=True, help="Context bins (quantiles of the training data).")
+@click.option("--context-rule", type=click.Choice(["mean", "ratio"]),
+              default=defaults.CONTEXT_RULE, show_default=True,
+              help="Context feature: the guide's level, or the patch level relative to it.")
+@click.option("--highlight-bins", type=click.Choice(["0", "2"]),
+              default=str(defaults.HIGHLIGHT_BINS), show_default=True,
+              help="2 = split the classes by how much of the patch clips (at least "
+                   "--highlight-fraction of its pixels saturated, or less); 0 = off.")
+@click.option("--highlight-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
+              default=defaults.HIGHLIGHT_FRACTION, show_default=True,
+              help="Fraction of saturated patch pixels that makes a strong highlight.")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -141,7 +164,12 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           workers: int | None = None,
           scheduler: str | None = None, as_shot_wb: bool | None = None,
           white_balance=None, embedded_preview: bool = False,
-          by: str | None = None) -> None:
+          by: str | None = None, orientation_bins: int = defaults.ORIENTATION_BINS,
+          coherence: float = defaults.COHERENCE, context_block: int = defaults.CONTEXT_BLOCK,
+          context_bins: int = defaults.CONTEXT_BINS,
+          context_rule: str = defaults.CONTEXT_RULE,
+          highlight_bins: str = str(defaults.HIGHLIGHT_BINS),
+          highlight_fraction: float = defaults.HIGHLIGHT_FRACTION) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -203,7 +231,11 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         saturation=saturation, merge_positions=merge_positions,
                         target_space=target_space, sample_fraction=sample_fraction, seed=seed,
                         min_samples_factor=min_samples_factor, white_balance=as_shot_wb,
-                        wb_override=None if gains is None else gains.tolist(), by=by)
+                        wb_override=None if gains is None else gains.tolist(), by=by,
+                        orientation_bins=orientation_bins, coherence=coherence,
+                        context_block=context_block, context_bins=context_bins,
+                        context_rule=context_rule, highlight_bins=int(highlight_bins),
+                        highlight_fraction=highlight_fraction)
     show = not quiet()
     if tune:
         table = _tune(pairs, opts, workers, scheduler, show)

@@ -100,12 +100,18 @@ class SymmetryMap:
         Names of the 8 elements (order of :data:`D4_ELEMENTS`).
     orbits
         Lists of groups related by some element (each sorted; representative first).
+    tex_perm
+        int64 (8, n_texture): ``tex_perm[e, t]`` is the texture bin (contrast,
+        orientation, context) that bin ``t`` becomes when the patch moves by
+        element ``e``; the identity unless the table has orientation bins
+        (an edge's angle turns with the patch).
     """
 
     target: np.ndarray
     perms: np.ndarray
     names: tuple[str, ...]
     orbits: tuple[tuple[int, ...], ...]
+    tex_perm: np.ndarray | None = None
 
     def describe(self) -> dict:
         """JSON-friendly summary: orbits, each group's stabiliser, one element per map."""
@@ -165,7 +171,19 @@ def symmetry_map(definition: ClassDefinition, *, elements: tuple[str, ...] | Non
         orb = sorted({int(b) for b in target[a] if b >= 0} | {a})
         seen.update(orb)
         orbits.append(tuple(orb))
-    return SymmetryMap(target=target, perms=perms, names=names, orbits=tuple(orbits))
+    tex_perm = np.stack([definition.texture_permutation(np.array(D4_ELEMENTS[n]))
+                         for n in names])
+    return SymmetryMap(target=target, perms=perms, names=names, orbits=tuple(orbits),
+                       tex_perm=tex_perm)
+
+
+def _rest_perms(definition: ClassDefinition, smap: SymmetryMap) -> np.ndarray:
+    """int64 (8, rest): the class (within a group) each class moves to under each element."""
+    ns_nl = definition.n_saturation * definition.n_levels
+    nt = definition.n_texture
+    tp = smap.tex_perm if smap.tex_perm is not None else np.tile(np.arange(nt), (8, 1))
+    base = (np.arange(ns_nl) * nt)[:, None]
+    return (base[None] + tp[:, None, :]).reshape(len(smap.names), ns_nl * nt)
 
 
 def _closure(elements: tuple[str, ...]) -> set[str]:
@@ -233,12 +251,14 @@ def symmetrize_kernels(kernels: np.ndarray, weights: np.ndarray, definition: Cla
         every (saturation, level, contrast), ``K_b[perm_g] == K_a`` exactly.
     """
     ng = definition.n_groups
-    rest = definition.n_saturation * definition.n_levels * definition.n_contrast
+    rest = definition.n_saturation * definition.n_levels * definition.n_texture
     q = definition.n_coeffs
     P = q - 1
     k = np.asarray(kernels, dtype=np.float64).reshape(ng, rest, q, -1)
     w = np.asarray(weights, dtype=np.float64).reshape(ng, rest)
     out = k.copy()
+    rp = _rest_perms(definition, smap)
+    moves_classes = definition.orientation_bins > 0
     for orb in smap.orbits:
         a = orb[0]
         valid = [(e, int(smap.target[a, e])) for e in range(len(smap.names))
@@ -247,27 +267,32 @@ def symmetrize_kernels(kernels: np.ndarray, weights: np.ndarray, definition: Cla
         den = np.zeros(rest)
         eq = np.zeros((rest, q, k.shape[3]))
         for e, b in valid:
-            moved = k[b].copy()
-            moved[:, :P] = k[b][:, smap.perms[e]]  # g^{-1} K_b
-            num += w[b][:, None, None] * moved
-            den += w[b]
+            kb = k[b][rp[e]]  # the class of b that class r of a moves to
+            moved = kb.copy()
+            moved[:, :P] = kb[:, smap.perms[e]]  # g^{-1} K_b
+            wb = w[b][rp[e]]
+            num += wb[:, None, None] * moved
+            den += wb
             eq += moved
         ka = np.where(den[:, None, None] > 0, num / np.where(den > 0, den, 1.0)[:, None, None],
                       eq / len(valid))
-        # exact invariance under the stabiliser of a
-        stab = np.array([smap.perms[e] for e, b in valid if b == a])
-        labels = _tap_orbits(stab)
-        taps = ka[:, :P]
-        for lab in np.unique(labels):
-            members = np.flatnonzero(labels == lab)
-            if members.size > 1:
-                taps[:, members] = taps[:, members].mean(axis=1, keepdims=True)
+        if not moves_classes:
+            # exact invariance under the stabiliser of a (with orientation bins the
+            # stabiliser also moves classes; the average above is then invariant
+            # up to rounding)
+            stab = np.array([smap.perms[e] for e, b in valid if b == a])
+            labels = _tap_orbits(stab)
+            taps = ka[:, :P]
+            for lab in np.unique(labels):
+                members = np.flatnonzero(labels == lab)
+                if members.size > 1:
+                    taps[:, members] = taps[:, members].mean(axis=1, keepdims=True)
         out[a] = ka
         for b in orb[1:]:
             e = next(e for e, bb in valid if bb == b)
             kb = ka.copy()
             kb[:, smap.perms[e]] = ka[:, :P]  # g K_a
-            out[b] = kb
+            out[b][rp[e]] = kb
     return out.reshape(kernels.shape)
 
 
@@ -277,7 +302,14 @@ def orbit_weights(weights: np.ndarray, definition: ClassDefinition, smap: Symmet
     ng = definition.n_groups
     w = np.asarray(weights, dtype=np.float64).reshape(ng, -1)
     out = w.copy()
+    rp = _rest_perms(definition, smap)
     for orb in smap.orbits:
-        tot = w[list(orb)].sum(axis=0)
-        out[list(orb)] = tot
+        a = orb[0]
+        moves = {a: np.arange(w.shape[1])}
+        for b in orb[1:]:
+            e = next(e for e in range(len(smap.names)) if smap.target[a, e] == b)
+            moves[b] = rp[e]
+        tot = sum(w[b][moves[b]] for b in orb)
+        for b in orb:
+            out[b][moves[b]] = tot
     return out.reshape(np.shape(weights))

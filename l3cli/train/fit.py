@@ -85,7 +85,14 @@ class TrainOptions:
                  white_balance: bool = False,
                  wb_override: Sequence[float] | None = None,
                  target_adapt: dict[str, list] | None = None,
-                 by: str | None = None) -> None:
+                 by: str | None = None,
+                 orientation_bins: int = defaults.ORIENTATION_BINS,
+                 coherence: float = defaults.COHERENCE,
+                 context_block: int = defaults.CONTEXT_BLOCK,
+                 context_bins: int = defaults.CONTEXT_BINS,
+                 context_rule: str = defaults.CONTEXT_RULE,
+                 highlight_bins: int = defaults.HIGHLIGHT_BINS,
+                 highlight_fraction: float = defaults.HIGHLIGHT_FRACTION) -> None:
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
@@ -96,6 +103,21 @@ class TrainOptions:
             raise ConfigError(f"saturation threshold {saturation} is not allowed; use (0, 1.5]")
         if min_samples_factor <= 1.0:
             raise ConfigError(f"min samples factor {min_samples_factor} must be > 1")
+        if orientation_bins < 0 or orientation_bins % 2 or orientation_bins > 16:
+            raise ConfigError(f"--orientation-bins {orientation_bins} is not allowed; use 0 "
+                              "(off) or an even number from 2 to 16")
+        if not 0.0 <= coherence < 1.0:
+            raise ConfigError(f"--coherence {coherence} is not allowed; use [0, 1)")
+        if context_block < 0:
+            raise ConfigError(f"--context-block {context_block} is not allowed; use 0 (off) "
+                              "or a block size in pixels")
+        if context_block and context_bins < 2:
+            raise ConfigError(f"--context-bins {context_bins} is not allowed; use 2 or more")
+        if highlight_bins not in (0, 2):
+            raise ConfigError(f"--highlight-bins {highlight_bins} is not allowed; use 0 or 2")
+        if not 0.0 < highlight_fraction <= 1.0:
+            raise ConfigError(f"--highlight-fraction {highlight_fraction} is not allowed; "
+                              "use (0, 1]")
         self.patch = check_patch(patch, "--patch")
         self.levels = int(levels)
         self.spacing = spacing
@@ -119,11 +141,28 @@ class TrainOptions:
         self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
         self.target_adapt = target_adapt
         self.by = by  # condition bins: None or one of l3cli.conditions.CONDITIONS
+        self.orientation_bins = int(orientation_bins)
+        self.coherence = float(coherence)
+        self.context_block = int(context_block)
+        self.context_bins = int(context_bins)
+        self.context_rule = context_rule
+        self.highlight_bins = int(highlight_bins)
+        self.highlight_fraction = float(highlight_fraction)
 
     def as_dict(self) -> dict:
-        """The options as a JSON-serialisable dict (recorded in the table's provenance)."""
+        """The options as a JSON-serialisable dict (recorded in the table's provenance).
+
+        The feature options appear only when a feature is on, so the
+        provenance of a table without them is as before.
+        """
         d = dict(vars(self))
         d["lambda_grid"] = self.lambda_grid.tolist()
+        if not self.orientation_bins:
+            del d["orientation_bins"], d["coherence"]
+        if not self.context_block:
+            del d["context_block"], d["context_bins"], d["context_rule"]
+        if not self.highlight_bins:
+            del d["highlight_bins"], d["highlight_fraction"]
         return d
 
 
@@ -138,7 +177,8 @@ def sample_mask(shape: tuple[int, int], fraction: float, seed: int, index: int,
 
 def _need_histogram(opts: TrainOptions) -> bool:
     return opts.level_range is None or (opts.contrast_bins > 1 and
-                                        opts.contrast_threshold is None)
+                                        opts.contrast_threshold is None) or \
+        opts.context_block > 0
 
 
 def _for_workers(pairs: Sequence[Pair], client) -> list[Pair]:
@@ -177,7 +217,8 @@ def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
     frac = min(opts.sample_fraction, 0.25)
     mask = sample_mask(raw.mosaic.shape, frac, opts.seed, i, stream=1)
     hist.add_mosaic(mosaic, raw.cfa, patch=opts.patch,
-                    saturation_threshold=opts.saturation, mask=mask)
+                    saturation_threshold=opts.saturation, mask=mask,
+                    context_block=opts.context_block, context_rule=opts.context_rule)
     return i, raw.cfa, hist
 
 
@@ -321,10 +362,17 @@ def definition_from_histogram(cfa: CFA, hist: ContrastHistogram | None,
         ccuts *= np.arange(1, opts.contrast_bins)[None, :]
     else:
         ccuts = hist.contrast_cuts(cuts, opts.contrast_bins)
+    xcuts = hist.context_cuts(opts.context_bins) if opts.context_block else None
     return ClassDefinition.build(cfa, patch=opts.patch, level_cuts=cuts,
                                  level_spacing=opts.spacing, contrast_cuts=ccuts,
                                  saturation_threshold=opts.saturation,
-                                 merge_positions=opts.merge_positions)
+                                 merge_positions=opts.merge_positions,
+                                 orientation_bins=opts.orientation_bins,
+                                 coherence_threshold=opts.coherence,
+                                 context_block=opts.context_block, context_cuts=xcuts,
+                                 context_rule=opts.context_rule,
+                                 highlight_bins=opts.highlight_bins,
+                                 highlight_fraction=opts.highlight_fraction)
 
 
 def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: TrainOptions, *,
