@@ -65,6 +65,12 @@ PAPER_EXPOSURE_rgbnir-g     := 0.0125
 PAPER_TRAIN_LUX ?= 10 35 120 450 1600 5000
 PAPER_TEST_LUX  ?= 20 70 250 900 3000
 PAPER_TEST_SCENES_rgbw := macbeth slanted-edge
+# The RGBW experiment's "wide classes" variant: 12 response levels, one
+# contrast bin (the pick of a validation split of the training light levels;
+# docs/results.md section 2). The main tables keep the paper's layout (patch 5,
+# 24 levels, 2 contrast bins). Extra `l3 train` options per camera:
+# PAPER_TRAIN_OPTS_<camera> (tables are not rebuilt when only these change).
+PAPER_WIDE_TRAIN_OPTS := --levels 12 --contrast-bins 1
 PAPER_PY       := L3=$(abspath $(L3)) $(PY) scripts/paper
 PAPER_COMMON   := scripts/paper/common.py $(STAMP)
 PAPER_SECTIONS := real rgbw rgbnir levels patch mtf kernels
@@ -96,6 +102,11 @@ $(PAPER)/settings.txt: paper-settings-check
 $(PAPER)/cameras/%.toml: scripts/paper/cameras.py sample_configs/rgbw.toml sample_configs/rgbnir.toml
 	$(PAPER_PY)/cameras.py $* $@
 
+# The Esser chart's 113 measured reflectances (to 1068 nm), tiled into a
+# spectral cube: training colours whose near infrared is measured, not modelled.
+$(PAPER)/scenes/esser.npz: scripts/paper/esser.py l3cli/data/spectral/reflectance_esser.csv
+	$(PY) scripts/paper/esser.py $@ $(PAPER_SIZE)
+
 # Training captures (Macbeth + the bundled natural photos) and held-out test
 # captures (Macbeth, + slanted edge for RGBW, at light levels not used in training).
 $(PAPER)/sim/%/train/manifest.json: $(PAPER)/cameras/%.toml $(PAPER)/settings.txt $(STAMP)
@@ -111,7 +122,7 @@ $(PAPER)/sim/%/test/manifest.json: $(PAPER)/cameras/%.toml $(PAPER)/settings.txt
 # L3 tables: train (ridge + GCV per class), then smooth (the priors).
 $(PAPER)/tables/%.raw.npz: $(PAPER)/sim/%/train/manifest.json
 	mkdir -p $(@D)
-	$(L3) -q train $(<D) -o $@ --seed 1
+	$(L3) -q train $(<D) -o $@ --seed 1 $(PAPER_TRAIN_OPTS_$*)
 
 $(PAPER)/tables/%.npz: $(PAPER)/tables/%.raw.npz
 	$(L3) -q smooth $< -o $@
@@ -126,7 +137,7 @@ $(PAPER)/eval/%.json: $(PAPER)/tables/%.npz $(PAPER)/sim/%/test/manifest.json
 # ΔE loss), scored on the Macbeth captures only.
 $(PAPER)/tables/%-lab.raw.npz: $(PAPER)/sim/%/train/manifest.json
 	mkdir -p $(@D)
-	$(L3) -q train $(<D) -o $@ --seed 1 --target lab
+	$(L3) -q train $(<D) -o $@ --seed 1 --target lab $(PAPER_TRAIN_OPTS_$*)
 
 $(PAPER)/eval/%-lab.json: $(PAPER)/tables/%-lab.npz $(PAPER)/sim/%/test/manifest.json
 	rm -rf $(PAPER)/render/$*-lab && mkdir -p $(PAPER)/render/$*-lab $(@D)
@@ -142,12 +153,38 @@ $(PAPER)/sim/%/train-natural/manifest.json: $(PAPER)/cameras/%.toml $(PAPER)/set
 
 $(PAPER)/tables/%-nochart.raw.npz: $(PAPER)/sim/%/train-natural/manifest.json
 	mkdir -p $(@D)
-	$(L3) -q train $(<D) -o $@ --seed 1
+	$(L3) -q train $(<D) -o $@ --seed 1 $(PAPER_TRAIN_OPTS_$*)
 
 $(PAPER)/eval/%-nochart.json: $(PAPER)/tables/%-nochart.npz $(PAPER)/sim/%/test/manifest.json
 	rm -rf $(PAPER)/render/$*-nochart && mkdir -p $(PAPER)/render/$*-nochart $(@D)
 	$(L3) -q render $< $$(ls $(PAPER)/sim/$*/test/macbeth*.dng $(PAPER)/sim/$*/test/macbeth*.tif 2>/dev/null) -o $(PAPER)/render/$*-nochart
 	$(L3) -q evaluate $(PAPER)/render/$*-nochart --reference $(PAPER)/sim/$*/test --json $@
+
+# The same cameras with the Esser chart added to training (measured
+# near-infrared reflectances instead of the photos' modelled ones).
+$(PAPER)/sim/%/train-esser/manifest.json: $(PAPER)/cameras/%.toml $(PAPER)/scenes/esser.npz $(PAPER)/settings.txt $(STAMP)
+	rm -rf $(@D) && mkdir -p $(dir $(@D))
+	$(L3) -q simulate $(abspath $<) -o $(@D) --scene $(abspath $(PAPER)/scenes/esser.npz) \
+	    $(addprefix --lux ,$(PAPER_TRAIN_LUX)) $(addprefix --exposure ,$(or $(PAPER_EXPOSURE_$*),$(PAPER_EXPOSURE))) --size $(PAPER_SIZE) --seed 3
+
+$(PAPER)/tables/%-esser.raw.npz: $(PAPER)/sim/%/train/manifest.json $(PAPER)/sim/%/train-esser/manifest.json
+	mkdir -p $(@D)
+	$(L3) -q train $(<D) $(PAPER)/sim/$*/train-esser -o $@ --seed 1 $(PAPER_TRAIN_OPTS_$*)
+
+$(PAPER)/eval/%-esser.json: $(PAPER)/tables/%-esser.npz $(PAPER)/sim/%/test/manifest.json
+	rm -rf $(PAPER)/render/$*-esser && mkdir -p $(PAPER)/render/$*-esser $(@D)
+	$(L3) -q render $< $$(ls $(PAPER)/sim/$*/test/macbeth*.dng $(PAPER)/sim/$*/test/macbeth*.tif 2>/dev/null) -o $(PAPER)/render/$*-esser
+	$(L3) -q evaluate $(PAPER)/render/$*-esser --reference $(PAPER)/sim/$*/test --json $@
+
+# The same cameras with fewer, wider classes (PAPER_WIDE_TRAIN_OPTS).
+$(PAPER)/tables/%-wide.raw.npz: $(PAPER)/sim/%/train/manifest.json
+	mkdir -p $(@D)
+	$(L3) -q train $(<D) -o $@ --seed 1 $(PAPER_WIDE_TRAIN_OPTS)
+
+$(PAPER)/eval/%-wide.json: $(PAPER)/tables/%-wide.npz $(PAPER)/sim/%/test/manifest.json
+	rm -rf $(PAPER)/render/$*-wide && mkdir -p $(PAPER)/render/$*-wide $(@D)
+	$(L3) -q render $< $$(ls $(PAPER)/sim/$*/test/macbeth*.dng $(PAPER)/sim/$*/test/macbeth*.tif 2>/dev/null) -o $(PAPER)/render/$*-wide
+	$(L3) -q evaluate $(PAPER)/render/$*-wide --reference $(PAPER)/sim/$*/test --json $@
 
 # The conventional pipeline (demosaic + 3x3 matrix) on the Bayer camera.
 $(PAPER)/eval/bayer-baseline.json: $(PAPER)/sim/bayer/train/manifest.json $(PAPER)/sim/bayer/test/manifest.json
@@ -168,7 +205,8 @@ $(PAPER)/sections/real.md: scripts/paper/real.py $(PAPER_COMMON) $(PAPER)/real/s
 $(PAPER)/sections/rgbw.md: scripts/paper/rgbw.py $(PAPER_COMMON) $(PAPER)/eval/rgbw.json \
         $(PAPER)/eval/rgbw-lab.json $(PAPER)/eval/bayer-lab.json $(PAPER)/eval/rgbw-nochart.json \
         $(PAPER)/eval/bayer-nochart.json $(PAPER)/eval/rgbw-ircut.json $(PAPER)/eval/bayer.json \
-        $(PAPER)/eval/bayer-baseline.json
+        $(PAPER)/eval/bayer-baseline.json $(PAPER)/eval/rgbw-esser.json $(PAPER)/eval/bayer-esser.json \
+        $(PAPER)/eval/rgbw-wide.json $(PAPER)/eval/bayer-wide.json
 	$(PAPER_PY)/rgbw.py $(PAPER)
 
 # 3. RGB-NIR vs NIR blacked out vs NIR -> G; NIR weights over response levels.

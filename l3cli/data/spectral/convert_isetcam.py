@@ -131,6 +131,8 @@ def main(root: Path) -> None:
            "ISETCam data/surfaces/reflectances/macbethChart.mat",
            "24 patches in reading order (P00 = dark skin, P18 = white, P23 = black)", wl, cols)
 
+    _esser(root)
+
     # NIR extension basis: least-squares fit of reflectance(lambda > 680 nm) to
     # [1, r, g, b], where (r, g, b) are the linear sRGB values whose Mallett 2019
     # reflectance best fits the measured visible reflectance (400-700 nm).
@@ -158,6 +160,16 @@ def main(root: Path) -> None:
            f"the linear sRGB Mallett 2019 coefficients of the visible part; rms residual {rms:.4f}",
            wl[nir], {"c0": coef[0], "cr": coef[1], "cg": coef[2], "cb": coef[3]})
     print(f"NIR extension fit rms residual {rms:.4f}")
+
+
+def _esser(root: Path) -> None:
+    """The Esser chart's 113 reflectances (380-1068 nm), every 2nd sample (8 nm)."""
+    wl, d, c = _load(root, "surfaces/reflectances/esserChart.mat")
+    keep = slice(None, None, 2)
+    _write("reflectance_esser", "reflectance", "reflectance (0-1)",
+           f"ISETCam data/surfaces/reflectances/esserChart.mat ('{c}')",
+           "113 patches (E000-E112) in ISETCam's column order; every 2nd sample (8 nm)",
+           wl[keep], {f"E{i:03d}": d[keep, i] for i in range(d.shape[1])})
 
 
 if __name__ == "__main__":
