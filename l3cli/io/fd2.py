@@ -8,14 +8,16 @@ the last to end points it back, and each keeps the lines written while it ran
 that carry its tag (LibRaw prefixes its messages with the file name) or no
 other capture's tag. Decodes of several files therefore run at the same time.
 
-Text that must reach the real stderr (a progress bar, log lines) is written
-inside :data:`STDERR_LOCK`, which waits until no capture is running and holds
-new captures off meanwhile.
+Text that must reach the real stderr (a progress bar, log records: see
+:class:`Handler`) is written inside :data:`STDERR_LOCK`, which waits until no
+capture is running and holds new captures off meanwhile. A thread must not
+log or draw inside its own capture.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 import tempfile
@@ -23,7 +25,7 @@ import threading
 from collections.abc import Iterator
 from typing import IO, Any
 
-__all__ = ["STDERR_LOCK", "captured"]
+__all__ = ["STDERR_LOCK", "Handler", "captured"]
 
 
 class _Fd2:
@@ -32,7 +34,8 @@ class _Fd2:
     def __init__(self) -> None:
         self.cond = threading.Condition()
         self.users = 0  # captures running
-        self.writing = False  # a thread writes to the real stderr
+        self.writing: int | None = None  # the thread writing to the real stderr
+        self.depth = 0  # how many times it holds the lock
         self.waiting = 0  # threads waiting to write to the real stderr
         self.saved: int | None = None  # the real fd 2 while redirected
         self.sink: IO[bytes] | None = None
@@ -89,7 +92,7 @@ def captured(tag: str) -> Iterator[list[str]]:
     s = _STATE
     lines: list[str] = []
     with s.cond:
-        while s.writing or s.waiting:
+        while s.writing is not None or s.waiting:
             s.cond.wait()
         if s.users == 0:
             s._start()
@@ -113,26 +116,40 @@ def captured(tag: str) -> Iterator[list[str]]:
 
 
 class _RealStderr:
-    """Context manager: the real stderr, with no capture running (not re-entrant)."""
+    """Context manager: the real stderr, with no capture running (re-entrant per thread)."""
 
     def __enter__(self) -> None:
         s = _STATE
+        me = threading.get_ident()
         with s.cond:
+            if s.writing == me:
+                s.depth += 1
+                return
             s.waiting += 1
             try:
-                while s.users or s.writing:
+                while s.users or s.writing is not None:
                     s.cond.wait()
             finally:
                 s.waiting -= 1
-            s.writing = True
+            s.writing, s.depth = me, 1
 
     def __exit__(self, *exc: Any) -> None:
         s = _STATE
         with s.cond:
-            s.writing = False
-            s.cond.notify_all()
+            s.depth -= 1
+            if s.depth == 0:
+                s.writing = None
+                s.cond.notify_all()
 
 
 #: Held while writing to the real stderr from a thread while others may decode
 #: (a progress bar, log lines): it waits for running captures to end.
 STDERR_LOCK = _RealStderr()
+
+
+class Handler(logging.StreamHandler):
+    """A logging handler whose records reach the real stderr, never a capture."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with STDERR_LOCK:
+            super().emit(record)
