@@ -41,7 +41,7 @@ import numpy as np
 from l3cli.errors import L3Error
 from l3cli.progress import progress
 
-__all__ = ["IN_FLIGHT", "preload_scipy_blas", "render_pipeline", "warm_up"]
+__all__ = ["IN_FLIGHT", "Prefetch", "preload_scipy_blas", "render_pipeline", "warm_up"]
 
 #: Files between decode and write at a time (one decoding, one rendering, one
 #: being written): at the peak about 3 x (mosaic + output), the output being
@@ -98,6 +98,51 @@ def preload_scipy_blas() -> None:
         log.debug("scipy BLAS preload skipped: %s", exc)
 
 
+class Prefetch:
+    """The first raw's decode, started in a thread before a render's heavy imports.
+
+    ``l3 render`` starts it before importing the render code (numba: about a
+    third of a second), so the first file decodes (LibRaw releases the GIL)
+    while Python imports. :meth:`take` hands the result (or raises its error)
+    to the pipeline's first job. Use it as a context manager: leaving waits
+    for the decode, so no fd 2 capture outlives the command.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = str(path)
+        self._raw: Any = None
+        self._error: BaseException | None = None
+        self._taken = False
+        self._thread = threading.Thread(target=self._read, name="l3-prefetch", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        try:
+            from l3cli.io.raw import read_raw
+
+            self._raw = read_raw(self.path)
+        except BaseException as exc:  # noqa: BLE001 - handed to the job that takes it
+            self._error = exc
+
+    def take(self, path: str | os.PathLike) -> Any:
+        """The decoded :class:`~l3cli.io.raw.RawImage` of ``path``, once; else None."""
+        if self._taken or str(path) != self.path:
+            return None
+        self._thread.join()
+        self._taken = True
+        raw, error, self._raw, self._error = self._raw, self._error, None, None
+        if error is not None:
+            raise error
+        return raw
+
+    def __enter__(self) -> Prefetch:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._thread.join()
+        self._raw = self._error = None
+
+
 def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
     """Load the render (and display-encode) kernels from numba's cache on a tiny input.
 
@@ -149,7 +194,7 @@ def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
 
 def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str | os.PathLike,
          options: dict[str, Any], white_balance: np.ndarray | None = None,
-         ) -> tuple[Path, tuple[float, float, float]]:
+         prefetch: Prefetch | None = None) -> tuple[Path, tuple[float, float, float]]:
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
@@ -157,7 +202,9 @@ def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str
 
     fmt = format_of(out_path)
     t0 = time.perf_counter()
-    raw = read_raw(raw_path)
+    raw = prefetch.take(raw_path) if prefetch is not None else None
+    if raw is None:
+        raw = read_raw(raw_path)
     check_fits(table, raw, table_name=table_name)
     shot = exif_attributes(raw.metadata.get("shot", {}))
     t1 = time.perf_counter()
@@ -201,7 +248,8 @@ def _quiet_warm_up(table: Any, out_path: str | os.PathLike) -> None:
 def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
                     table_name: str = "table", options: dict[str, Any] | None = None,
                     in_flight: int = IN_FLIGHT, show_progress: bool | None = False,
-                    white_balance: np.ndarray | None = None) -> list[Path]:
+                    white_balance: np.ndarray | None = None,
+                    prefetch: Prefetch | None = None) -> list[Path]:
     """Render ``(raw, output)`` pairs with ``table``, stages overlapped across files.
 
     Parameters
@@ -222,6 +270,8 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
         expect white-balanced input only).
     show_progress
         Progress bar on stderr (files finished, in input order).
+    prefetch
+        The first raw's decode, already started (:class:`Prefetch`).
 
     Returns
     -------
@@ -247,8 +297,9 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
                                 name="l3-warm-up", daemon=True)
         warm.start()
         futures: list[Future[tuple[Path, tuple[float, float, float]]]] = [
-            pool.submit(_one, table, table_name, raw, out, options, white_balance)
-            for raw, out in jobs
+            pool.submit(_one, table, table_name, raw, out, options, white_balance,
+                        prefetch if i == 0 else None)
+            for i, (raw, out) in enumerate(jobs)
         ]
         try:
             for i, fut in enumerate(_locked(progress(futures, label="render",

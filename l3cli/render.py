@@ -251,7 +251,8 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
                  workers: int | None = None, scheduler: str | None = None,
                  show_progress: bool | None = False,
                  options: dict[str, Any] | None = None,
-                 white_balance: np.ndarray | None = None) -> list[Path]:
+                 white_balance: np.ndarray | None = None,
+                 prefetch: Any = None) -> list[Path]:
     """Render ``(raw, output)`` pairs with the table at ``table_path``.
 
     In process, the files go through a pipeline that overlaps decoding,
@@ -278,6 +279,9 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
     white_balance
         Gains ``[r, g, b]`` for every raw instead of their own (tables that
         expect white-balanced input only).
+    prefetch
+        In process: the first raw's decode, already started
+        (:class:`l3cli.pipeline.Prefetch`).
 
     Returns
     -------
@@ -302,7 +306,8 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
         from l3cli.pipeline import render_pipeline
 
         return render_pipeline(table, jobs, table_name=name, options=options,
-                               show_progress=show_progress, white_balance=white_balance)
+                               show_progress=show_progress, white_balance=white_balance,
+                               prefetch=prefetch)
     from l3cli.parallel import map_reduce
 
     def sent(p: str | os.PathLike) -> str:

@@ -116,3 +116,17 @@ def test_written_file_types(tmp_path, img, name, kwargs, fmt, oiio_type, channel
         assert (spec.width, spec.height) == (23, 17)
     finally:
         inp.close()
+
+
+@pytest.mark.parametrize("suffix", [".jpg", ".png"])
+def test_short_file_is_told_from_a_whole_one(tmp_path, img, suffix):
+    """The cheap after-write check: a file missing its last bytes is not whole."""
+    from l3cli.io.image import _ends_whole
+
+    path = write_image(tmp_path / f"a{suffix}", img, space="srgb")
+    assert _ends_whole(path)
+    data = path.read_bytes()
+    for cut in (1, len(data) // 2, len(data) - 2):
+        short = tmp_path / f"short{suffix}"
+        short.write_bytes(data[: len(data) - cut])
+        assert not _ends_whole(short), cut

@@ -146,3 +146,24 @@ def test_help_imports_no_numerical_library():
                          text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip().splitlines()[-1] == "['click']"
+
+
+def test_prefetched_first_raw_is_used_once_and_its_error_raised(tmp_path, table_path):
+    from l3cli.errors import InputError
+    from l3cli.pipeline import Prefetch, render_pipeline
+    from l3cli.render import table_for_task
+
+    raws = _raws(tmp_path, 2)
+    with Prefetch(raws[0]) as pre:
+        assert pre.take(raws[1]) is None  # another file: not this decode
+        raw = pre.take(raws[0])
+        np.testing.assert_array_equal(raw.mosaic, read_raw(raws[0]).mosaic)
+        assert pre.take(raws[0]) is None  # once only
+    cut = tmp_path / "cut.dng"
+    cut.write_bytes(raws[0].read_bytes()[:200])
+    table = table_for_task(table_path)
+    (tmp_path / "out").mkdir()
+    jobs = [(cut, tmp_path / "out" / "cut.png"), (raws[1], tmp_path / "out" / "r1.png")]
+    with Prefetch(cut) as pre, pytest.raises(InputError, match="cut.dng"):
+        render_pipeline(table, jobs, table_name="t.npz", prefetch=pre)
+    assert (tmp_path / "out" / "r1.png").exists() and not (tmp_path / "out" / "cut.png").exists()

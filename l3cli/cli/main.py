@@ -119,10 +119,13 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
         level = logging.ERROR
     if debug:
         level = min(level, logging.DEBUG)
+    from l3cli.io.fd2 import Handler
+
+    handler = Handler(sys.stderr)  # waits for LibRaw's stderr captures in other threads
     logging.basicConfig(
         level=max(level, logging.DEBUG),
         format="%(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
+        handlers=[handler],
         force=True,
     )
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}

@@ -38,6 +38,21 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
     are rendered by dask.distributed workers, each reading its raw and writing
     its output itself (docs/distributed.md).
     """
+    import contextlib
+
+    from l3cli.pipeline import Prefetch
+
+    with contextlib.ExitStack() as stack:
+        # the first raw decodes while the render code (numba) imports
+        prefetch = (stack.enter_context(Prefetch(raws[0]))
+                    if raws and workers is None and scheduler is None else None)
+        _render(table_path, raws, output, fmt, compression, half, quality, white_balance,
+                workers, scheduler, prefetch)
+
+
+def _render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
+            compression: str | None, half: bool, quality: int, white_balance: str | None,
+            workers: int | None, scheduler: str | None, prefetch) -> None:
     from pathlib import Path
 
     from l3cli.cli.paths import plan_outputs
@@ -51,7 +66,7 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
     with plan.writing():
         render_files(table_path, [(str(r), o) for r, o in plan.targets], workers=workers,
                      scheduler=scheduler, show_progress=not quiet(), options=options,
-                     white_balance=gains)
+                     white_balance=gains, prefetch=prefetch)
 
 
 def _write_options(out, compression: str | None, half: bool, quality: int) -> dict:

@@ -262,7 +262,8 @@ def _encode(oiio, path: Path, tmp: Path, spec, data: np.ndarray) -> None:
             err = "" if _reads_back(oiio, tmp, spec) else err
         if not ok or err:
             raise OutputError(f"{path}: cannot write: {err or 'the encoder failed'}")
-        if format_of(tmp) in ("png", "jpg") and not _reads_back(oiio, tmp, spec, full=True):
+        if format_of(tmp) in ("png", "jpg") and not (_ends_whole(tmp)
+                                                     and _reads_back(oiio, tmp, spec)):
             # libpng/libjpeg write through stdio and may lose a failed final write
             raise OutputError(f"{path}: cannot write: the file is truncated (disk full?)")
     finally:
@@ -273,20 +274,44 @@ def _encode(oiio, path: Path, tmp: Path, spec, data: np.ndarray) -> None:
 _BENIGN_TIFF = "failed TIFFWriteCustomDirectory() of the Exif data"
 
 
-def _reads_back(oiio, tmp: Path, spec, *, full: bool = False) -> bool:
-    """True when ``tmp`` opens as an image of ``spec``'s size (and, ``full``, decodes whole)."""
+#: format -> (how a whole file starts, how it ends): JPEG's SOI/EOI markers, PNG's
+#: signature and its IEND chunk (length 0, type, CRC).
+_FRAMING = {
+    "jpg": (b"\xff\xd8", b"\xff\xd9"),
+    "png": (b"\x89PNG\r\n\x1a\n", b"\x00\x00\x00\x00IEND\xaeB`\x82"),
+}
+
+
+def _ends_whole(tmp: Path) -> bool:
+    """True when the JPEG/PNG file ``tmp`` starts and ends with its format's markers.
+
+    The encoders write the end marker last: a write lost on a full disk (stdio
+    buffers flushed on close) leaves a file without it. Two reads of a few
+    bytes instead of decoding the whole image again.
+    """
+    head, tail = _FRAMING[format_of(tmp)]
+    try:
+        with open(tmp, "rb") as f:
+            start = f.read(len(head))
+            size = f.seek(0, os.SEEK_END)
+            if size < len(head) + len(tail):
+                return False
+            f.seek(size - len(tail))
+            end = f.read(len(tail))
+    except OSError:
+        return False
+    return start == head and end == tail
+
+
+def _reads_back(oiio, tmp: Path, spec) -> bool:
+    """True when ``tmp`` opens (its header) as an image of ``spec``'s size."""
     inp = oiio.ImageInput.open(str(tmp))
     if inp is None:
         oiio.geterror()
         return False
     try:
         got = inp.spec()
-        if (got.width, got.height, got.nchannels) != (spec.width, spec.height, spec.nchannels):
-            return False
-        if full:
-            data = inp.read_image(0, 0, 0, got.nchannels, "uint8")
-            if data is None or inp.geterror():
-                return False
-        return True
+        return (got.width, got.height, got.nchannels) == (spec.width, spec.height,
+                                                            spec.nchannels)
     finally:
         inp.close()

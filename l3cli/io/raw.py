@@ -20,14 +20,9 @@ pixel's CFA position; values may be slightly negative from noise).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
-import sys
-import tempfile
-import threading
 import tomllib
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +31,7 @@ import numpy as np
 
 from l3cli.cfa import CFA
 from l3cli.errors import ConfigError, InputError
+from l3cli.io import fd2
 from l3cli.io.atomic import atomic_path
 from l3cli.io.metadata import dng_shot_tags, read_shot_metadata, sidecar_white_balance
 
@@ -338,40 +334,8 @@ def _read_image_mosaic(path: Path) -> RawImage:
     )
 
 
-_FD2_LOCK = threading.Lock()
-#: Held while LibRaw's C-level stderr is captured: a thread that draws on stderr
-#: while others decode (a progress bar) holds it too, or its text is captured.
-STDERR_LOCK = _FD2_LOCK
-
-
-@contextlib.contextmanager
-def _libraw_messages() -> Iterator[list[str]]:
-    """Capture what LibRaw prints on the C-level stderr (e.g. "Unexpected end of file").
-
-    LibRaw reports data errors by writing to file descriptor 2; l3 folds them
-    into its one-line error instead. Yields a list that holds the captured
-    lines once the block has run.
-    """
-    lines: list[str] = []
-    # fd 2 is process-wide: one capture at a time, or nested threads would restore
-    # each other's sinks instead of the real stderr.
-    with _FD2_LOCK:
-        try:
-            sys.stderr.flush()
-            saved = os.dup(2)
-        except (OSError, ValueError):  # no usable fd 2: nothing to capture
-            yield lines
-            return
-        with tempfile.TemporaryFile() as sink:
-            os.dup2(sink.fileno(), 2)
-            try:
-                yield lines
-            finally:
-                os.dup2(saved, 2)
-                os.close(saved)
-                sink.seek(0)
-                text = sink.read().decode("utf-8", "replace")
-                lines.extend(ln.strip() for ln in text.splitlines() if ln.strip())
+#: Held while writing to the real stderr from a thread while others may decode.
+STDERR_LOCK = fd2.STDERR_LOCK
 
 
 def _libraw_detail(path: Path, lines: list[str], fallback: str) -> str:
@@ -390,7 +354,7 @@ def _read_rawpy(path: Path) -> RawImage:
 
     rp = None
     failure: Exception | None = None
-    with _libraw_messages() as said:
+    with fd2.captured(str(path)) as said:
         try:
             rp = rawpy.imread(str(path))
             vis = rp.raw_image_visible  # unpacks the raw data
