@@ -32,8 +32,9 @@ def train_opts() -> str:
     text = (ROOT / "scripts" / "real_camera.sh").read_text()
     m = re.search(r"TRAIN_OPTS=\$\{L3_TRAIN_OPTS:-(.*)\}", text)
     if not m:
-        return "(see the script)"
-    return m.group(1).strip() or "(no options: the defaults)"
+        return "`l3 train` (options: see the script)"
+    opts = m.group(1).strip()
+    return f"`l3 train {opts}`" if opts else "`l3 train` with no options (its defaults)"
 
 
 def collect(build: Path) -> None:
@@ -71,7 +72,7 @@ def main(build: Path) -> None:
     md = f"""## 1. Approximating a real pipeline
 
 Run by `scripts/real_camera.sh` (tutorial: docs/real-camera.md): an L3 table
-(`l3 train {train_opts()}`) trained on the three Infinite-ISP `frames/` pairs
+({train_opts()}) trained on the three Infinite-ISP `frames/` pairs
 (raw + the ISP's PNG) and scored on the two `holdout/` frames, which are
 never used for training or tuning; and LibRaw's AHD rendering of a
 Blackmagic Pocket 4K DNG learned on the left half, scored on the right half.
