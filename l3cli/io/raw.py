@@ -246,6 +246,15 @@ def _check_size(path: Path, h: int, w: int, cfa: CFA) -> None:
                          f"{pw}x{ph}, and 2x2)")
 
 
+def _raw_image(path: Path, dn: np.ndarray, cfa: CFA, black, white: float,
+               metadata: dict[str, Any], *, checked: bool = False) -> RawImage:
+    """The :class:`RawImage` of integer data ``dn`` (size checked unless ``checked``)."""
+    if not checked:
+        _check_size(path, dn.shape[0], dn.shape[1], cfa)
+    return RawImage(mosaic=_normalise(dn, black, white, cfa), cfa=cfa, black_level=black,
+                    white_level=white, path=path, metadata=metadata)
+
+
 def _read_headerless(path: Path) -> RawImage:
     sc = sidecar_path(path)
     meta = _read_sidecar(path, sc)
@@ -274,16 +283,10 @@ def _read_headerless(path: Path) -> RawImage:
             f" ({expected} bytes)"
         )
     dn = np.fromfile(path, dtype=dtype, offset=offset).reshape(h, w)
-    return RawImage(
-        mosaic=_normalise(dn, black, white, cfa),
-        cfa=cfa,
-        black_level=black,
-        white_level=white,
-        path=path,
-        metadata={"format": "headerless", "dtype": meta["dtype"],
-                  "bit_depth": meta.get("bit_depth"), "description": meta.get("description"),
-                  "white_balance": sidecar_white_balance(meta, sc)},
-    )
+    return _raw_image(path, dn, cfa, black, white, checked=True, metadata={
+        "format": "headerless", "dtype": meta["dtype"], "bit_depth": meta.get("bit_depth"),
+        "description": meta.get("description"),
+        "white_balance": sidecar_white_balance(meta, sc)})
 
 
 def _read_image_mosaic(path: Path) -> RawImage:
@@ -321,17 +324,10 @@ def _read_image_mosaic(path: Path) -> RawImage:
         )
     cfa = _sidecar_cfa(meta, sc)
     black, white = _levels(meta, cfa, sc, float(np.iinfo(dn.dtype).max))
-    _check_size(path, dn.shape[0], dn.shape[1], cfa)
-    return RawImage(
-        mosaic=_normalise(dn, black, white, cfa),
-        cfa=cfa,
-        black_level=black,
-        white_level=white,
-        path=path,
-        metadata={"format": "mosaic-image", "bit_depth": meta.get("bit_depth"),
-                  "description": meta.get("description"),
-                  "white_balance": sidecar_white_balance(meta, sc)},
-    )
+    return _raw_image(path, dn, cfa, black, white, metadata={
+        "format": "mosaic-image", "bit_depth": meta.get("bit_depth"),
+        "description": meta.get("description"),
+        "white_balance": sidecar_white_balance(meta, sc)})
 
 
 #: Held while writing to the real stderr from a thread while others may decode.
@@ -398,15 +394,7 @@ def _read_rawpy(path: Path) -> RawImage:
         }
     if dn.size == 0:
         raise InputError(f"{path}: the raw image is empty")
-    _check_size(path, dn.shape[0], dn.shape[1], cfa)
-    return RawImage(
-        mosaic=_normalise(dn, black, white, cfa),
-        cfa=cfa,
-        black_level=black,
-        white_level=white,
-        path=path,
-        metadata=meta,
-    )
+    return _raw_image(path, dn, cfa, black, white, meta)
 
 
 def read_raw(path: str | os.PathLike) -> RawImage:
