@@ -24,7 +24,7 @@ from l3cli import spectral
 from l3cli.camera import Camera
 from l3cli.errors import ConfigError, OutputError
 from l3cli.io.atomic import make_temp_dir
-from l3cli.io.manifest import MANIFEST_FORMAT, MANIFEST_VERSION, write_manifest
+from l3cli.io.manifest import MANIFEST_FORMAT, MANIFEST_NAME, MANIFEST_VERSION, write_manifest
 from l3cli.parallel import map_reduce
 from l3cli.simulate.core import (
     TARGET_SCALE_DOC,
@@ -147,10 +147,10 @@ def _commit(tmp: Path, out_dir: Path) -> None:
         return
     if not out_dir.is_dir():
         raise OutputError(f"{out_dir}: exists and is not a folder")
-    names = sorted(p.name for p in tmp.iterdir() if p.name != "manifest.json")
+    names = sorted(p.name for p in tmp.iterdir() if p.name != MANIFEST_NAME)
     for n in names:
         os.replace(tmp / n, out_dir / n)
-    os.replace(tmp / "manifest.json", out_dir / "manifest.json")
+    os.replace(tmp / MANIFEST_NAME, out_dir / MANIFEST_NAME)
     shutil.rmtree(tmp, ignore_errors=True)
 
 
@@ -253,7 +253,7 @@ def run_simulation(
     if protect:
         from l3cli.io.paths import refuse_overwrite
 
-        outs = ["manifest.json"] + [f"{s}{ext}" for s in stems for ext in
+        outs = [MANIFEST_NAME] + [f"{s}{ext}" for s in stems for ext in
                                     (".dng", ".tif", ".tif.toml", ".target.exr", ".noisefree.exr")]
         refuse_overwrite([(out_dir / n, "-o") for n in outs], protect)
 
