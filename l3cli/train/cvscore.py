@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
+from l3cli import defaults
 from l3cli.errors import InputError
 from l3cli.metrics.scielab import (
     samples_per_degree,
@@ -24,9 +25,9 @@ from l3cli.metrics.scielab import (
 
 __all__ = ["DEFAULT_OPPONENT", "ReferenceSCIELAB", "lab_from_xyz"]
 
-#: Opponent transform of the cross-validation score: ISETCam's 10° matrix
-#: (the metric of docs/results.md).
-DEFAULT_OPPONENT = "isetcam-10deg"
+#: Opponent transform of the cross-validation score: ISETCam's 10° matrix, the
+#: one default of l3 evaluate (the metric of docs/results.md).
+DEFAULT_OPPONENT = defaults.SCIELAB_OPPONENT
 
 _EPS = (6.0 / 29.0) ** 3
 _KAPPA = 1.0 / (3.0 * (6.0 / 29.0) ** 2)
