@@ -41,7 +41,8 @@ import numpy as np
 from l3cli.errors import L3Error
 from l3cli.progress import progress
 
-__all__ = ["IN_FLIGHT", "Prefetch", "preload_scipy_blas", "render_pipeline", "warm_up"]
+__all__ = ["IN_FLIGHT", "Prefetch", "preload_scipy_blas", "render_one", "render_pipeline",
+           "warm_up"]
 
 #: Files between decode and write at a time (one decoding, one rendering, one
 #: being written): at the peak about 3 x (mosaic + output), the output being
@@ -192,9 +193,17 @@ def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
     return out
 
 
-def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str | os.PathLike,
-         options: dict[str, Any], white_balance: np.ndarray | None = None,
-         prefetch: Prefetch | None = None) -> tuple[Path, tuple[float, float, float]]:
+def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
+               out_path: str | os.PathLike, options: dict[str, Any],
+               white_balance: np.ndarray | None = None, prefetch: Prefetch | None = None,
+               ) -> tuple[Path, tuple[float, float, float]]:
+    """Read, render and write one file; the output path and the stage times (s).
+
+    The one implementation of a file's render, used by the pipeline's threads
+    and by :func:`l3cli.render.render_file` (dask tasks, library callers).
+    Display outputs are rendered band by band straight to integers; tables
+    with per-raw gains or condition bins take the whole-image path.
+    """
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
@@ -208,8 +217,10 @@ def _one(table: Any, table_name: str, raw_path: str | os.PathLike, out_path: str
     check_fits(table, raw, table_name=table_name)
     shot = exif_attributes(raw.metadata.get("shot", {}))
     t1 = time.perf_counter()
-    if table.white_balance is not None or table.conditions is not None:
-        # per-raw gains, adaptation or kernels: the whole-image path
+    if (table.white_balance is not None or table.conditions is not None
+            or white_balance is not None):
+        # per-raw gains, adaptation or kernels: the whole-image path (which also
+        # refuses gains for a table trained without white balance)
         with _RENDER_LOCK:
             img = render_raw(table, raw, table_name=table_name, white_balance=white_balance)
     elif fmt == "exr":
@@ -297,7 +308,7 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
                                 name="l3-warm-up", daemon=True)
         warm.start()
         futures: list[Future[tuple[Path, tuple[float, float, float]]]] = [
-            pool.submit(_one, table, table_name, raw, out, options, white_balance,
+            pool.submit(render_one, table, table_name, raw, out, options, white_balance,
                         prefetch if i == 0 else None)
             for i, (raw, out) in enumerate(jobs)
         ]

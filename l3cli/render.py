@@ -170,16 +170,10 @@ def render_file(table: TransformTable, raw_path: str | os.PathLike, out_path: st
     upright, and Make, Model, DateTimeOriginal, ISO, exposure time, f-number
     and lens where known.
     """
-    from l3cli.io.image import write_image
-    from l3cli.io.metadata import exif_attributes
-    from l3cli.io.raw import read_raw
+    from l3cli.pipeline import render_one
 
-    raw = read_raw(raw_path)
-    img = render_raw(table, raw, table_name=table_name, white_balance=white_balance)
-    shot = exif_attributes(raw.metadata.get("shot", {}))
-    del raw
-    return write_image(out_path, img, space=table.output_space,
-                       attributes={"l3:table": str(table_name)}, metadata=shot, **options)
+    return render_one(table, table_name, raw_path, out_path, options,
+                      white_balance=white_balance)[0]
 
 
 # ------------------------------------------------------- many files (map tasks)
