@@ -247,3 +247,73 @@ def test_headerless_dtypes_as_in_the_contract(tmp_path, dtype, name):
     raw = read_raw(p)
     assert raw.cfa.spec == "GR/BG" and raw.shape == (6, 10)
     np.testing.assert_allclose(raw.mosaic, (dn.astype(float) - 12) / (white - 12), rtol=1e-6)
+
+
+@pytest.mark.parametrize("top,left", [(1, 3), (3, 0), (0, 1)])
+def test_visible_pattern_is_rawpys_tiling(top, left):
+    """rawpy's raw_colors_visible: the pattern np.pad-wrapped from the raw's origin, cut."""
+    from l3cli.io.raw import _visible_pattern
+
+    pattern = np.array([[0, 1, 2], [1, 2, 0], [3, 0, 1]], np.uint8)[:, :2]  # 3x2, asymmetric
+    full = np.pad(pattern, ((0, 20 - 3), (0, 20 - 2)), mode="wrap")  # as rawpy builds it
+    np.testing.assert_array_equal(_visible_pattern(pattern, top, left),
+                                  full[top:top + 3, left:left + 2])
+
+
+@pytest.mark.parametrize("top,left", [(1, 3), (3, 0), (0, 1)])
+def test_cfa_phase_with_margins_is_libraws(tmp_path, top, left):
+    """The CFA and levels read with margins equal rawpy's raw_colors_visible (LibRaw keeps
+    the margins even, moving its pattern instead)."""
+    import tifffile
+
+    h, w = 41, 57
+    dn = np.random.default_rng(3).integers(100, 4000, (h, w)).astype(np.uint16)
+    one, zero = (10000, 10000), (0, 10000)
+    identity = one + zero + zero + zero + one + zero + zero + zero + one
+    tags = [(271, "s", 0, "l3", True), (272, "s", 0, "margins", True),
+            (33421, "H", 2, (2, 2), True), (33422, "B", 4, (1, 0, 2, 1), True),
+            (50706, "B", 4, (1, 4, 0, 0), True), (50708, "s", 0, "l3 margins", True),
+            (50710, "B", 3, (0, 1, 2), True), (50711, "H", 1, 1, True),
+            (50713, "H", 2, (2, 2), True), (50714, "I", 4, (60, 61, 62, 63), True),
+            (50717, "I", 1, 4095, True), (50721, "2i", 9, identity, True),
+            (50829, "I", 4, (top, left, h, w), True)]  # ActiveArea
+    path = tmp_path / "odd.dng"
+    tifffile.imwrite(path, dn, photometric=32803, planarconfig=1, compression=None,
+                     subfiletype=0, extratags=tags, metadata=None)
+    with rawpy.imread(str(path)) as rp:
+        letters = rp.color_desc.decode()
+        colors = np.array(rp.raw_colors_visible)
+        per_colour = list(rp.black_level_per_channel)
+        vis = rp.raw_image_visible.astype(np.float64)
+    raw = read_raw(path)
+    assert [raw.cfa.channel_at(y, x) for y in range(2) for x in range(2)] == [
+        letters[colors[y, x]] for y in range(2) for x in range(2)]
+    black_map = np.array([[per_colour[c] for c in row] for row in colors])
+    np.testing.assert_allclose(raw.mosaic, (vis - black_map) / (4095 - black_map), rtol=1e-6)
+
+
+@pytest.mark.parametrize("shape,spec,black,white,dtype", [
+    ((64, 96), "RGGB", [512] * 4, 65535, np.uint16),
+    ((37, 51), "GRBG", [60, 61, 62, 63], 4095, np.uint16),
+    ((36, 50), "BGGR", [60.5, 61, 62, 63], 1023, ">u2"),
+    ((31, 29), [["R", "G", "B"], ["G", "B", "R"], ["B", "R", "G"]], list(range(10, 19)), 255,
+     np.uint8),
+    ((20, 22), "RGGB", [4, 5, 6, 7], 70000, np.uint32),
+])
+def test_normalise_is_the_float32_formula_pixel_by_pixel(shape, spec, black, white, dtype):
+    """Each pixel: float32(DN) - float32(black_p), times float32(1 / (white - black_p))."""
+    from l3cli.io.raw import _normalise
+
+    cfa = CFA.from_spec(spec)
+    ph, pw = cfa.period
+    dn = np.random.default_rng(4).integers(0, white + 1, shape).astype(dtype)
+    b = np.asarray(black, np.float64).reshape(ph, pw)
+    got = _normalise(dn, np.asarray(black, np.float64), float(white), cfa)
+    want = np.empty(shape, np.float32)
+    for y in range(shape[0]):
+        for x in range(shape[1]):
+            bp = b[y % ph, x % pw]
+            want[y, x] = ((np.float32(dn[y, x]) - np.float32(bp))
+                          * np.float32(1.0 / (white - bp)))
+    assert got.dtype == np.float32 and got.shape == shape
+    np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))

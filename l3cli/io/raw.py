@@ -137,16 +137,27 @@ def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.
     """``(DN - black_p) / (white - black_p)`` with the black level of each pixel's CFA position.
 
     Every position maps its own black level to 0 and the white level to 1.
+    ``dn`` may be a view of a decoder's buffer: it is read, never kept.
+
+    In float32, per pixel: the DN (exact in float32) minus the float32 black
+    level of its position, times the float32 ``1 / (white - black_p)``. The
+    rows of each CFA row phase are done at once against a row of per-column
+    levels (contiguous inner loops; the subtraction also converts from the
+    integer type, so no integer copy is made).
     """
     ph, pw = cfa.period
     black_pos = np.asarray(black, dtype=np.float64).reshape(ph, pw)
-    out = dn.astype(np.float32)
-    for y in range(ph):
-        for x in range(pw):
-            b = black_pos[y, x]
-            view = out[y::ph, x::pw]
-            view -= np.float32(b)
-            view *= np.float32(1.0 / (white - b))
+    offset = black_pos.astype(np.float32)
+    scale = np.array([[1.0 / (white - b) for b in row] for row in black_pos]).astype(np.float32)
+    if dn.dtype.itemsize > 2:  # numpy would subtract wider integers in float64
+        dn = dn.astype(np.float32)
+    h, w = dn.shape
+    reps = -(-w // pw)
+    out = np.empty((h, w), dtype=np.float32)
+    for y in range(min(ph, h)):
+        rows = out[y::ph]
+        np.subtract(dn[y::ph], np.tile(offset[y], reps)[:w], out=rows)
+        rows *= np.tile(scale[y], reps)[:w]
     return out
 
 
@@ -345,6 +356,17 @@ def _libraw_detail(path: Path, lines: list[str], fallback: str) -> str:
     return msg
 
 
+def _visible_pattern(pattern: np.ndarray, top: int, left: int) -> np.ndarray:
+    """The colour indices of the visible area's first CFA period.
+
+    rawpy's ``raw_colors_visible`` is LibRaw's pattern tiled from the full
+    raw's origin and cut at the margins; this is its ``[:ph, :pw]`` corner,
+    without building the full-size array.
+    """
+    ph, pw = pattern.shape
+    return pattern[np.ix_((top + np.arange(ph)) % ph, (left + np.arange(pw)) % pw)]
+
+
 def _read_rawpy(path: Path) -> RawImage:
     import rawpy
 
@@ -369,10 +391,11 @@ def _read_rawpy(path: Path) -> RawImage:
     with rp:
         if vis is None or vis.ndim != 2 or rp.raw_type != rawpy.RawType.Flat:
             raise InputError(f"{path}: not a CFA mosaic (linear or Foveon raw); l3 needs a CFA")
-        colors = rp.raw_colors_visible
         desc = rp.color_desc.decode("ascii")
         pat = np.asarray(rp.raw_pattern)
         ph, pw = pat.shape
+        sizes = rp.sizes
+        colors = _visible_pattern(pat, sizes.top_margin, sizes.left_margin)
         names = [[desc[int(colors[y, x])] for x in range(pw)] for y in range(ph)]
         # LibRaw reports 4-colour patterns like RGBG: the second G is still green.
         cfa = CFA.from_spec(names)
@@ -381,7 +404,6 @@ def _read_rawpy(path: Path) -> RawImage:
             [bl_per_colour[int(colors[y, x])] for y in range(ph) for x in range(pw)]
         )
         white = float(rp.white_level)
-        dn = np.array(vis)
         meta: dict[str, Any] = {
             "format": "rawpy",
             "suffix": path.suffix.lower(),
@@ -389,12 +411,13 @@ def _read_rawpy(path: Path) -> RawImage:
             "camera_whitebalance": [float(v) for v in rp.camera_whitebalance],
             "rgb_xyz_matrix": np.asarray(rp.rgb_xyz_matrix).tolist(),
             "sizes": {k: int(v) if isinstance(v, int | np.integer) else float(v)
-                      for k, v in rp.sizes._asdict().items()},
+                      for k, v in sizes._asdict().items()},
             "shot": read_shot_metadata(path, rp),
         }
-    if dn.size == 0:
-        raise InputError(f"{path}: the raw image is empty")
-    return _raw_image(path, dn, cfa, black, white, meta)
+        if vis.size == 0:
+            raise InputError(f"{path}: the raw image is empty")
+        # normalised straight from LibRaw's buffer (no integer copy), before it is freed
+        return _raw_image(path, vis, cfa, black, white, meta)
 
 
 def read_raw(path: str | os.PathLike) -> RawImage:
