@@ -99,39 +99,80 @@ def preload_scipy_blas() -> None:
         log.debug("scipy BLAS preload skipped: %s", exc)
 
 
-class Prefetch:
-    """The first raw's decode, started in a thread before a render's heavy imports.
+class _Slot:
+    """One prefetched decode: done when the raw (or its error) is there."""
 
-    ``l3 render`` starts it before importing the render code (numba: about a
-    third of a second), so the first file decodes (LibRaw releases the GIL)
-    while Python imports. :meth:`take` hands the result (or raises its error)
-    to the pipeline's first job. Use it as a context manager: leaving waits
-    for the decode, so no fd 2 capture outlives the command.
+    def __init__(self) -> None:
+        self.done = threading.Event()
+        self.raw: Any = None
+        self.error: BaseException | None = None
+        self.taken = False
+        self.started = False
+
+
+class Prefetch:
+    """The first raws' decodes, started in a thread before a render's heavy imports.
+
+    ``l3 render`` starts it before importing the render code (numba: most of
+    a second of Python work that holds the GIL), so the first files decode
+    (LibRaw releases the GIL) on the core that start-up leaves idle. The
+    files are decoded one after another, at most ``count`` of them (the
+    pipeline's :data:`IN_FLIGHT`, so memory stays bounded). :meth:`take`
+    hands a result (or raises its error) to the pipeline job of that file.
+    Use it as a context manager: leaving stops the decodes not yet started
+    and waits for the running one, so no fd 2 capture outlives the command.
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
-        self.path = str(path)
-        self._raw: Any = None
-        self._error: BaseException | None = None
-        self._taken = False
+    def __init__(self, paths: str | os.PathLike | Sequence[str | os.PathLike],
+                 count: int = 1) -> None:
+        if isinstance(paths, str | os.PathLike):
+            paths = [paths]
+        self.paths = list(dict.fromkeys(str(p) for p in list(paths)[:max(0, int(count))]))
+        self._slots = {p: _Slot() for p in self.paths}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name="l3-prefetch", daemon=True)
         self._thread.start()
 
-    def _read(self) -> None:
-        try:
-            from l3cli.io.raw import read_raw
+    @property
+    def path(self) -> str | None:
+        """The first prefetched path."""
+        return self.paths[0] if self.paths else None
 
-            self._raw = read_raw(self.path)
-        except BaseException as exc:  # noqa: BLE001 - handed to the job that takes it
-            self._error = exc
+    def _read(self) -> None:
+        from l3cli.io.raw import read_raw
+
+        for p in self.paths:
+            slot = self._slots[p]
+            with self._lock:
+                # a job that came for its file before the decode began decodes it itself
+                slot.started = not (self._stop.is_set() or slot.taken)
+            try:
+                if slot.started:
+                    slot.raw = read_raw(p)
+            except BaseException as exc:  # noqa: BLE001 - handed to the job that takes it
+                slot.error = exc
+            finally:
+                slot.done.set()
 
     def take(self, path: str | os.PathLike) -> Any:
-        """The decoded :class:`~l3cli.io.raw.RawImage` of ``path``, once; else None."""
-        if self._taken or str(path) != self.path:
+        """The decoded :class:`~l3cli.io.raw.RawImage` of ``path``, once; else None.
+
+        Waits for a decode that is running; None (the caller decodes) when
+        ``path`` is not prefetched, its decode has not begun, it was taken
+        already, or the prefetch stopped.
+        """
+        slot = self._slots.get(str(path))
+        if slot is None:
             return None
-        self._thread.join()
-        self._taken = True
-        raw, error, self._raw, self._error = self._raw, self._error, None, None
+        with self._lock:
+            if slot.taken:
+                return None
+            slot.taken = True
+            if not slot.started and not slot.done.is_set():
+                return None
+        slot.done.wait()
+        raw, error, slot.raw, slot.error = slot.raw, slot.error, None, None
         if error is not None:
             raise error
         return raw
@@ -140,8 +181,10 @@ class Prefetch:
         return self
 
     def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
         self._thread.join()
-        self._raw = self._error = None
+        for slot in self._slots.values():
+            slot.raw = slot.error = None
 
 
 def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
@@ -282,7 +325,8 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
     show_progress
         Progress bar on stderr (files finished, in input order).
     prefetch
-        The first raw's decode, already started (:class:`Prefetch`).
+        The first raws' decodes, already started (:class:`Prefetch`); each job
+        takes its file's decode from it when there is one.
 
     Returns
     -------
@@ -309,8 +353,8 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
         warm.start()
         futures: list[Future[tuple[Path, tuple[float, float, float]]]] = [
             pool.submit(render_one, table, table_name, raw, out, options, white_balance,
-                        prefetch if i == 0 else None)
-            for i, (raw, out) in enumerate(jobs)
+                        prefetch)
+            for raw, out in jobs
         ]
         try:
             for i, fut in enumerate(_locked(progress(futures, label="render",

@@ -274,7 +274,7 @@ def render_files(table_path: str | os.PathLike, jobs: list[tuple[str | os.PathLi
         Gains ``[r, g, b]`` for every raw instead of their own (tables that
         expect white-balanced input only).
     prefetch
-        In process: the first raw's decode, already started
+        In process: the first raws' decodes, already started
         (:class:`l3cli.pipeline.Prefetch`).
 
     Returns

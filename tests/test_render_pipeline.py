@@ -167,3 +167,53 @@ def test_prefetched_first_raw_is_used_once_and_its_error_raised(tmp_path, table_
     with Prefetch(cut) as pre, pytest.raises(InputError, match="cut.dng"):
         render_pipeline(table, jobs, table_name="t.npz", prefetch=pre)
     assert (tmp_path / "out" / "r1.png").exists() and not (tmp_path / "out" / "cut.png").exists()
+
+
+def test_prefetch_of_several_raws_in_order_each_once(tmp_path):
+    from l3cli.pipeline import Prefetch
+
+    raws = _raws(tmp_path, 4)
+    with Prefetch(raws, count=3) as pre:
+        assert pre.paths == [str(r) for r in raws[:3]]
+        np.testing.assert_array_equal(pre.take(raws[0]).mosaic, read_raw(raws[0]).mosaic)
+        pre._thread.join(10)  # all decoded: any order of taking
+        for r in reversed(raws[:3]):
+            if r != raws[0]:
+                np.testing.assert_array_equal(pre.take(r).mosaic, read_raw(r).mosaic)
+            assert pre.take(r) is None
+        assert pre.take(raws[3]) is None  # beyond the count: the job decodes it
+
+
+def test_prefetch_leaves_a_file_not_yet_begun_to_its_job(tmp_path, monkeypatch):
+    """A job that comes before its file's decode began gets None at once (it decodes
+    itself) and the prefetch skips that file; leaving stops the queue."""
+    import threading
+
+    import l3cli.io.raw as raw_io
+    from l3cli.pipeline import Prefetch
+
+    raws = _raws(tmp_path, 3)
+    gate, calls = threading.Event(), []
+    real = raw_io.read_raw
+
+    def slow(path):
+        calls.append(str(path))
+        gate.wait(10)
+        return real(path)
+
+    monkeypatch.setattr(raw_io, "read_raw", slow)
+    with Prefetch(raws, count=3) as pre:
+        while not calls:  # the first decode is running
+            threading.Event().wait(0.01)
+        assert pre.take(raws[1]) is None  # not begun: handed back at once
+        gate.set()
+        assert pre.take(raws[0]) is not None
+        pre._thread.join(10)
+    assert calls == [str(raws[0]), str(raws[2])]  # raws[1] was left to its job
+    gate.clear()
+    calls.clear()
+    with Prefetch(raws, count=3) as pre:
+        while not calls:
+            threading.Event().wait(0.01)
+        threading.Timer(0.2, gate.set).start()
+    assert calls == [str(raws[0])]  # leaving stopped the files not yet begun

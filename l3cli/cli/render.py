@@ -40,11 +40,12 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
     """
     import contextlib
 
-    from l3cli.pipeline import Prefetch
+    from l3cli.pipeline import IN_FLIGHT, Prefetch
 
     with contextlib.ExitStack() as stack:
-        # the first raw decodes while the render code (numba) imports
-        prefetch = (stack.enter_context(Prefetch(raws[0]))
+        # the first raws decode (on the core start-up leaves idle) while the
+        # render code (numba) imports and loads
+        prefetch = (stack.enter_context(Prefetch(raws, count=IN_FLIGHT))
                     if raws and workers is None and scheduler is None else None)
         _render(table_path, raws, output, fmt, compression, half, quality, white_balance,
                 workers, scheduler, prefetch)
