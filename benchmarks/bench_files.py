@@ -24,6 +24,13 @@ included):
 and one file end to end (one DNG to JPEG). Peak memory (``ru_maxrss`` of the
 child) is reported beside each l3 run, and for a folder of ``--memory-files``
 synthetic 24-MP DNGs rendered to 16-bit TIFF.
+
+A last table splits a file's CPU into stages, each timed alone (process CPU,
+user + system, best of ``--repeat``) in one fresh process: the start-up
+(imports of the render path, then loading the table and the kernels from
+numba's cache), LibRaw's decode alone (``unpack``) and l3's whole read
+(decode + normalisation + metadata), the render with display encoding, and
+the JPEG and TIFF writes (atomic: temporary file, end check, fsync, rename).
 """
 
 from __future__ import annotations
@@ -162,6 +169,82 @@ def timing_tables(dng: Path, tmp: Path, copies: int, repeat: int) -> list[str]:
 FORMATS_SUFFIX = {fmt: suffix for fmt, suffix in FORMATS.values()}
 
 
+def _cpu() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def stages(dng: str, table_path: str, out_dir: str, repeat: int) -> None:
+    """The stage child: prints ``name<TAB>cpu seconds`` lines (see the module notes)."""
+    c0 = _cpu()
+    import l3cli.cli.render  # noqa: F401 - the CLI's own imports
+    import l3cli.io.image  # noqa: F401
+    import l3cli.io.raw  # noqa: F401
+    import l3cli.pipeline  # noqa: F401
+    import l3cli.render  # noqa: F401
+    c1 = _cpu()
+    from l3cli.io.image import write_image
+    from l3cli.io.raw import read_raw
+    from l3cli.pipeline import _render_display, warm_up
+    from l3cli.render import table_for_task
+
+    table = table_for_task(table_path)
+    warm_up(table, Path(out_dir) / "w.jpg")
+    warm_up(table, Path(out_dir) / "w.tif")
+    c2 = _cpu()
+    print(f"start-up: imports (process start excluded)\t{c1 - c0:.3f}")
+    print(f"start-up: table + kernels from numba's cache\t{c2 - c1:.3f}")
+
+    def best(fn):
+        fn()  # first use (allocator, page cache) not counted
+        times = []
+        for _ in range(repeat):
+            c = _cpu()
+            fn()
+            times.append(_cpu() - c)
+        return min(times)
+
+    import rawpy
+
+    def libraw_unpack():
+        with rawpy.imread(dng) as rp:
+            rp.raw_image_visible  # noqa: B018 - unpacks
+
+    raw = read_raw(dng)
+    img8 = _render_display(table, raw.mosaic, 8)
+    img16 = _render_display(table, raw.mosaic, 16)
+    rows = [("decode: LibRaw unpack alone", libraw_unpack),
+            ("decode: l3 read_raw (unpack, normalise, metadata)", lambda: read_raw(dng)),
+            ("render + display encoding, 8-bit", lambda: _render_display(table, raw.mosaic, 8)),
+            ("render + display encoding, 16-bit",
+             lambda: _render_display(table, raw.mosaic, 16)),
+            ("write JPEG q95 4:4:4 (OpenImageIO, atomic)",
+             lambda: write_image(Path(out_dir) / "s.jpg", img8, space=table.output_space)),
+            ("write TIFF 16-bit uncompressed (OpenImageIO, atomic)",
+             lambda: write_image(Path(out_dir) / "s.tif", img16, space=table.output_space))]
+    for name, fn in rows:
+        print(f"{name}\t{best(fn):.3f}", flush=True)
+
+
+def stage_table(dng: Path, tmp: Path, repeat: int) -> list[str]:
+    table = tmp / "table.npz"
+    if not table.exists():
+        table_file(tmp)
+    out = _fresh(tmp / "stages")
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--stages", str(dng),
+                           str(table), str(out), str(repeat)], cwd=REPO, capture_output=True,
+                          text=True, check=True)
+    lines = [f"CPU per stage, one 9-MP file (`{dng.name}`), each stage alone in one process, "
+             f"best of {repeat} (user + system; the render uses every core):", "",
+             "| stage | CPU s |", "|---|---|"]
+    for row in proc.stdout.strip().splitlines():
+        name, sec = row.split("\t")
+        lines.append(f"| {name} | {float(sec):.3f} |")
+    return lines
+
+
 def memory_table(tmp: Path, size: str, n_files: int) -> list[str]:
     from bench_render import synthetic_mosaic
 
@@ -189,15 +272,25 @@ def main() -> None:
     ap.add_argument("--memory-size", default="6000x4000")
     ap.add_argument("--memory-files", type=int, default=3)
     ap.add_argument("--peer", nargs="+", help=argparse.SUPPRESS)
+    ap.add_argument("--stages", nargs=4, help=argparse.SUPPRESS)
+    ap.add_argument("--only-stages", action="store_true",
+                    help="only the per-stage CPU table (needs the DNG)")
     a = ap.parse_args()
+    if a.stages:
+        stages(a.stages[0], a.stages[1], a.stages[2], int(a.stages[3]))
+        return
     if a.peer:
         peer(a.peer[0], a.peer[1], a.peer[2], a.peer[3:])
         return
     tmp = Path(tempfile.mkdtemp(prefix="l3bench-files-"))
     try:
         dng = Path(a.dng)
+        if dng.exists() and a.only_stages:
+            print("\n".join(stage_table(dng, tmp, a.repeat)), flush=True)
+            return
         if dng.exists():
             lines = timing_tables(dng, tmp, a.copies, a.repeat)
+            print("", *stage_table(dng, tmp, a.repeat), sep="\n", flush=True)
         else:
             lines = [f"(skipped the file-to-file table: {dng} is not here; it is in the shared "
                      "data set, not in the repository — pass --dng PATH to a 9-MP DNG)"]
