@@ -198,14 +198,17 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
 
     preload_scipy_blas()
     s = max(table.patch, *table.cfa.period) * 2
+    display = out_path is not None and Path(out_path).suffix.lower() != ".exr"
     with _RENDER_LOCK:
         img = render_mosaic(table, np.zeros((s, s), dtype=np.float32))
-    if out_path is not None and Path(out_path).suffix.lower() != ".exr":
-        from l3cli.io.encode import display_encode
-        from l3cli.io.image import format_of
+        if display:
+            # inside the lock: the first file's first band would otherwise reach the
+            # encoder's (per-process, cached) tables while they are being built, and
+            # build them a second time beside this thread
+            from l3cli.io.encode import display_encode
+            from l3cli.io.image import format_of
 
-        fmt = format_of(out_path)
-        display_encode(img, table.output_space, 16 if fmt == "tiff" else 8)
+            display_encode(img, table.output_space, 16 if format_of(out_path) == "tiff" else 8)
 
 
 #: Rows of one render band for display outputs: about this many pixels.

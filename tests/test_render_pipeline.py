@@ -217,3 +217,30 @@ def test_prefetch_leaves_a_file_not_yet_begun_to_its_job(tmp_path, monkeypatch):
             threading.Event().wait(0.01)
         threading.Timer(0.2, gate.set).start()
     assert calls == [str(raws[0])]  # leaving stopped the files not yet begun
+
+
+def test_display_tables_are_built_once_beside_the_warm_up(tmp_path, table_path, monkeypatch):
+    """The first file's first band waits for the warm-up's encoder tables instead of
+    building them a second time in its own thread."""
+    import functools
+    import time
+
+    import l3cli.io.encode as encode
+    from l3cli.pipeline import render_pipeline
+    from l3cli.render import table_for_task
+
+    built = []
+    real = encode.srgb_thresholds.__wrapped__
+
+    @functools.cache
+    def slow(bits, encode_=True):
+        built.append((bits, encode_))
+        time.sleep(0.3)  # long enough for the first band to come for the tables
+        return real(bits, encode_)
+
+    monkeypatch.setattr(encode, "srgb_thresholds", slow)
+    raws = _raws(tmp_path, 1)
+    (tmp_path / "out").mkdir()
+    render_pipeline(table_for_task(table_path), [(raws[0], tmp_path / "out" / "a.png")],
+                    table_name="t.npz")
+    assert sorted(set(built)) == sorted(built) and built  # each table built once
