@@ -136,14 +136,10 @@ def sidecar_path(path: str | os.PathLike) -> Path:
 def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.ndarray:
     """``(DN - black_p) / (white - black_p)`` with the black level of each pixel's CFA position.
 
-    Every position maps its own black level to 0 and the white level to 1.
-    ``dn`` may be a view of a decoder's buffer: it is read, never kept.
-
-    In float32, per pixel: the DN (exact in float32) minus the float32 black
-    level of its position, times the float32 ``1 / (white - black_p)``. The
-    rows of each CFA row phase are done at once against a row of per-column
-    levels (contiguous inner loops; the subtraction also converts from the
-    integer type, so no integer copy is made).
+    Every position maps its own black level to 0 and the white level to 1:
+    float32 ``(DN - black_p) * (1 / (white - black_p))``, one pass per CFA row
+    phase against a row of per-column levels. ``dn`` may be a view of a
+    decoder's buffer (read, never kept; no integer copy is made).
     """
     ph, pw = cfa.period
     black_pos = np.asarray(black, dtype=np.float64).reshape(ph, pw)
@@ -151,8 +147,7 @@ def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.
     scale = np.array([[1.0 / (white - b) for b in row] for row in black_pos]).astype(np.float32)
     if dn.dtype.itemsize > 2:  # numpy would subtract wider integers in float64
         dn = dn.astype(np.float32)
-    h, w = dn.shape
-    reps = -(-w // pw)
+    (h, w), reps = dn.shape, -(-dn.shape[1] // pw)
     out = np.empty((h, w), dtype=np.float32)
     for y in range(min(ph, h)):
         rows = out[y::ph]
@@ -357,12 +352,8 @@ def _libraw_detail(path: Path, lines: list[str], fallback: str) -> str:
 
 
 def _visible_pattern(pattern: np.ndarray, top: int, left: int) -> np.ndarray:
-    """The colour indices of the visible area's first CFA period.
-
-    rawpy's ``raw_colors_visible`` is LibRaw's pattern tiled from the full
-    raw's origin and cut at the margins; this is its ``[:ph, :pw]`` corner,
-    without building the full-size array.
-    """
+    """``raw_colors_visible[:ph, :pw]`` without rawpy's full-size array (the pattern
+    tiled from the full raw's origin, cut at the margins)."""
     ph, pw = pattern.shape
     return pattern[np.ix_((top + np.arange(ph)) % ph, (left + np.arange(pw)) % pw)]
 
