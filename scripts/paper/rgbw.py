@@ -258,8 +258,8 @@ Exposure times and gains of the test captures:
 
 Auto gain is at work at {levels_txt(gained['rgbw'])} lux (RGBW) and
 {levels_txt(gained['bayer'])} lux (Bayer); {under_txt}.
-Everywhere else the raw response is that of the training captures at the
-exposure target, and the test level differs from the training ones in its
+{'Every' if not (under['rgbw'] or under['bayer']) else 'Every other'} test capture reaches the exposure target, so its raw
+response is that of the training captures at the target, and the test level differs from the training ones in its
 noise: the unseen light levels test noise, not response level. Because W, which
 sees about four times the light of G, reaches the target first, the RGBW
 camera's R, G and B pixels collect fewer electrons than the Bayer's at the
