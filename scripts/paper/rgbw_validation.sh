@@ -45,6 +45,7 @@ PY
 for cam in rgbw bayer; do
     for variant in cap gain clamp; do
         dir=$OUT/$cam-$variant
+        mkdir -p "$dir"
         toml=$(camera $cam $variant)
         [ -f "$dir/vtrain/manifest.json" ] || "$L3" -q simulate "$toml" -o "$dir/vtrain" --scene macbeth \
             --scene natural --lux 10 --lux 120 --lux 1600 --lux 5000 --size 320x240 --seed 1
