@@ -53,9 +53,10 @@ clean:
 PAPER          ?= paper_out
 PAPER_SIZE     ?= 320x240
 # Exposure: empty = each camera's own auto exposure (its TOML's [exposure]:
-# brightest pixel at 95 % of white, at most 0.5 s, so scenes below a few tens
-# of lux are under-exposed); a number = that fixed time in seconds for every
-# camera without its own PAPER_EXPOSURE_<camera>.
+# brightest pixel at 95 % of white, at most 0.5 s, then auto ISO: analog gain
+# up to 16x, so only scenes below a few lux are under-exposed); a number =
+# that fixed time in seconds for every camera without its own
+# PAPER_EXPOSURE_<camera>.
 PAPER_EXPOSURE ?=
 # the RGB-NIR experiment keeps a fixed exposure (2 um pixels, f/2.8: ~4x the
 # light per pixel of the RGBW camera), so its light level sets the response level
@@ -65,11 +66,15 @@ PAPER_EXPOSURE_rgbnir-g     := 0.0125
 PAPER_TRAIN_LUX ?= 10 35 120 450 1600 5000
 PAPER_TEST_LUX  ?= 20 70 250 900 3000
 PAPER_TEST_SCENES_rgbw := macbeth slanted-edge
-# The RGBW experiment's "wide classes" variant: 12 response levels, one
-# contrast bin (the pick of a validation split of the training light levels;
-# docs/results.md section 2). The main tables keep the paper's layout (patch 5,
-# 24 levels, 2 contrast bins). Extra `l3 train` options per camera:
-# PAPER_TRAIN_OPTS_<camera> (tables are not rebuilt when only these change).
+# The RGBW experiment's tables: 7x7 patches (24 levels, 2 contrast bins), the
+# pick of a validation split of the TRAINING light levels (docs/results.md
+# section 2); its "wide classes" variant: 12 response levels, one contrast
+# bin. Extra `l3 train` options per camera: PAPER_TRAIN_OPTS_<camera> (tables
+# are not rebuilt when only these change).
+PAPER_RGBW_TRAIN_OPTS := --patch 7
+PAPER_TRAIN_OPTS_rgbw := $(PAPER_RGBW_TRAIN_OPTS)
+PAPER_TRAIN_OPTS_bayer := $(PAPER_RGBW_TRAIN_OPTS)
+PAPER_TRAIN_OPTS_rgbw-ircut := $(PAPER_RGBW_TRAIN_OPTS)
 PAPER_WIDE_TRAIN_OPTS := --levels 12 --contrast-bins 1
 PAPER_PY       := L3=$(abspath $(L3)) $(PY) scripts/paper
 PAPER_COMMON   := scripts/paper/common.py $(STAMP)

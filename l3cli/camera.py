@@ -95,6 +95,7 @@ class Readout:
     analog_gain: float = 1.0
     bit_depth: int = 10
     black_level_dn: int = 64
+    black_clamp: bool = False
 
     @property
     def white_level_dn(self) -> int:
@@ -153,6 +154,7 @@ class Exposure:
     mode: str = "auto"
     target_fraction: float = 0.95
     max_time_s: float = 1.0
+    max_analog_gain: float = 1.0
     time_s: float = 0.01
     illuminant: str = "D65"
     light_levels_lux: tuple[float, ...] = (10.0, 100.0, 1000.0)
@@ -477,6 +479,7 @@ def _exposure(sec: _Section) -> Exposure:
         mode=mode,
         target_fraction=sec.number("target_fraction", _default(Exposure, "target_fraction"), lo=0.0, hi=1.0, lo_open=True),
         max_time_s=sec.number("max_time_s", _default(Exposure, "max_time_s"), lo=0.0, hi=3600.0, lo_open=True),
+        max_analog_gain=sec.number("max_analog_gain", _default(Exposure, "max_analog_gain"), lo=1.0, hi=1000.0),
         time_s=sec.number("time_s", _default(Exposure, "time_s"), lo=0.0, hi=3600.0, lo_open=True),
         illuminant=ill,
         light_levels_lux=levels_t,
@@ -519,6 +522,7 @@ def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera
         black_level_dn=s.number("black_level_dn",
                                 _default(Readout, "black_level_dn") if bits >= 10 else 16, lo=0,
                                 hi=(1 << bits) - 2, integer=True),
+        black_clamp=s.boolean("black_clamp", _default(Readout, "black_clamp")),
     )
     s.finish()
     s = _sub(top, "cfa")

@@ -1,14 +1,14 @@
 """The L3 paper's RGBW experiment on small data (issue 13): the 2x2 RGBW camera
 vs the same camera with W replaced by G (an RGGB Bayer), each with its own
-auto exposure, trained on the Macbeth chart and the bundled natural photos at
-several light levels and tested on the chart at light levels not used in
-training.
+auto exposure (time up to 0.5 s, then analog gain up to 16x; black clamp),
+trained on the Macbeth chart and the bundled natural photos at several light
+levels and tested on the chart at light levels not used in training,
+including a dim one where both cameras need gain.
 
 Published (Jiang et al. 2017): mean Macbeth ΔE*ab 1.70 (RGBW) vs 1.65 (W→G).
 The bar checked here (the issue's): RGBW no more than 15 % worse than the
-Bayer, and both at most 3.0, at test levels where auto exposure reaches its
-target (docs/results.md, experiment 2, explains why the under-exposed levels
-are worse). ΔE is computed here with colour-science on the rendered patch
+Bayer, and both at most 3.0, over all test levels (docs/results.md,
+experiment 2). ΔE is computed here with colour-science on the rendered patch
 means, independently of ``l3 evaluate``.
 """
 
@@ -67,20 +67,23 @@ def _run(runner, args):
 def test_rgbw_vs_bayer_macbeth_delta_e_at_unseen_light_levels(runner, tmp_path):
     cams = {"rgbw": REPO / "sample_configs" / "rgbw.toml", "bayer": tmp_path / "bayer.toml"}
     _bayer_camera(cams["bayer"])
-    size = ("--size", "160x120")
-    test_lux = (250, 900)
+    size = ("--size", "320x240")  # experiment 2's size: at 160x120 the Bayer lands at 3.0
+    test_lux = (20, 250, 900)  # 20 lux: time capped, gain 2.5x (RGBW) and 10x (Bayer)
     mean = {}
     for name, cam in cams.items():
         train, test = tmp_path / name / "train", tmp_path / name / "test"
         train.parent.mkdir()
         _run(runner, ["simulate", cam, "-o", train, "--scene", "macbeth", "--scene", "natural",
-                      "--lux", 35, "--lux", 450, "--lux", 5000, "--seed", 1, *size])
+                      "--lux", 10, "--lux", 35, "--lux", 120, "--lux", 450, "--lux", 1600, "--lux", 5000,
+                      "--seed", 1, *size])
         _run(runner, ["simulate", cam, "-o", test, "--scene", "macbeth",
                       *[a for x in test_lux for a in ("--lux", x)], "--seed", 2, *size])
         table = tmp_path / name / "table.npz"
-        _run(runner, ["train", train, "-o", table, "--seed", 1])
+        _run(runner, ["train", train, "-o", table, "--seed", 1, "--patch", 7])  # experiment 2's recipe
         des = []
-        for cap in json.loads((test / "manifest.json").read_text())["captures"]:
+        caps = json.loads((test / "manifest.json").read_text())["captures"]
+        assert caps[0]["lux"] == 20 and caps[0]["analog_gain"] > 2  # the dim level needs gain
+        for cap in caps:
             out = tmp_path / name / f"{cap['stem']}.exr"
             _run(runner, ["render", table, test / cap["raw"], "-o", out])
             img, space = read_image(out)

@@ -279,6 +279,61 @@ def test_auto_exposure_reaches_target_fraction() -> None:
     assert dark.exposure_s == cam.exposure.max_time_s  # capped
 
 
+def _auto_camera(tmp_path: Path, **exposure):
+    """flat_qe_camera in auto mode with extra [exposure] / [readout] keys."""
+    import dataclasses
+
+    cam = flat_qe_camera(tmp_path, mode="auto", dark=exposure.pop("dark", 0.0))
+    clamp = exposure.pop("black_clamp", False)
+    return dataclasses.replace(cam, exposure=dataclasses.replace(cam.exposure, **exposure),
+                               readout=dataclasses.replace(cam.readout, black_clamp=clamp))
+
+
+def test_auto_gain_beyond_the_time_cap(tmp_path: Path) -> None:
+    """Auto ISO: where the time is capped, the gain brings the peak to the target;
+    electrons stay those of the capped time; the target scales with time x gain."""
+    cam = _auto_camera(tmp_path, max_time_s=0.01, max_analog_gain=16.0)
+    model = prepare_camera(cam)
+    s = uniform_scene(8, 8, model.wavelengths)
+    bright = simulate_capture(model, s, illuminant="E", lux=1e5, seed=0, noise=False)
+    assert bright.exposure_s < 0.01 and bright.analog_gain == 1.0
+    # the level 1/4 of the one that reaches the target at 0.01 s: gain 4
+    lux4 = 1e5 * bright.exposure_s / 0.01 / 4
+    dim = simulate_capture(model, s, illuminant="E", lux=lux4, seed=0, noise=False)
+    assert dim.exposure_s == 0.01
+    assert dim.analog_gain == pytest.approx(4.0, rel=1e-6)
+    np.testing.assert_allclose(dim.noise_free, bright.noise_free, rtol=1e-5)  # same response
+    np.testing.assert_allclose(dim.target, bright.target, rtol=1e-5)  # target follows the gain
+    # electrons: those of 0.01 s, so DN per electron is 4x the base one
+    e_dim = (dim.dn.astype(np.float64).mean() - 64) / (4 * model.dn_per_e)
+    assert e_dim == pytest.approx(model.sat_e * 0.95 / 4, rel=0.01)
+    # darker still: the gain stops at its maximum and the raw is darker
+    dark = simulate_capture(model, s, illuminant="E", lux=lux4 / 8, seed=0, noise=False)
+    assert dark.analog_gain == 16.0
+    assert float(dark.noise_free.max()) == pytest.approx(0.95 / 2, rel=1e-4)
+
+
+def test_auto_gain_off_by_default(tmp_path: Path) -> None:
+    model = prepare_camera(_auto_camera(tmp_path, max_time_s=0.01))
+    s = uniform_scene(8, 8, model.wavelengths)
+    cap = simulate_capture(model, s, illuminant="E", lux=1.0, seed=0, noise=False)
+    assert cap.exposure_s == 0.01 and cap.analog_gain == 1.0
+
+
+def test_black_clamp_removes_the_dark_current_mean(tmp_path: Path) -> None:
+    """A dark frame averages the black level with the clamp, black + dark x t without."""
+    for clamp in (False, True):
+        cam = _auto_camera(tmp_path, max_time_s=0.5, dark=200.0, black_clamp=clamp)
+        model = prepare_camera(cam)
+        s = uniform_scene(64, 64, model.wavelengths, reflectance=0.0)
+        cap = simulate_capture(model, s, illuminant="E", lux=1.0, seed=3, stem="d")
+        mean_e = (cap.dn.astype(np.float64).mean() - 64) / model.dn_per_e
+        want = 0.0 if clamp else 200.0 * 0.5
+        assert mean_e == pytest.approx(want, abs=1.0)
+        # the dark current's shot noise stays: sqrt(100 e-)
+        assert (cap.dn.astype(np.float64) / model.dn_per_e).std() == pytest.approx(10.0, rel=0.1)
+
+
 def test_seed_reproducible_and_order_independent() -> None:
     cam = load_camera(REPO / "sample_configs" / "bayer.toml")
     model = prepare_camera(cam)

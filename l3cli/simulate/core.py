@@ -19,8 +19,12 @@ scaled to ``lux`` (illuminance on the scene, lm/m²):
    pattern) → Poisson shot noise → full-well clip → Gaussian read noise
    (electrons) → conversion gain (V/e-) × analog gain → ADC:
    ``DN = black + round(V / swing × (white − black))`` clipped to [0, white].
-5. **Noise-free response**: ``min(μ + dark, full well) × gain × cg / swing``,
-   clipped to 1 (same normalisation as the raw mosaic: 0 black, 1 white level).
+   With ``readout.black_clamp`` the mean dark signal (dark current × time)
+   is subtracted before the ADC, as a sensor's optical-black clamp does (its
+   shot noise and the DSNU stay); without it (ISETCam) it stays in the raw.
+5. **Noise-free response**: ``min(μ + dark, full well) × gain × cg / swing``
+   (less the clamped dark mean), clipped to 1 (same normalisation as the raw
+   mosaic: 0 black, 1 white level).
 6. **Ideal target**: CIE 1931 XYZ of the same optical image (same optics and
    pixel aperture, no QE, no noise, no clipping) on a fixed photometric scale:
    ``Y = H_v / H_ref`` where ``H_v`` is the photometric exposure at the pixel
@@ -32,7 +36,10 @@ scaled to ``lux`` (illuminance on the scene, lm/m²):
 
 Exposure: ``fixed`` (given time) or ``auto`` as ISETCam's default
 auto-exposure: the time at which the brightest noise-free pixel reaches
-``target_fraction`` of saturation, capped at ``max_time_s``.
+``target_fraction`` of saturation, capped at ``max_time_s`` (ISETCam has no
+cap); below the cap's light level the analog gain rises, up to
+``max_analog_gain``, as a camera's auto ISO (:func:`exposure_setting`). The
+ideal target scales with time x that gain, as the raw signal does.
 
 References
 ----------
@@ -64,6 +71,7 @@ __all__ = [
     "illuminant_irradiance",
     "render_planes",
     "simulate_capture",
+    "exposure_setting",
     "capture_seed",
     "TARGET_SCALE_DOC",
 ]
@@ -368,6 +376,8 @@ class Capture:
     chart: dict[str, Any] | None = None
     edge: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    analog_gain: float = 1.0  # total analog gain of the capture (readout gain x auto gain)
+    auto_gain: float = 1.0  # the part auto exposure added (1 unless the time was capped)
 
 
 def _mosaic_select(planes: np.ndarray, cfa_index: np.ndarray) -> np.ndarray:
@@ -378,6 +388,49 @@ def _mosaic_select(planes: np.ndarray, cfa_index: np.ndarray) -> np.ndarray:
         for dx in range(pw):
             out[dy::ph, dx::pw] = planes[cfa_index[dy, dx], dy::ph, dx::pw]
     return out
+
+
+def exposure_setting(model: CameraModel, peak_rate: float,
+                     exposure_s: float | None = None) -> tuple[float, float]:
+    """Exposure time (s) and auto-exposure gain of a capture.
+
+    ``auto`` mode, as ISETCam's default auto exposure (``aeLuminance``): the
+    time at which the brightest noise-free pixel (photo-electrons plus dark
+    current) reaches ``target_fraction`` of saturation, at most
+    ``max_time_s``. Where the cap is reached, the analog gain is raised, as a
+    camera's auto ISO does, by up to ``max_analog_gain`` so that the brightest
+    pixel still reaches the target (the electrons, and so the shot and read
+    noise, stay those of the capped time). ``fixed`` mode and ``exposure_s``:
+    that time and gain 1.
+
+    Parameters
+    ----------
+    model
+        Camera constants.
+    peak_rate
+        Photo-electrons per second of the brightest pixel (noise-free).
+    exposure_s
+        A fixed time that overrides the camera's exposure control.
+
+    Returns
+    -------
+    (float, float)
+        Exposure time in seconds and the gain factor (>= 1) on top of the
+        readout's ``analog_gain``.
+    """
+    ex = model.camera.exposure
+    if exposure_s is not None:
+        return float(exposure_s), 1.0
+    if ex.mode == "fixed":
+        return float(ex.time_s), 1.0
+    dark_rate = model.camera.pixel.dark_current_e_per_s
+    peak = peak_rate + dark_rate
+    if peak <= 0:
+        return float(ex.max_time_s), float(ex.max_analog_gain)
+    goal = ex.target_fraction * model.sat_e  # electrons at the base gain
+    t = min(ex.max_time_s, goal / peak)
+    gain = min(ex.max_analog_gain, max(1.0, goal / (peak * t)))
+    return float(t), float(gain)
 
 
 def simulate_capture(model: CameraModel, scene: Scene, *, illuminant: str, lux: float,
@@ -421,20 +474,15 @@ def simulate_capture(model: CameraModel, scene: Scene, *, illuminant: str, lux: 
     del planes
     px, ro = cam.pixel, cam.readout
     dark_rate = px.dark_current_e_per_s
-    if exposure_s is not None:
-        t = float(exposure_s)
-    elif cam.exposure.mode == "fixed":
-        t = cam.exposure.time_s
-    else:
-        peak = float(np.max(rate)) + dark_rate
-        t = cam.exposure.max_time_s if peak <= 0 else min(
-            cam.exposure.max_time_s, cam.exposure.target_fraction * model.sat_e / peak)
+    t, ae_gain = exposure_setting(model, float(np.max(rate)), exposure_s)
     np.maximum(rate, 0.0, out=rate)
     mu = rate * np.float32(t)
     del rate
     dark = np.float32(dark_rate * t)
-    scale = np.float32(ro.analog_gain * px.conversion_gain_uv_per_e * 1e-6 / px.voltage_swing_v)
-    noise_free = np.minimum(mu + dark, np.float32(px.full_well_e)) * scale
+    scale = np.float32(ae_gain * ro.analog_gain * px.conversion_gain_uv_per_e * 1e-6 / px.voltage_swing_v)
+    # optical-black clamp: the mean dark signal is taken out before the ADC
+    clamp = dark if ro.black_clamp else np.float32(0.0)
+    noise_free = (np.minimum(mu + dark, np.float32(px.full_well_e)) - clamp) * scale
     np.minimum(noise_free, 1.0, out=noise_free)
     ss = capture_seed(seed, stem)
     span = ro.white_level_dn - ro.black_level_dn
@@ -448,24 +496,26 @@ def simulate_capture(model: CameraModel, scene: Scene, *, illuminant: str, lux: 
         np.minimum(electrons, np.float32(px.full_well_e), out=electrons)
         if px.read_noise_e > 0:
             electrons += np.float32(px.read_noise_e) * rng.standard_normal(electrons.shape, dtype=np.float32)
-        signal = electrons * scale
+        signal = (electrons - clamp) * scale
         del electrons
     else:
-        signal = np.minimum(mu + dark, np.float32(px.full_well_e)) * scale
+        signal = (np.minimum(mu + dark, np.float32(px.full_well_e)) - clamp) * scale
     del mu
     dn = np.rint(signal * np.float32(span)) + np.float32(ro.black_level_dn)
     np.clip(dn, 0, ro.white_level_dn, out=dn)
-    target = np.ascontiguousarray(np.moveaxis(xyz_rate * np.float32(t), 0, 2))
+    # the target scales with the raw signal: exposure time x the auto-exposure gain
+    target = np.ascontiguousarray(np.moveaxis(xyz_rate * np.float32(t * ae_gain), 0, 2))
     cap = Capture(stem=stem, scene=scene.name, illuminant=illuminant if scene.kind == "reflectance" else "",
                   lux=float(lux), exposure_s=float(t), dn=dn.astype(np.uint16), noise_free=noise_free,
-                  target=target, seed=int(seed), chart=None, edge=scene.edge)
+                  target=target, seed=int(seed), chart=None, edge=scene.edge,
+                  analog_gain=float(ae_gain * ro.analog_gain), auto_gain=float(ae_gain))
     if scene.kind == "reflectance":
         # Perfect white diffuser (reflectance 1) on the target scale, on axis, this capture.
         es = illuminant_irradiance(illuminant, lux, model.wavelengths) * irradiance_factor(
             cam.optics.f_number, cam.optics.transmittance)
-        white = spectral.KM * model.dlambda / model.h_ref * (model.cmfs.T @ es) * t
+        white = spectral.KM * model.dlambda / model.h_ref * (model.cmfs.T @ es) * (t * ae_gain)
         cap.extra["white_xyz"] = [float(v) for v in white]
-        cap.extra["photometric_exposure_white_lux_s"] = float(white[1] * model.h_ref)
+        cap.extra["photometric_exposure_white_lux_s"] = float(white[1] * model.h_ref / ae_gain)
     if scene.chart is not None:
         chart = dict(scene.chart)
         ref = []

@@ -105,7 +105,7 @@ def write_capture(folder: Path, cap: Capture, model: CameraModel) -> dict[str, A
                          black_level=float(ro.black_level_dn), white_level=float(ro.white_level_dn),
                          make="l3", model=f"simulated {cam.name}",
                          description=f"l3 simulate: {cap.stem}",
-                         shot={"exposure_time": float(cap.exposure_s)}, **kwargs)
+                         shot=_shot(cam, cap), **kwargs)
     target = folder / f"{cap.stem}.target.exr"
     write_image(target, cap.target, space="xyz")
     nf = folder / f"{cap.stem}.noisefree.exr"
@@ -120,6 +120,7 @@ def write_capture(folder: Path, cap: Capture, model: CameraModel) -> dict[str, A
         "illuminant": cap.illuminant,
         "lux": cap.lux,
         "exposure_s": cap.exposure_s,
+        "analog_gain": cap.analog_gain,
         "width": int(w),
         "height": int(h),
         "seed": cap.seed,
@@ -134,6 +135,15 @@ def write_capture(folder: Path, cap: Capture, model: CameraModel) -> dict[str, A
         if k in cap.extra:
             entry[k] = cap.extra[k]
     return entry
+
+
+def _shot(cam: Any, cap: Any) -> dict[str, Any]:
+    """Shot metadata of a capture's raw: exposure time, and for a camera with
+    auto gain (``exposure.max_analog_gain`` > 1) the ISO, 100 x analog gain."""
+    shot: dict[str, Any] = {"exposure_time": float(cap.exposure_s)}
+    if cam.exposure.mode == "auto" and cam.exposure.max_analog_gain > 1:
+        shot["iso"] = int(round(100 * cap.analog_gain))
+    return shot
 
 
 def _commit(tmp: Path, out_dir: Path) -> None:

@@ -208,8 +208,10 @@ def patch_electrons(sim_dir: Path, stem: str):
     """Noise-free photo-electrons per channel on the 24 Macbeth patches of a capture.
 
     The mean of each channel's noise-free response over the inner half of each
-    patch, less the dark-current mean (dark current x exposure time), in
-    electrons: a (24, channels) array, channels in the CFA's order.
+    patch, less the dark-current mean (dark current x exposure time; already
+    out of the raw for a camera with ``readout.black_clamp``), in electrons at
+    the capture's own analog gain: a (24, channels) array, channels in the
+    CFA's order.
     """
     import numpy as np
 
@@ -219,11 +221,13 @@ def patch_electrons(sim_dir: Path, stem: str):
     man = read_manifest(sim_dir)
     cam, cap = man["camera"], captures(sim_dir)[stem]
     px, ro = cam["pixel"], cam["readout"]
-    volts_per_e = ro["analog_gain"] * px["conversion_gain_uv_per_e"] * 1e-6 / px["voltage_swing_v"]
+    gain = cap.get("analog_gain", ro["analog_gain"])  # auto ISO raises it per capture
+    volts_per_e = gain * px["conversion_gain_uv_per_e"] * 1e-6 / px["voltage_swing_v"]
     cfa = CFA.from_spec(cam["cfa_pattern"])
     nf, _ = read_image(Path(sim_dir) / cap["noise_free"])
     nf = nf.reshape(nf.shape[0], nf.shape[1]).astype(np.float64) / volts_per_e
-    nf -= px["dark_current_e_per_s"] * cap["exposure_s"]
+    if not ro.get("black_clamp", False):
+        nf -= px["dark_current_e_per_s"] * cap["exposure_s"]
     cmap = cfa.channel_map(*nf.shape)
     out = []
     for x0, y0, x1, y1 in cap["chart"]["patches"]:
@@ -240,7 +244,8 @@ def linear_colour_floor(sim_dir: Path, *, pieces: int = 1) -> tuple[float, str]:
     response stays below 0.95 (no saturation), averages each channel's
     noise-free response over the inner half of each of the 24 patches,
     subtracts the dark-current mean (the manifest's dark current x exposure
-    time: the noise-free image contains it, the ideal XYZ does not), fits a
+    time: the noise-free image contains it unless the camera clamps its black,
+    the ideal XYZ does not), fits a
     linear map (channels → XYZ, least squares over the patches, no offset) to
     the patches' ideal XYZ, and scores it like ``l3 evaluate`` (white-normalised
     ΔE*ab with the ideal white patch as white point). No noise, no
