@@ -209,6 +209,10 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             yield client
     finally:
         if cluster is not None:
+            # closing is l3's own decision: a busy worker that the nanny must
+            # kill to close ("still alive after 4 s") is not news for the user
+            if root > logging.DEBUG:
+                dlog.setLevel(logging.ERROR)
             cluster.close()
             for k, v in saved_env.items():
                 if v is None:
