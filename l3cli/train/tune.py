@@ -47,7 +47,13 @@ from l3cli.train.cv import (
     space_stats,
 )
 from l3cli.train.cvscore import DEFAULT_OPPONENT
-from l3cli.train.fit import TrainOptions, default_target_space, table_from_stats
+from l3cli.train.fit import (
+    TONE_CURVE_SPACE,
+    TrainOptions,
+    attach_curve,
+    default_target_space,
+    table_from_stats,
+)
 
 __all__ = ["TuneGrid", "Candidate", "CandidateResult", "TuneResult", "DEFAULT_FOLDS",
            "tune", "format_candidates", "replace_opts", "read_train_config"]
@@ -253,6 +259,8 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
             "seed": opts.seed, "tune": record}
     table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
+    if opts.tone_curve:
+        attach_curve(table, images[0].curve)
     return TuneResult(results, best, opts, table, names, folds, seconds, record)
 
 
@@ -260,7 +268,8 @@ def replace_opts(base: TrainOptions, c: Candidate) -> TrainOptions:
     """``base`` with the candidate's target space, patch, levels and contrast bins."""
     d = base.as_dict()
     d.update(target_space=c.target_space, patch=c.patch, levels=c.levels,
-             contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold)
+             contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
+             tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE)
     return TrainOptions(**d)
 
 
