@@ -13,7 +13,13 @@ from l3cli.errors import TableError
 from l3cli.io.image import write_image
 from l3cli.render import render_mosaic
 from l3cli.table import TransformTable, load_table, save_table
-from l3cli.tonecurve import ToneCurve, apply_curve, block_samples, fit_tone_curve
+from l3cli.tonecurve import (
+    ToneCurve,
+    apply_curve,
+    block_samples,
+    fit_tone_curve,
+    select_curve,
+)
 from l3cli.train import TrainOptions, find_pairs, train
 
 #: A camera matrix from the raw's RGB to the pipeline's linear RGB (rows sum to 1).
@@ -157,7 +163,7 @@ def _write_pairs(folder: Path, seeds, h: int = 256, w: int = 320) -> Path:
 def test_training_in_the_curve_space_fits_an_s_curve_pipeline(tmp_path: Path):
     """A matrix then an S-curve: the per-class kernels in linear-srgb bend the curve
     level by level and miss; in the learned curve space the pipeline is linear."""
-    train_dir = _write_pairs(tmp_path / "train", (11, 12))
+    train_dir = _write_pairs(tmp_path / "train", (11, 12, 14))
     test_lin = np.clip(patchwork(256, 320, 13), 0, 1)
     raw = np.round(bayer(test_lin) * 255).astype(np.float32) / 255.0
     want = srgb_decode(pipeline(test_lin))
@@ -171,3 +177,20 @@ def test_training_in_the_curve_space_fits_an_s_curve_pipeline(tmp_path: Path):
         out = render_mosaic(t, raw)
         errs[on] = float(np.abs(out - want)[8:-8, 8:-8].mean())
     assert errs[True] < 0.5 * errs[False]
+
+
+def test_the_curve_is_used_only_where_it_beats_the_srgb_decoding():
+    cfa = CFA.from_spec("GRBG")
+    lins = [patchwork(256, 320, seed) for seed in (21, 22, 23)]
+    s_pipe = [block_samples(bayer(lin), cfa, pipeline(lin)) for lin in lins]
+    curve, rec = select_curve(s_pipe)
+    assert curve is not None and rec["used"]
+    assert rec["heldout_rms"] < 0.5 * rec["srgb_heldout_rms"]
+    srgb_pipe = [block_samples(bayer(lin), cfa, srgb_encode(np.clip(lin @ M.T, 0, 1)))
+                 for lin in lins]
+    curve, rec = select_curve(srgb_pipe)
+    assert curve is None and not rec["used"]
+    # one image: its two halves are the held-out units
+    big = patchwork(384, 480, 24)
+    curve, rec = select_curve([block_samples(bayer(big), cfa, pipeline(big))])
+    assert curve is not None and rec["used"]

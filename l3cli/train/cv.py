@@ -45,10 +45,10 @@ from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair, load_pair
 from l3cli.train.cvscore import DEFAULT_OPPONENT, ReferenceSCIELAB
 from l3cli.train.fit import (
-    NO_CURVE,
     TONE_CURVE_SPACE,
     TrainOptions,
     attach_curve,
+    chosen_curve,
     curve_samples,
     definition_from_histogram,
     histogram_task,
@@ -132,15 +132,14 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
 def _use_curve(images: list[CVImage], opts: TrainOptions) -> None:
     """Fit one tone curve to all images; their linear-srgb channels become its space.
 
-    Too few flat blocks (:data:`l3cli.train.fit.NO_CURVE`): the channels stay linear-srgb.
+    No curve (:func:`l3cli.train.fit.chosen_curve`: it does not beat the sRGB
+    decoding, or too few flat blocks): the channels stay linear-srgb.
     """
-    from l3cli.tonecurve import fit_tone_curve
-
     k = CV_SPACES.index(TONE_CURVE_SPACE)
-    curve = fit_tone_curve([curve_samples(img.mosaic, img.cfa, img.targets[:, :, 3 * k:3 * k + 3],
-                                          img.mask, opts) for img in images])
+    curve, record = chosen_curve([curve_samples(img.mosaic, img.cfa,
+                                                img.targets[:, :, 3 * k:3 * k + 3], img.mask, opts)
+                                  for img in images])
     if curve is None:
-        log.warning(NO_CURVE)
         return
     for img in images:
         lin = img.targets[:, :, 3 * k:3 * k + 3]

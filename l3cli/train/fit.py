@@ -44,7 +44,7 @@ from l3cli.train.stats import ClassStats, accumulate
 __all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
            "define_classes", "definition_from_histogram",
            "collect_stats", "table_from_stats", "fallback_sources", "train",
-           "fit_pairs_curve", "attach_curve", "curve_samples", "TONE_CURVE_SPACE"]
+           "fit_pairs_curve", "chosen_curve", "attach_curve", "curve_samples", "TONE_CURVE_SPACE"]
 
 log = logging.getLogger(__name__)
 
@@ -494,11 +494,14 @@ def curve_samples(mosaic: np.ndarray, cfa, target: np.ndarray, mask: np.ndarray 
 def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions):
     """The renders' tone curve, from every training pair (as pass 2 sees them).
 
-    Returns None, with a warning, when the renders have too few flat,
-    unclipped blocks to fit it: the table is then trained in the target
-    space itself, as with ``--no-tone-curve``.
+    Returns
+    -------
+    curve, record
+        The curve, or None when it does not generalise better than the sRGB
+        decoding (:func:`l3cli.tonecurve.select_curve`) or the renders have
+        too few flat, unclipped blocks (with a warning): the table is then
+        trained in the target space itself, as with ``--no-tone-curve``.
     """
-    from l3cli.tonecurve import fit_tone_curve
     from l3cli.whitebalance import training_mosaic, training_target
 
     samples = []
@@ -509,19 +512,32 @@ def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions):
             mask = loaded.weight_mask if mask is None else mask & loaded.weight_mask
         samples.append(curve_samples(training_mosaic(loaded.raw, opts), loaded.raw.cfa,
                                      training_target(loaded.target, pair.raw, opts), mask, opts))
-    curve = fit_tone_curve(samples)
-    if curve is None:
+    return chosen_curve(samples)
+
+
+def chosen_curve(samples) -> tuple:
+    """:func:`l3cli.tonecurve.select_curve` with the log lines of ``l3 train``."""
+    from l3cli.tonecurve import select_curve
+
+    curve, record = select_curve(samples)
+    if record.get("reason"):
         log.warning(NO_CURVE)
-    return curve
+    elif curve is None:
+        log.info("tone curve: held-out residual %.3g vs %.3g for the sRGB decoding; "
+                 "training without it", record["heldout_rms"], record["srgb_heldout_rms"])
+    else:
+        log.info("tone curve: held-out residual %.3g vs %.3g for the sRGB decoding; "
+                 "training in its space", record["heldout_rms"], record["srgb_heldout_rms"])
+    return curve, record
 
 
-def attach_curve(table: TransformTable, curve) -> TransformTable:
+def attach_curve(table: TransformTable, curve, record: dict | None = None) -> TransformTable:
     """Store a fitted tone curve's inverse look-up table in ``table`` (None: nothing)."""
     if curve is not None:
         table.tone_lut = curve.lut(table.output_space)
-        table.provenance["tone_curve"] = curve.as_dict()
-    elif table.provenance.get("options", {}).get("tone_curve"):
-        table.provenance["tone_curve"] = None  # asked for, but not learnable from the data
+        table.provenance["tone_curve"] = {**(record or {}), **curve.as_dict()}
+    elif record is not None:
+        table.provenance["tone_curve"] = record
     return table
 
 
@@ -570,6 +586,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     with dask_client(workers, scheduler) as client:
         definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
         model = None
+        curve_record = None
         stats_opts = opts
         if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
             from l3cli.whitebalance import fit_white_adaptation
@@ -580,7 +597,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
                 stats_opts.target_adapt = adapt
         if opts.tone_curve:  # the renders' own curve: train in its linear space
             stats_opts = copy.copy(stats_opts)
-            stats_opts.tone_model = fit_pairs_curve(pairs, stats_opts)
+            stats_opts.tone_model, curve_record = fit_pairs_curve(pairs, stats_opts)
         if opts.by:
             parts = [collect_stats([pairs[i] for i in idx], definition, stats_opts,
                                    index_offset=min(idx), client=client,
@@ -592,7 +609,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
             stats = collect_stats(pairs, definition, stats_opts, client=client,
                                   show_progress=show_progress)
     table = table_from_stats(stats, opts, provenance=prov)
-    attach_curve(table, stats_opts.tone_model)
+    attach_curve(table, stats_opts.tone_model, curve_record)
     if model is not None:
         table.white_balance = model.as_dict()
     if opts.by:

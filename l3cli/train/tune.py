@@ -255,6 +255,8 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
                         "cv_units": [round(float(v), 5) for v in r.scores]} for r in results],
         "chosen": {**best.candidate.as_dict(), "cv_mean": round(best.mean, 5)},
         "seconds": round(seconds, 1),
+        # linear-srgb candidates in the renders' learned tone-curve space (one curve from all images)
+        "tone_curve": images[0].curve is not None,
     }
     prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
             "seed": opts.seed, "tune": record}
