@@ -43,13 +43,11 @@ from l3cli.classify import ClassDefinition, ContrastHistogram
 from l3cli.colourspace import D65_XYZ, convert, srgb_decode, srgb_encode
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair, load_pair
+from l3cli.train.curve import attach_curve, chosen_curve, curve_samples
 from l3cli.train.cvscore import DEFAULT_OPPONENT, ReferenceSCIELAB
 from l3cli.train.fit import (
     TONE_CURVE_SPACE,
     TrainOptions,
-    attach_curve,
-    chosen_curve,
-    curve_samples,
     definition_from_histogram,
     histogram_task,
     sample_mask,

@@ -44,7 +44,7 @@ from l3cli.train.stats import ClassStats, accumulate
 __all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
            "define_classes", "definition_from_histogram",
            "collect_stats", "table_from_stats", "fallback_sources", "train",
-           "fit_pairs_curve", "chosen_curve", "attach_curve", "curve_samples", "TONE_CURVE_SPACE"]
+           "TONE_CURVE_SPACE", "NO_CURVE"]
 
 log = logging.getLogger(__name__)
 
@@ -482,65 +482,6 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
                           output_space=stats.target_space, provenance=prov)
 
 
-def curve_samples(mosaic: np.ndarray, cfa, target: np.ndarray, mask: np.ndarray | None,
-                  opts: TrainOptions):
-    """Flat-block samples of one pair for the tone curve (:func:`l3cli.tonecurve.block_samples`)."""
-    from l3cli.tonecurve import block_samples
-
-    enc = srgb_encode(np.clip(target, 0.0, 1.0))
-    return block_samples(mosaic, cfa, enc, saturation=opts.saturation, mask=mask)
-
-
-def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions):
-    """The renders' tone curve, from every training pair (as pass 2 sees them).
-
-    Returns
-    -------
-    curve, record
-        The curve, or None when it does not generalise better than the sRGB
-        decoding (:func:`l3cli.tonecurve.select_curve`) or the renders have
-        too few flat, unclipped blocks (with a warning): the table is then
-        trained in the target space itself, as with ``--no-tone-curve``.
-    """
-    from l3cli.whitebalance import training_mosaic, training_target
-
-    samples = []
-    for i, pair in enumerate(pairs):
-        loaded = load_pair(pair, target_space=opts.target_space)
-        mask = sample_mask(loaded.raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
-        if loaded.weight_mask is not None:
-            mask = loaded.weight_mask if mask is None else mask & loaded.weight_mask
-        samples.append(curve_samples(training_mosaic(loaded.raw, opts), loaded.raw.cfa,
-                                     training_target(loaded.target, pair.raw, opts), mask, opts))
-    return chosen_curve(samples)
-
-
-def chosen_curve(samples) -> tuple:
-    """:func:`l3cli.tonecurve.select_curve` with the log lines of ``l3 train``."""
-    from l3cli.tonecurve import select_curve
-
-    curve, record = select_curve(samples)
-    if record.get("reason"):
-        log.warning(NO_CURVE)
-    elif curve is None:
-        log.info("tone curve: held-out residual %.3g vs %.3g for the sRGB decoding; "
-                 "training without it", record["heldout_rms"], record["srgb_heldout_rms"])
-    else:
-        log.info("tone curve: held-out residual %.3g vs %.3g for the sRGB decoding; "
-                 "training in its space", record["heldout_rms"], record["srgb_heldout_rms"])
-    return curve, record
-
-
-def attach_curve(table: TransformTable, curve, record: dict | None = None) -> TransformTable:
-    """Store a fitted tone curve's inverse look-up table in ``table`` (None: nothing)."""
-    if curve is not None:
-        table.tone_lut = curve.lut(table.output_space)
-        table.provenance["tone_curve"] = {**(record or {}), **curve.as_dict()}
-    elif record is not None:
-        table.provenance["tone_curve"] = record
-    return table
-
-
 def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
           workers: int | None = None, scheduler: str | None = None,
           show_progress: bool | None = False) -> TransformTable:
@@ -596,6 +537,8 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
                 stats_opts = copy.copy(opts)
                 stats_opts.target_adapt = adapt
         if opts.tone_curve:  # the renders' own curve: train in its linear space
+            from l3cli.train.curve import fit_pairs_curve
+
             stats_opts = copy.copy(stats_opts)
             stats_opts.tone_model, curve_record = fit_pairs_curve(pairs, stats_opts)
         if opts.by:
@@ -609,7 +552,10 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
             stats = collect_stats(pairs, definition, stats_opts, client=client,
                                   show_progress=show_progress)
     table = table_from_stats(stats, opts, provenance=prov)
-    attach_curve(table, stats_opts.tone_model, curve_record)
+    if opts.tone_curve:
+        from l3cli.train.curve import attach_curve
+
+        attach_curve(table, stats_opts.tone_model, curve_record)
     if model is not None:
         table.white_balance = model.as_dict()
     if opts.by:

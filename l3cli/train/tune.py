@@ -36,6 +36,7 @@ import numpy as np
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair
 from l3cli.table import TransformTable
+from l3cli.train.curve import attach_curve
 from l3cli.train.cv import (
     CV_SPACES,
     fold_scores,
@@ -50,7 +51,6 @@ from l3cli.train.cvscore import DEFAULT_OPPONENT
 from l3cli.train.fit import (
     TONE_CURVE_SPACE,
     TrainOptions,
-    attach_curve,
     default_target_space,
     table_from_stats,
 )

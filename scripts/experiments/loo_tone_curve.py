@@ -24,8 +24,9 @@ import l3cli.tonecurve as tc
 from l3cli import defaults
 from l3cli.render import render_mosaic
 from l3cli.train import TrainOptions, find_pairs
+from l3cli.train.curve import attach_curve
 from l3cli.train.cv import CV_SPACES, display_xyz, histogram, load_cv_images
-from l3cli.train.fit import attach_curve, definition_from_histogram, table_from_stats
+from l3cli.train.fit import definition_from_histogram, table_from_stats
 from l3cli.train.stats import ClassStats, accumulate
 
 
