@@ -167,6 +167,7 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "lambda": lam,
         "smoothing": table.provenance.get("smoothing"),
         "white_balance": table.white_balance is not None,
+        "tone_curve": None if table.tone_lut is None else int(table.tone_lut[0].shape[0]),
         "conditions": None if table.conditions is None else {
             "by": table.conditions.by,
             "bins": [{"value": float(v), "samples": int(c.sum()),
@@ -231,6 +232,9 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
         lam = s["lambda"]
         out.append(f"ridge lambda: min {lam['min']:.3g}, median {lam['median']:.3g}, "
                    f"max {lam['max']:.3g}")
+    if s.get("tone_curve"):
+        out.append(f"output: the kernels render the renders' learned tone-curve space, mapped "
+                   f"back by a {s['tone_curve']}-entry look-up table per channel")
     if s.get("white_balance"):
         out.append("input: white-balanced by each raw's as-shot white balance, output adapted "
                    "to its white")

@@ -2,9 +2,11 @@
 
 Every output pixel is ``out = K[class]ᵀ [patch, 1]``: the pixel is classified
 by the shared classifier (:mod:`l3cli.classify`) and the affine kernel of its
-class is applied to its patch. The output has the raw's full size and is
-pixel-aligned with it: borders are padded by a mirror that keeps the CFA
-phase (:func:`l3cli.classify.mirror_indices`). Empty classes already hold the
+class is applied to its patch. A table with a learned tone curve
+(:mod:`l3cli.tonecurve`) then maps each channel through its look-up table.
+The output has the raw's full size and is pixel-aligned with it: borders are
+padded by a mirror that keeps the CFA phase
+(:func:`l3cli.classify.mirror_indices`). Empty classes already hold the
 kernel of their fallback class in the table, so the kernel is branch-free.
 
 Classification and the affine kernels run in one numba-compiled, parallel
@@ -106,8 +108,13 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
         out = np.empty(shape, dtype=np.float32)
     elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
+    curve = None
+    if table.tone_lut is not None:  # kernels render the learned curve space
+        from l3cli.tonecurve import curve_arrays
+
+        curve = curve_arrays(*table.tone_lut)
     run_tiles(mosaic, d, MODE_RENDER, rows=(y0, y1), kernels=pack_kernels(table),
-              n_out=table.n_out, out=out)
+              n_out=table.n_out, out=out, curve=curve)
     return out
 
 

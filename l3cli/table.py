@@ -39,6 +39,13 @@ white_balance      str          optional JSON: the table expects white-balanced
                                 (:class:`l3cli.whitebalance.WhiteBalanceModel`);
                                 absent in tables trained without it
 cond_*             (optional)   per-ISO-bin kernels (:mod:`l3cli.conditions`)
+tone_lut           float32      optional (n_lut, n_out): the kernels render a learned
+                                curve space; the output is this look-up table
+                                (linear interpolation) of the kernels' values on the
+                                uniform grid ``tone_range[0] .. tone_range[1]`` of each
+                                channel (:mod:`l3cli.tonecurve`); absent in tables
+                                without a tone curve (their kernels render directly)
+tone_range         float32      optional (2, n_out): the grid's ends (with tone_lut)
 ================== ============ ===============================================
 
 Class index ``= ((group * 2**n_channels + sat) * n_levels + level) * n_contrast
@@ -100,6 +107,9 @@ class TransformTable:
         Colour space of the output (:data:`l3cli.colourspace.SPACES`).
     provenance
         JSON-serialisable training record.
+    tone_lut
+        ``None``, or ``(lut, range)``: the kernels render a learned curve space
+        and the output is ``lut`` of their values (:mod:`l3cli.tonecurve`).
     white_balance
         ``None``, or the white-balance record (:mod:`l3cli.whitebalance`): the
         table expects mosaics normalised by each raw's as-shot white balance
@@ -135,6 +145,7 @@ class TransformTable:
     version: int = TABLE_VERSION
     white_balance: dict | None = None
     conditions: Any = None  # l3cli.conditions.Conditioned: per-bin kernels (--by iso)
+    tone_lut: tuple[np.ndarray, np.ndarray] | None = None  # (lut, range): l3cli.tonecurve
 
     def __post_init__(self) -> None:
         self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
@@ -142,6 +153,18 @@ class TransformTable:
         self.lambdas = np.asarray(self.lambdas, dtype=np.float64)
         self.empty = np.asarray(self.empty, dtype=bool)
         self.source_class = np.asarray(self.source_class, dtype=np.int64)
+        if self.tone_lut is not None:
+            lut, rng = (np.ascontiguousarray(a, dtype=np.float32) for a in self.tone_lut)
+            n_out = self.kernels.shape[2] if self.kernels.ndim == 3 else -1
+            if (lut.ndim != 2 or lut.shape[0] < 2 or lut.shape[1] != n_out
+                    or rng.shape != (2, n_out)):
+                raise TableError(f"inconsistent table: tone_lut {lut.shape} / tone_range "
+                                 f"{rng.shape} do not fit {n_out} outputs")
+            if not (np.all(np.isfinite(lut)) and np.all(np.isfinite(rng))
+                    and np.all(rng[1] > rng[0])):
+                raise TableError("inconsistent table: tone_lut/tone_range hold NaN, Inf or an "
+                                 "empty range")
+            self.tone_lut = (lut, rng)
         problem = self._shape_problem()
         if problem:
             raise TableError(f"inconsistent table: {problem}")
@@ -211,6 +234,8 @@ class TransformTable:
             out["white_balance"] = np.array(json.dumps(self.white_balance, sort_keys=True))
         if self.conditions is not None:
             out.update(self.conditions.to_arrays())
+        if self.tone_lut is not None:
+            out["tone_lut"], out["tone_range"] = self.tone_lut
         return out
 
 
@@ -341,6 +366,13 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         cond = Conditioned.from_arrays(arrs)
     except TableError as exc:
         raise TableError(f"{path}: {exc}") from exc
+    tone = None
+    if ("tone_lut" in arrs) != ("tone_range" in arrs):
+        raise TableError(f"{path}: damaged table, tone_lut and tone_range come together")
+    if "tone_lut" in arrs:
+        tone = (arrs["tone_lut"], arrs["tone_range"])
+        if any(a.dtype.kind != "f" for a in tone):
+            raise TableError(f"{path}: tone_lut/tone_range must be floating point")
     try:
         return TransformTable(
             definition=definition,
@@ -353,6 +385,7 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             provenance=prov,
             white_balance=wb,
             conditions=cond,
+            tone_lut=tone,
         )
     except L3Error as exc:
         raise TableError(f"{path}: {exc}") from exc

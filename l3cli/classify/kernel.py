@@ -33,6 +33,7 @@ from l3cli.classify.features import ContextGuide, context_guide  # noqa: E402
 from l3cli.classify.layout import KernelTables, kernel_tables  # noqa: E402
 from l3cli.errors import InputError  # noqa: E402
 from l3cli.render_rows import render_row4, render_row_any  # noqa: E402
+from l3cli.tonecurve import curve_row  # noqa: E402
 
 __all__ = ["MODE_CLASSES", "MODE_FEATURES", "MODE_RENDER", "KernelTables", "kernel_tables",
            "check_mosaic", "band_rows", "run_tiles", "classify", "patch_features"]
@@ -87,7 +88,8 @@ def _tile_kernel(S: int, PW: int):
     def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
                lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
                xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
-               mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf):
+               mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
+               cv_lo, cv_step):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -370,6 +372,9 @@ def _tile_kernel(S: int, PW: int):
                 else:
                     render_row_any(pb, i, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
                                    n_out)
+                if mode == MODE_RENDER and cv_base.shape[1] > 1:  # learned tone curve
+                    curve_row(outf, ((i0 + i) * W + x0) * n_out, tw, n_out, cv_base, cv_slope,
+                              cv_lo, cv_step)
 
     return kernel
 
@@ -403,6 +408,7 @@ def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tup
 _NO_F32 = np.zeros((1, 1), dtype=np.float32)
 _NO_I32 = np.zeros((1, 1), dtype=np.int32)
 _NO_OUT = np.zeros(1, dtype=np.float32)
+_NO_CURVE = (_NO_F32, _NO_F32, np.zeros(1, np.float32), np.zeros(1, np.float32))
 _NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
                          *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
 
@@ -411,7 +417,8 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
               rows: tuple[int, int] | None = None, out_cls: np.ndarray | None = None,
               out_features: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
               kernels: np.ndarray | None = None, n_out: int = 0,
-              out: np.ndarray | None = None) -> None:
+              out: np.ndarray | None = None,
+              curve: tuple[np.ndarray, ...] | None = None) -> None:
     """Run the tile kernel over output rows ``rows`` (default: all) of a mosaic.
 
     The one entry point to the classifier; :func:`classify`,
@@ -437,6 +444,9 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         Render only: outputs per pixel.
     out
         Render only: float32 C-contiguous (y1 - y0, W, n_out).
+    curve
+        Render only: a learned tone curve's look-up table
+        (:func:`l3cli.tonecurve.curve_arrays`), applied to each output row.
     """
     S = definition.patch
     h, w = mosaic.shape
@@ -455,7 +465,8 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         guide = context_guide(mosaic, definition.cfa, definition.context_block)
     with _slp_vectorize():
         _tile_kernel(S, pw)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o,
-                            lev_o, con_o, sat_o, K, n_out, outf)
+                            lev_o, con_o, sat_o, K, n_out, outf,
+                            *(curve if curve is not None else _NO_CURVE))
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,

@@ -93,6 +93,11 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help=f"Colour space the table renders into [default: {_P['target_space']} (the "
                    f"renders' space, linear) when every input is a pairs folder, else "
                    f"{_S['target_space']}].")
+@click.option("--tone-curve/--no-tone-curve", "tone_curve", default=None,
+              help="Learn the renders' per-channel tone curve from the pairs and train the "
+                   "kernels in its linear space; the table maps their output back through "
+                   "the curve (docs/training.md) [default: on for pairs folders with the "
+                   "linear-srgb target, else off].")
 @click.option("--sample-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
               default=defaults.SAMPLE_FRACTION, show_default=True,
               help="Use this random fraction of the pixels of each image (fixed by --seed).")
@@ -169,7 +174,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           context_bins: int = defaults.CONTEXT_BINS,
           context_rule: str = defaults.CONTEXT_RULE,
           highlight_bins: str = str(defaults.HIGHLIGHT_BINS),
-          highlight_fraction: float = defaults.HIGHLIGHT_FRACTION) -> None:
+          highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
+          tone_curve: bool | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -214,6 +220,10 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     elif contrast_threshold == "quantile":
         contrast_threshold = None
     target_space = target_space or layout["target_space"]
+    if tone_curve is None:  # the layout's, where its target space is used
+        from l3cli.train.fit import TONE_CURVE_SPACE
+
+        tone_curve = layout["tone_curve"] and target_space == TONE_CURVE_SPACE
     gains = white_balance
     if gains is not None:
         if as_shot_wb is False:
@@ -235,7 +245,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         orientation_bins=orientation_bins, coherence=coherence,
                         context_block=context_block, context_bins=context_bins,
                         context_rule=context_rule, highlight_bins=int(highlight_bins),
-                        highlight_fraction=highlight_fraction)
+                        highlight_fraction=highlight_fraction, tone_curve=tone_curve)
     show = not quiet()
     if tune:
         table = _tune(pairs, opts, workers, scheduler, show)

@@ -200,7 +200,8 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
     return TransformTable(definition=d, kernels=kernels.astype(np.float32), counts=table.counts,
                           lambdas=table.lambdas, empty=empty, source_class=src,
                           output_space=table.output_space, provenance=prov,
-                          white_balance=table.white_balance, conditions=conditions)
+                          white_balance=table.white_balance, conditions=conditions,
+                          tone_lut=table.tone_lut)
 
 
 def filled_classes(table: TransformTable) -> dict[str, list[int]]:

@@ -20,11 +20,19 @@ space at once (:data:`CV_SPACES`, 9 target channels): the patch products
 
 The class definition (level and contrast cut points) comes from the raws of
 all units (pass 1 of ``l3 train``); it uses no target values.
+
+With a learned tone curve (``TrainOptions.tone_curve``, :mod:`l3cli.tonecurve`)
+the ``linear-srgb`` channels hold the curve space of one curve fitted to all
+the units (a global per-channel curve of ~17 values per channel from every
+flat block: the held-out unit's share in it is small; the defaults were chosen
+with curves fitted per fold, ``scripts/experiments/loo_tone_curve.py``),
+and that space's renders are mapped back through it before scoring.
 """
 
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -35,8 +43,10 @@ from l3cli.classify import ClassDefinition, ContrastHistogram
 from l3cli.colourspace import D65_XYZ, convert, srgb_decode, srgb_encode
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair, load_pair
+from l3cli.train.curve import attach_curve, chosen_curve, curve_samples
 from l3cli.train.cvscore import DEFAULT_OPPONENT, ReferenceSCIELAB
 from l3cli.train.fit import (
+    TONE_CURVE_SPACE,
     TrainOptions,
     definition_from_histogram,
     histogram_task,
@@ -48,6 +58,8 @@ from l3cli.train.stats import ClassStats, accumulate
 __all__ = ["CV_SPACES", "CVImage", "Unit", "load_cv_images", "make_units", "make_folds", "histogram",
            "space_stats", "display_xyz",
            "LayoutStats", "layout_stats", "fold_stats", "score_fold", "fold_scores"]
+
+log = logging.getLogger(__name__)
 
 #: Target spaces collected by one statistics pass, in channel order.
 CV_SPACES: tuple[str, ...] = ("linear-srgb", "srgb", "xyz")
@@ -77,6 +89,8 @@ class CVImage:
         the 8-bit display sRGB ``l3 render`` writes.
     scorer
         S-CIELAB against this image's target.
+    curve
+        The tone curve of the ``linear-srgb`` channels (None: none).
     """
 
     pair: Pair
@@ -86,6 +100,7 @@ class CVImage:
     mask: np.ndarray | None
     display: bool
     scorer: ReferenceSCIELAB
+    curve: object = None
 
 
 def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
@@ -107,7 +122,27 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
         if raw.cfa.spec != images[0].cfa.spec:
             raise InputError(f"{pair.raw}: CFA {raw.cfa.spec} differs from "
                              f"{images[0].cfa.spec} of {images[0].pair.raw}")
+    if opts.tone_curve:
+        _use_curve(images, opts)
     return images
+
+
+def _use_curve(images: list[CVImage], opts: TrainOptions) -> None:
+    """Fit one tone curve to all images; their linear-srgb channels become its space.
+
+    No curve (:func:`l3cli.train.fit.chosen_curve`: it does not beat the sRGB
+    decoding, or too few flat blocks): the channels stay linear-srgb.
+    """
+    k = CV_SPACES.index(TONE_CURVE_SPACE)
+    curve, record = chosen_curve([curve_samples(img.mosaic, img.cfa,
+                                                img.targets[:, :, 3 * k:3 * k + 3], img.mask, opts)
+                                  for img in images])
+    if curve is None:
+        return
+    for img in images:
+        lin = img.targets[:, :, 3 * k:3 * k + 3]
+        lin[...] = curve.linearise(srgb_encode(np.clip(lin, 0.0, 1.0)))
+        img.curve = curve
 
 
 @dataclass(frozen=True)
@@ -253,6 +288,8 @@ def score_fold(images: Sequence[CVImage], units: Sequence[Unit], layout: LayoutS
     from l3cli.render import render_mosaic
 
     table = table_from_stats(fold_stats(layout, held_out, opts.target_space), opts)
+    if opts.tone_curve:
+        attach_curve(table, images[0].curve)
     scores = []
     for u in held_out:
         unit = units[u]

@@ -34,7 +34,7 @@ from threadpoolctl import threadpool_limits
 from l3cli import __version__, defaults
 from l3cli.cfa import CFA
 from l3cli.classify import ClassDefinition, ContrastHistogram, check_patch, level_cuts_between
-from l3cli.colourspace import check_space
+from l3cli.colourspace import check_space, srgb_encode
 from l3cli.errors import ConfigError, InputError, TableError
 from l3cli.pairs import Pair, load_pair
 from l3cli.table import TransformTable
@@ -43,9 +43,16 @@ from l3cli.train.stats import ClassStats, accumulate
 
 __all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
            "define_classes", "definition_from_histogram",
-           "collect_stats", "table_from_stats", "fallback_sources", "train"]
+           "collect_stats", "table_from_stats", "fallback_sources", "train",
+           "TONE_CURVE_SPACE", "NO_CURVE"]
 
 log = logging.getLogger(__name__)
+
+#: The target space a learned tone curve works with (its encoding is display sRGB).
+TONE_CURVE_SPACE = "linear-srgb"
+#: The warning when the renders cannot teach a tone curve.
+NO_CURVE = ("too few flat, unclipped areas in the training renders to learn their tone "
+            "curve; training without one (as --no-tone-curve)")
 
 def pairs_kind(pairs: Sequence[Pair]) -> str:
     """``"pairs"`` when every input is a rendered pair (a real camera), else ``"simulation"``."""
@@ -92,7 +99,8 @@ class TrainOptions:
                  context_bins: int = defaults.CONTEXT_BINS,
                  context_rule: str = defaults.CONTEXT_RULE,
                  highlight_bins: int = defaults.HIGHLIGHT_BINS,
-                 highlight_fraction: float = defaults.HIGHLIGHT_FRACTION) -> None:
+                 highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
+                 tone_curve: bool = defaults.TONE_CURVE) -> None:
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
@@ -148,6 +156,11 @@ class TrainOptions:
         self.context_rule = context_rule
         self.highlight_bins = int(highlight_bins)
         self.highlight_fraction = float(highlight_fraction)
+        if tone_curve and self.target_space != TONE_CURVE_SPACE:
+            raise ConfigError(f"a learned tone curve needs the {TONE_CURVE_SPACE} target, not "
+                              f"{self.target_space}; use --no-tone-curve")
+        self.tone_curve = bool(tone_curve)
+        self.tone_model = None  # the fitted l3cli.tonecurve.ToneCurve (set by train())
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance).
@@ -163,6 +176,9 @@ class TrainOptions:
             del d["context_block"], d["context_bins"], d["context_rule"]
         if not self.highlight_bins:
             del d["highlight_bins"], d["highlight_fraction"]
+        del d["tone_model"]
+        if not self.tone_curve:
+            del d["tone_curve"]
         return d
 
 
@@ -289,6 +305,8 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
 
     mosaic = training_mosaic(raw, opts)
     target = training_target(target, pair.raw, opts)
+    if opts.tone_model is not None:
+        target = opts.tone_model.linearise(srgb_encode(np.clip(target, 0.0, 1.0)))
     stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
     accumulate(stats, mosaic, target, mask=mask)
     return PartialStats.of(stats)
@@ -509,6 +527,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     with dask_client(workers, scheduler) as client:
         definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
         model = None
+        curve_record = None
         stats_opts = opts
         if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
             from l3cli.whitebalance import fit_white_adaptation
@@ -517,6 +536,11 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
             if adapt:
                 stats_opts = copy.copy(opts)
                 stats_opts.target_adapt = adapt
+        if opts.tone_curve:  # the renders' own curve: train in its linear space
+            from l3cli.train.curve import fit_pairs_curve
+
+            stats_opts = copy.copy(stats_opts)
+            stats_opts.tone_model, curve_record = fit_pairs_curve(pairs, stats_opts)
         if opts.by:
             parts = [collect_stats([pairs[i] for i in idx], definition, stats_opts,
                                    index_offset=min(idx), client=client,
@@ -528,6 +552,10 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
             stats = collect_stats(pairs, definition, stats_opts, client=client,
                                   show_progress=show_progress)
     table = table_from_stats(stats, opts, provenance=prov)
+    if opts.tone_curve:
+        from l3cli.train.curve import attach_curve
+
+        attach_curve(table, stats_opts.tone_model, curve_record)
     if model is not None:
         table.white_balance = model.as_dict()
     if opts.by:

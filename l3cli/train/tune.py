@@ -36,6 +36,7 @@ import numpy as np
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair
 from l3cli.table import TransformTable
+from l3cli.train.curve import attach_curve
 from l3cli.train.cv import (
     CV_SPACES,
     fold_scores,
@@ -47,7 +48,12 @@ from l3cli.train.cv import (
     space_stats,
 )
 from l3cli.train.cvscore import DEFAULT_OPPONENT
-from l3cli.train.fit import TrainOptions, default_target_space, table_from_stats
+from l3cli.train.fit import (
+    TONE_CURVE_SPACE,
+    TrainOptions,
+    default_target_space,
+    table_from_stats,
+)
 
 __all__ = ["TuneGrid", "Candidate", "CandidateResult", "TuneResult", "DEFAULT_FOLDS",
            "tune", "format_candidates", "replace_opts", "read_train_config"]
@@ -249,10 +255,14 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
                         "cv_units": [round(float(v), 5) for v in r.scores]} for r in results],
         "chosen": {**best.candidate.as_dict(), "cv_mean": round(best.mean, 5)},
         "seconds": round(seconds, 1),
+        # linear-srgb candidates in the renders' learned tone-curve space (one curve from all images)
+        "tone_curve": images[0].curve is not None,
     }
     prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
             "seed": opts.seed, "tune": record}
     table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
+    if opts.tone_curve:
+        attach_curve(table, images[0].curve)
     return TuneResult(results, best, opts, table, names, folds, seconds, record)
 
 
@@ -260,7 +270,8 @@ def replace_opts(base: TrainOptions, c: Candidate) -> TrainOptions:
     """``base`` with the candidate's target space, patch, levels and contrast bins."""
     d = base.as_dict()
     d.update(target_space=c.target_space, patch=c.patch, levels=c.levels,
-             contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold)
+             contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
+             tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE)
     return TrainOptions(**d)
 
 
