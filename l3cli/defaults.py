@@ -12,17 +12,27 @@ slowing ``l3 --help``.
 #: on the bundled Infinite-ISP frames/ (1.373 against 2.66 for the simulation set).
 #: The target is the linear version of the renders' display sRGB (renders are still
 #: written as display sRGB).
+#: ``augment`` (:data:`l3cli.train.augment.AUGMENT_CHOICES`): each pair also trains mirrored and
+#: rotated (the dihedral group D4), and ``sample_weight`` ``"luminance"`` weights each sample by
+#: its target's luminance (:func:`l3cli.train.weights.sample_weights`); both chosen by the same
+#: leave-one-image-out (1.373 -> 1.305, docs/training.md, "Augmentation and sample weights").
 PAIRS_LAYOUT = {"patch": 7, "levels": 36, "contrast_bins": 3, "contrast_threshold": 0.1,
-                "target_space": "linear-srgb"}
+                "target_space": "linear-srgb", "augment": "d4", "sample_weight": "luminance"}
 #: Simulate folders (ideal XYZ targets): the paper's layout, measured by make paper's
 #: experiments 4 and 5 (the pairs layout leaves small simulations with untrained classes).
 #: ``contrast_threshold`` None: thresholds at the per-level quantiles of the data.
 SIMULATION_LAYOUT = {"patch": 5, "levels": 24, "contrast_bins": 2, "contrast_threshold": None,
-                     "target_space": "xyz"}
+                     "target_space": "xyz", "augment": "none", "sample_weight": "none"}
 #: Patch size (odd) of :class:`l3cli.train.TrainOptions`: the kernel sees PATCH x PATCH pixels.
 PATCH = SIMULATION_LAYOUT["patch"]
 #: Number of response-level bins (library default).
 LEVELS = SIMULATION_LAYOUT["levels"]
+#: Dihedral augmentation of the training pairs (library default; ``"none"``, ``"flips"``, ``"d4"``).
+AUGMENT = SIMULATION_LAYOUT["augment"]
+#: Per-sample weights of the fit (library default; ``"none"`` or ``"luminance"``).
+SAMPLE_WEIGHT = SIMULATION_LAYOUT["sample_weight"]
+#: Luminance (Y, white = 1) below which ``"luminance"`` weights stop falling.
+WEIGHT_FLOOR = 0.01
 #: Spacing of the level cut points (``"log"`` or ``"linear"``).
 LEVEL_SPACING = "log"
 #: Contrast bins per level (library default; 2 = flat / textured).

@@ -153,6 +153,16 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @click.option("--highlight-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
               default=defaults.HIGHLIGHT_FRACTION, show_default=True,
               help="Fraction of saturated patch pixels that makes a strong highlight.")
+@click.option("--augment", type=click.Choice(["none", "flips", "d4"]), default=None,
+              help="Also train every pair mirrored and rotated, raw and render together "
+                   "(d4: all 8 of the square's symmetries; flips: the 4 mirrors), re-phased "
+                   "to the CFA; costs no extra pass over the pixels. Assumes the pipeline "
+                   f"has no preferred direction [default: {_P['augment']} for pairs folders, "
+                   f"{_S['augment']} else].")
+@click.option("--sample-weight", type=click.Choice(["none", "luminance"]), default=None,
+              help="Weight each training pixel by its target's luminance in the fit "
+                   f"[default: {_P['sample_weight']} for pairs folders, "
+                   f"{_S['sample_weight']} else].")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -169,7 +179,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           context_bins: int = defaults.CONTEXT_BINS,
           context_rule: str = defaults.CONTEXT_RULE,
           highlight_bins: str = str(defaults.HIGHLIGHT_BINS),
-          highlight_fraction: float = defaults.HIGHLIGHT_FRACTION) -> None:
+          highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
+          augment: str | None = None, sample_weight: str | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -214,6 +225,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     elif contrast_threshold == "quantile":
         contrast_threshold = None
     target_space = target_space or layout["target_space"]
+    augment = augment or layout["augment"]
+    sample_weight = sample_weight or layout["sample_weight"]
     gains = white_balance
     if gains is not None:
         if as_shot_wb is False:
@@ -235,7 +248,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         orientation_bins=orientation_bins, coherence=coherence,
                         context_block=context_block, context_bins=context_bins,
                         context_rule=context_rule, highlight_bins=int(highlight_bins),
-                        highlight_fraction=highlight_fraction)
+                        highlight_fraction=highlight_fraction, augment=augment,
+                        sample_weight=sample_weight)
     show = not quiet()
     if tune:
         table = _tune(pairs, opts, workers, scheduler, show)
