@@ -217,10 +217,12 @@ def test_weighted_fit_follows_the_heavy_samples():
 def test_luminance_weights():
     y = np.array([[0.0, 0.005, 0.02], [0.5, 1.0, np.nan]], dtype=np.float32)
     mask = np.array([[True, True, True], [True, True, False]])
-    w = sample_weights(y, mask, "luminance", floor=0.01)
+    w = sample_weights(y, mask, "luminance", floor=0.01, exponent=1.0)
     assert w[mask].mean() == pytest.approx(1.0, rel=1e-6)
     assert w[0, 0] == w[0, 1] < w[0, 2] < w[1, 0] < w[1, 1]
     assert w[1, 1] / w[1, 0] == pytest.approx(2.0)
+    w2 = sample_weights(y, mask, "luminance", floor=0.01, exponent=1.5)
+    assert w2[1, 1] / w2[1, 0] == pytest.approx(2.0 ** 1.5, rel=1e-5)
     assert sample_weights(y, mask, "none") is None
     rgb = np.ones((2, 2, 3), np.float32) * 0.5
     np.testing.assert_allclose(luminance(rgb, "linear-srgb"), 0.5, rtol=1e-5)

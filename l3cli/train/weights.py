@@ -1,14 +1,14 @@
 """Per-sample weights of the per-class least-squares fit (``l3 train --sample-weight``).
 
 ``"luminance"``: each training pixel weighs its target's luminance ``Y``
-(CIE Y, white = 1), floored at :data:`l3cli.defaults.WEIGHT_FLOOR`,
-normalised to mean 1 over an image's training pixels. Within a class (one
-raw level and contrast) the fit then favours the pixels the render shows
-brighter: on the bundled Infinite-ISP frames this lowered the
-leave-one-image-out S-CIELAB from 1.373 to 1.317 (with the D4 augmentation
-1.305), while weights that favour dark pixels (the slope of the display
-encoding, 1/Y) raised it to 1.43-1.51 (docs/training.md, "Augmentation and
-sample weights"). The statistics stay additive: the weighted products add
+(CIE Y, white = 1), floored at :data:`l3cli.defaults.WEIGHT_FLOOR`, to the
+power :data:`l3cli.defaults.WEIGHT_EXPONENT`, normalised to mean 1 over an
+image's training pixels. Within a class (one raw level and contrast) the fit
+then favours the pixels the render shows brighter: on the bundled
+Infinite-ISP frames, with the D4 augmentation, this lowered the
+leave-one-image-out S-CIELAB from 1.368 to 1.302, while weights that favour
+dark pixels (the slope of the display encoding) raised it to 1.43-1.51
+(docs/training.md, "Augmentation and sample weights"). The statistics stay additive: the weighted products add
 over images like the unweighted ones (:func:`l3cli.train.stats.accumulate`).
 """
 
@@ -44,7 +44,8 @@ def luminance(target: np.ndarray, space: str) -> np.ndarray:
 
 
 def sample_weights(y: np.ndarray, mask: np.ndarray | None, mode: str, *,
-                   floor: float = defaults.WEIGHT_FLOOR) -> np.ndarray | None:
+                   floor: float = defaults.WEIGHT_FLOOR,
+                   exponent: float = defaults.WEIGHT_EXPONENT) -> np.ndarray | None:
     """Weights of an image's training pixels from their target luminance.
 
     Parameters
@@ -57,6 +58,8 @@ def sample_weights(y: np.ndarray, mask: np.ndarray | None, mode: str, *,
         ``"none"`` (returns None: unweighted) or ``"luminance"``.
     floor
         Luminance below which the weight stays at its floor value (> 0).
+    exponent
+        The weight is the floored luminance to this power.
 
     Returns
     -------
@@ -66,6 +69,7 @@ def sample_weights(y: np.ndarray, mask: np.ndarray | None, mode: str, *,
     if check_weight(mode) == "none":
         return None
     w = np.maximum(np.nan_to_num(np.asarray(y, dtype=np.float32), nan=0.0), np.float32(floor))
+    w = w ** np.float32(exponent)
     sel = w if mask is None else w[mask]
     mean = float(sel.mean(dtype=np.float64)) if sel.size else 1.0
     return (w / np.float32(mean)).astype(np.float32)
