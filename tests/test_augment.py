@@ -241,3 +241,48 @@ def test_cfa_without_symmetric_partners_is_augmented_only_where_valid():
     assert augment_stats(st, "d4").n.sum() == 4 * st.n.sum()
     bayer = ClassDefinition.build("RGGB", patch=3, level_cuts=[0.3], saturation_threshold=2.0)
     np.testing.assert_array_equal(augment_copies(bayer, "d4"), 8)
+
+
+# ---------------------------------------------------------------- train / CV / CLI
+def test_cross_validation_statistics_are_those_of_l3_train(tmp_path):
+    """--tune's folds solve what l3 train solves: same weights, same augmentation."""
+    from test_tune import OPTS, _pairs
+
+    from l3cli.train import find_pairs, train
+    from l3cli.train.cv import layout_stats, load_cv_images, make_units, space_stats
+
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 0.8)})
+    pairs = find_pairs([folder])
+    opts = TrainOptions(target_space="linear-srgb", augment="d4", sample_weight="luminance",
+                        **OPTS)
+    images = load_cv_images(pairs, opts)
+    layout = layout_stats(images, make_units(images), opts, None)
+    via_cv = table_from_stats(space_stats(layout, "linear-srgb"), opts)
+    direct = train(pairs, opts)
+    np.testing.assert_array_equal(via_cv.counts, direct.counts)
+    np.testing.assert_allclose(via_cv.kernels, direct.kernels, rtol=1e-4, atol=1e-5)
+    plain = train(pairs, TrainOptions(target_space="linear-srgb", **OPTS))
+    assert not np.allclose(plain.kernels, direct.kernels, rtol=1e-3, atol=1e-4)
+
+
+def test_cli_defaults_for_pairs_folders_and_switching_off(tmp_path, runner):
+    from test_tune import _pairs
+
+    from l3cli.cli.main import cli
+    from l3cli.table import load_table
+
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
+    on, off = tmp_path / "on.npz", tmp_path / "off.npz"
+    common = ["--patch", "5", "--levels", "4", "--contrast-bins", "1"]
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(on), *common])
+    assert res.exit_code == 0, res.output
+    opts = load_table(on).provenance["options"]
+    assert opts["augment"] == "d4" and opts["sample_weight"] == "luminance"
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(off), *common,
+                              "--augment", "none", "--sample-weight", "none"])
+    assert res.exit_code == 0, res.output
+    opts = load_table(off).provenance["options"]
+    assert "augment" not in opts and "sample_weight" not in opts
+    assert not np.allclose(load_table(on).kernels, load_table(off).kernels)
+    bad = runner.invoke(cli, ["train", str(folder), "-o", str(off), "--augment", "d8"])
+    assert bad.exit_code == 2
