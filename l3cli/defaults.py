@@ -14,13 +14,19 @@ slowing ``l3 --help``.
 #: written as display sRGB), linearised further by a per-channel tone curve learned from
 #: the pairs (``tone_curve``, l3cli.tonecurve: 1.373 -> 0.453 at the layout chosen
 #: without it, 36 levels and a 0.1 threshold; 0.426 with 24 levels and 0.2).
+#: ``augment`` (:data:`l3cli.train.augment.AUGMENT_CHOICES`): each pair also trains mirrored and
+#: rotated (the dihedral group D4), and ``sample_weight`` ``"luminance"`` weights each sample by
+#: its target's luminance (:func:`l3cli.train.weights.sample_weights`); both chosen by the same
+#: leave-one-image-out (docs/training.md, "Augmentation and sample weights").
 PAIRS_LAYOUT = {"patch": 7, "levels": 24, "contrast_bins": 3, "contrast_threshold": 0.2,
-                "target_space": "linear-srgb", "tone_curve": True}
+                "target_space": "linear-srgb", "tone_curve": True,
+                "augment": "d4", "sample_weight": "luminance"}
 #: Simulate folders (ideal XYZ targets): the paper's layout, measured by make paper's
 #: experiments 4 and 5 (the pairs layout leaves small simulations with untrained classes).
 #: ``contrast_threshold`` None: thresholds at the per-level quantiles of the data.
 SIMULATION_LAYOUT = {"patch": 5, "levels": 24, "contrast_bins": 2, "contrast_threshold": None,
-                     "target_space": "xyz", "tone_curve": False}
+                     "target_space": "xyz", "tone_curve": False,
+                     "augment": "none", "sample_weight": "none"}
 #: Patch size (odd) of :class:`l3cli.train.TrainOptions`: the kernel sees PATCH x PATCH pixels.
 PATCH = SIMULATION_LAYOUT["patch"]
 #: Number of response-level bins (library default).
@@ -28,6 +34,15 @@ LEVELS = SIMULATION_LAYOUT["levels"]
 #: Learn the renders' per-channel tone curve and train in its linear space (library
 #: default; pairs folders use PAIRS_LAYOUT's). Only with the linear-srgb target.
 TONE_CURVE = False
+#: Dihedral augmentation of the training pairs (library default; ``"none"``, ``"flips"``, ``"d4"``).
+AUGMENT = SIMULATION_LAYOUT["augment"]
+#: Per-sample weights of the fit (library default; ``"none"`` or ``"luminance"``).
+SAMPLE_WEIGHT = SIMULATION_LAYOUT["sample_weight"]
+#: Luminance (Y, white = 1) below which ``"luminance"`` weights stop falling.
+WEIGHT_FLOOR = 0.01
+#: ``"luminance"`` weights are Y to this power (leave-one-image-out: 1 -> 1.308, 1.25 -> 1.303,
+#: 1.5 -> 1.302, 2 -> 1.311).
+WEIGHT_EXPONENT = 1.5
 #: Spacing of the level cut points (``"log"`` or ``"linear"``).
 LEVEL_SPACING = "log"
 #: Contrast bins per level (library default; 2 = flat / textured).

@@ -129,8 +129,12 @@ def score(l3: str, table: Path, test: Path, out: Path, train_opts: list[str]) ->
 
 
 def run(out: Path, *, l3: str = "l3", size: str = "320x240", seed: int = 1,
-        only: tuple[str, ...] | None = None) -> dict[str, float]:
-    """Run the experiments (all, or those named in ``only``); returns their mean S-CIELAB."""
+        only: tuple[str, ...] | None = None,
+        train_opts: tuple[str, ...] = ()) -> dict[str, float]:
+    """Run the experiments (all, or those named in ``only``); returns their mean S-CIELAB.
+
+    ``train_opts``: extra ``l3 train`` options for every run.
+    """
     out.mkdir(parents=True, exist_ok=True)
     sets = {
         "mixed_train": (["A", "FL2", "D50", "D75"], TRAIN_SCENES),
@@ -138,7 +142,7 @@ def run(out: Path, *, l3: str = "l3", size: str = "320x240", seed: int = 1,
         "fixed_train": (["D65"], TRAIN_SCENES),
         "fixed_test": (["D65"], TEST_SCENES),
     }
-    base = ["--target", "linear-srgb", "--seed", "1"]
+    base = ["--target", "linear-srgb", "--seed", "1", *train_opts]
     runs = {"mixed-wb": ("mixed_train", "mixed_test", []),  # the default for such pairs
             "mixed-nowb": ("mixed_train", "mixed_test", ["--no-as-shot-wb"]),
             "fixed": ("fixed_train", "fixed_test", ["--as-shot-wb"]),

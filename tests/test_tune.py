@@ -125,7 +125,7 @@ def test_tune_picks_the_known_best_space(tmp_path: Path):
     fit them in the linear space, so linear-srgb must win over srgb."""
     folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     grid = TuneGrid(spaces=("linear-srgb", "srgb"), patches=(5,), levels=(4,),
-                    contrast_bins=(1,))
+                    contrast_bins=(1,), augments=("none",), sample_weights=("none",))
     res = tune(find_pairs([folder]), TrainOptions(**OPTS), grid)
     assert res.best.candidate.target_space == "linear-srgb"
     by_space = {r.candidate.target_space: r.mean for r in res.results}
@@ -175,3 +175,25 @@ def test_tune_grid_from_config_values():
                 {"contrast_thresholds": [0]}, {"colour": 1}):
         with pytest.raises(ConfigError):
             TuneGrid.from_dict(bad)
+
+
+def test_tune_refuses_augmentation_for_a_pipeline_that_is_not_mirror_symmetric(tmp_path: Path):
+    """Renders shifted one pixel to the right: a mirrored pair teaches the opposite
+    shift, so the augmented candidates must lose; the symmetric pipeline of the
+    other folder keeps them within reach (the search is not biased against them)."""
+    folder = tmp_path / "p"
+    folder.mkdir()
+    for stem, seed in (("a", 5), ("b", 6), ("c", 7)):
+        lin = scene(H, W, seed=seed)
+        write_headerless(folder, stem, lin)
+        shifted = np.roll(lin, 1, axis=1)
+        write_image(folder / f"{stem}.png", srgb_encode(np.clip(shifted, 0, 1)), space="srgb")
+    grid = TuneGrid(spaces=("linear-srgb",), patches=(5,), levels=(4,), contrast_bins=(1,),
+                    augments=("d4", "none"), sample_weights=("none",))
+    res = tune(find_pairs([folder]), TrainOptions(**OPTS, augment="d4"), grid)
+    by_aug = {r.candidate.augment: r.mean for r in res.results}
+    assert set(by_aug) == {"d4", "none"}
+    assert res.best.candidate.augment == "none"
+    assert by_aug["d4"] > 1.5 * by_aug["none"], by_aug
+    assert res.table.provenance["tune"]["chosen"]["augment"] == "none"
+    assert "augment" not in res.table.provenance["options"]

@@ -158,6 +158,16 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @click.option("--highlight-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
               default=defaults.HIGHLIGHT_FRACTION, show_default=True,
               help="Fraction of saturated patch pixels that makes a strong highlight.")
+@click.option("--augment", type=click.Choice(["none", "flips", "d4"]), default=None,
+              help="Also train every pair mirrored and rotated, raw and render together "
+                   "(d4: all 8 of the square's symmetries; flips: the 4 mirrors), re-phased "
+                   "to the CFA; costs no extra pass over the pixels. Assumes the pipeline "
+                   f"has no preferred direction [default: {_P['augment']} for pairs folders, "
+                   f"{_S['augment']} else].")
+@click.option("--sample-weight", type=click.Choice(["none", "luminance"]), default=None,
+              help="Weight each training pixel by its target's luminance in the fit "
+                   f"[default: {_P['sample_weight']} for pairs folders, "
+                   f"{_S['sample_weight']} else].")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -175,7 +185,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           context_rule: str = defaults.CONTEXT_RULE,
           highlight_bins: str = str(defaults.HIGHLIGHT_BINS),
           highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
-          tone_curve: bool | None = None) -> None:
+          tone_curve: bool | None = None,
+          augment: str | None = None, sample_weight: str | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -224,6 +235,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
         from l3cli.train.fit import TONE_CURVE_SPACE
 
         tone_curve = layout["tone_curve"] and target_space == TONE_CURVE_SPACE
+    augment = augment or layout["augment"]
+    sample_weight = sample_weight or layout["sample_weight"]
     gains = white_balance
     if gains is not None:
         if as_shot_wb is False:
@@ -245,7 +258,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         orientation_bins=orientation_bins, coherence=coherence,
                         context_block=context_block, context_bins=context_bins,
                         context_rule=context_rule, highlight_bins=int(highlight_bins),
-                        highlight_fraction=highlight_fraction, tone_curve=tone_curve)
+                        highlight_fraction=highlight_fraction, tone_curve=tone_curve,
+                        augment=augment, sample_weight=sample_weight)
     show = not quiet()
     if tune:
         table = _tune(pairs, opts, workers, scheduler, show)

@@ -208,7 +208,14 @@ def histogram(images: Sequence[CVImage], opts: TrainOptions) -> ContrastHistogra
 
 def layout_stats(images: Sequence[CVImage], units: Sequence[Unit], opts: TrainOptions,
                  hist: ContrastHistogram | None) -> LayoutStats:
-    """One statistics pass per unit for the layout of ``opts`` (patch, levels, contrast bins)."""
+    """One statistics pass per unit for the layout of ``opts`` (patch, levels, contrast
+    bins), weighted as ``opts.sample_weight`` (:func:`l3cli.train.weights.sample_weights`).
+
+    The augmentation of ``opts.augment`` applies later, when a fold's table is
+    solved (:func:`l3cli.train.fit.table_from_stats`).
+    """
+    from l3cli.train.weights import sample_weights
+
     d = definition_from_histogram(images[0].cfa, hist, opts)
     n_out = 3 * len(CV_SPACES)
     per_unit = []
@@ -216,7 +223,10 @@ def layout_stats(images: Sequence[CVImage], units: Sequence[Unit], opts: TrainOp
         img = images[u.image]
         st = ClassStats.zeros(d, n_out, target_space="cv")
         mask = _unit_mask(img, u, guard=opts.patch // 2)
-        accumulate(st, img.mosaic, img.targets, mask=mask)
+        # as l3 train: weights from the target's Y (the xyz channels), mean 1 over the image
+        weight = sample_weights(img.targets[:, :, 3 * CV_SPACES.index("xyz") + 1], img.mask,
+                                opts.sample_weight)
+        accumulate(st, img.mosaic, img.targets, mask=mask, weight=weight)
         per_unit.append(st)
     total = ClassStats.zeros(d, n_out, target_space="cv")
     for st in per_unit:

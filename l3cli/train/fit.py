@@ -43,7 +43,7 @@ from l3cli.train.stats import ClassStats, accumulate
 
 __all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
            "define_classes", "definition_from_histogram",
-           "collect_stats", "table_from_stats", "fallback_sources", "train",
+           "collect_stats", "solve_stats", "table_from_stats", "fallback_sources", "train",
            "TONE_CURVE_SPACE", "NO_CURVE"]
 
 log = logging.getLogger(__name__)
@@ -100,7 +100,12 @@ class TrainOptions:
                  context_rule: str = defaults.CONTEXT_RULE,
                  highlight_bins: int = defaults.HIGHLIGHT_BINS,
                  highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
-                 tone_curve: bool = defaults.TONE_CURVE) -> None:
+                 tone_curve: bool = defaults.TONE_CURVE,
+                 augment: str = defaults.AUGMENT,
+                 sample_weight: str = defaults.SAMPLE_WEIGHT) -> None:
+        from l3cli.train.augment import augment_elements
+        from l3cli.train.weights import check_weight
+
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
@@ -161,6 +166,9 @@ class TrainOptions:
                               f"{self.target_space}; use --no-tone-curve")
         self.tone_curve = bool(tone_curve)
         self.tone_model = None  # the fitted l3cli.tonecurve.ToneCurve (set by train())
+        augment_elements(augment)  # a known choice
+        self.augment = augment
+        self.sample_weight = check_weight(sample_weight)
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance).
@@ -179,6 +187,10 @@ class TrainOptions:
         del d["tone_model"]
         if not self.tone_curve:
             del d["tone_curve"]
+        if self.augment == "none":
+            del d["augment"]
+        if self.sample_weight == "none":
+            del d["sample_weight"]
         return d
 
 
@@ -301,14 +313,18 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
     mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
     if valid is not None:
         mask = valid if mask is None else mask & valid
+    from l3cli.train.weights import luminance, sample_weights
     from l3cli.whitebalance import training_mosaic, training_target
 
     mosaic = training_mosaic(raw, opts)
     target = training_target(target, pair.raw, opts)
+    weight = None
+    if opts.sample_weight != "none":
+        weight = sample_weights(luminance(target, opts.target_space), mask, opts.sample_weight)
     if opts.tone_model is not None:
         target = opts.tone_model.linearise(srgb_encode(np.clip(target, 0.0, 1.0)))
     stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
-    accumulate(stats, mosaic, target, mask=mask)
+    accumulate(stats, mosaic, target, mask=mask, weight=weight)
     return PartialStats.of(stats)
 
 
@@ -445,13 +461,32 @@ def fallback_sources(definition: ClassDefinition, trained: np.ndarray) -> np.nda
     return src
 
 
-def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
-                     provenance: dict | None = None) -> TransformTable:
-    """Solve every class (ridge + GCV) and assemble the table."""
+def solve_stats(stats: ClassStats, opts: TrainOptions
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Solve every class with enough samples (ridge + GCV).
+
+    With ``opts.augment`` the statistics are first augmented by the mirrored
+    and rotated pairs (:func:`l3cli.train.augment.augment_stats`); a class is
+    trained when its count per copy reaches the minimum. Weighted statistics
+    (``opts.sample_weight``) are rescaled per class so that the weights sum
+    to the class's sample count before the solve (GCV counts samples).
+
+    Returns
+    -------
+    kernels, lambdas, lam_rel, counts, trained
+        float64 (n_classes, q, n_out) (zero where untrained), the chosen λ
+        (absolute and relative; NaN where untrained), int64 per-copy sample
+        counts and the bool trained mask.
+    """
     d = stats.definition
     nc, q, n_out = d.n_classes, d.n_coeffs, stats.n_out
-    min_n = opts.min_samples_factor * q
-    trained = stats.n >= min_n
+    counts = stats.n
+    if opts.augment != "none":
+        from l3cli.train.augment import augment_copies, augment_stats
+
+        stats = augment_stats(stats, opts.augment)
+        counts = stats.n // augment_copies(d, opts.augment)
+    trained = counts >= opts.min_samples_factor * q
     kernels = np.zeros((nc, q, n_out), dtype=np.float64)
     lambdas = np.full((nc, n_out), np.nan)
     lam_rel = np.full((nc, n_out), np.nan)
@@ -459,11 +494,25 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
     # on a busy machine), so the solves run single-threaded.
     with threadpool_limits(1, user_api="blas"):
         for c in np.flatnonzero(trained):
-            sol = solve_class(float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c],
-                              grid=opts.lambda_grid)
+            n, xtx, xty, yy = float(stats.n[c]), stats.xtx[c], stats.xty[c], stats.yy[c]
+            sw = float(xtx[q - 1, q - 1])  # the constant column's product: the weight sum
+            if sw != n:  # weighted: weights sum to the count
+                f = n / sw
+                xtx, xty, yy = xtx * f, xty * f, yy * f
+            sol = solve_class(n, xtx, xty, yy, grid=opts.lambda_grid)
             kernels[c] = sol.kernel
             lambdas[c] = sol.lam
             lam_rel[c] = sol.lam_rel
+    return kernels, lambdas, lam_rel, counts, trained
+
+
+def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
+                     provenance: dict | None = None) -> TransformTable:
+    """Solve every class (:func:`solve_stats`) and assemble the table."""
+    d = stats.definition
+    nc, q = d.n_classes, d.n_coeffs
+    min_n = opts.min_samples_factor * q
+    kernels, lambdas, lam_rel, counts, trained = solve_stats(stats, opts)
     src = fallback_sources(d, trained)
     kernels = kernels[src]
     prov = dict(provenance or {})
@@ -477,7 +526,7 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
     with np.errstate(all="ignore"):
         prov["lambda_rel_median"] = float(np.nanmedian(lam_rel)) if trained.any() else None
     log.info("trained %d of %d classes from %d samples", trained.sum(), nc, stats.n.sum())
-    return TransformTable(definition=d, kernels=kernels.astype(np.float32), counts=stats.n,
+    return TransformTable(definition=d, kernels=kernels.astype(np.float32), counts=counts,
                           lambdas=lambdas, empty=~trained, source_class=src,
                           output_space=stats.target_space, provenance=prov)
 
@@ -561,16 +610,13 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     if opts.by:
         from l3cli.conditions import Conditioned
 
-        min_n = opts.min_samples_factor * definition.n_coeffs
         kernels, counts = [], []
         for part in parts:
             k = np.array(table.kernels)
-            n = np.where(part.n >= min_n, part.n, 0)
-            for c in np.flatnonzero(n):
-                k[c] = solve_class(float(part.n[c]), part.xtx[c], part.xty[c], part.yy[c],
-                                   grid=opts.lambda_grid).kernel
+            part_k, _, _, part_n, part_tr = solve_stats(part, opts)
+            k[part_tr] = part_k[part_tr]
             kernels.append(k)
-            counts.append(n)
+            counts.append(np.where(part_tr, part_n, 0))
         table.conditions = Conditioned(opts.by, list(groups), np.array(kernels), np.array(counts))
         table.provenance["conditions"] = {"by": opts.by, "values": list(groups),
                                           "trained_classes": [int((c > 0).sum()) for c in counts]}

@@ -198,7 +198,7 @@ def _gram_kernel(S: int, n_out: int):
     B = _BLOCK
 
     @nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
-    def gram(mosaic, yi, xi, y0, idx, starts, assign, target, xtx, xty, yy):
+    def gram(mosaic, yi, xi, y0, idx, starts, assign, target, weight, use_w, xtx, xty, yy):
         W = mosaic.shape[1]
         for t in nb.prange(assign.shape[0]):
             T = np.zeros((MP, B))
@@ -228,6 +228,10 @@ def _gram_kernel(S: int, n_out: int):
                         T[P, n] = 1.0
                         for o in range(n_out):
                             T[q + o, n] = target[y, x, o]
+                        if use_w:  # weighted sample: sqrt(w) on every row of its column
+                            sw = np.sqrt(np.float64(weight[y, x]))
+                            for k in range(M):
+                                T[k, n] *= sw
                     for n in range(nn, B):
                         for k in range(M):
                             T[k, n] = 0.0
@@ -295,7 +299,8 @@ def _assign_classes(counts: np.ndarray, n_threads: int) -> np.ndarray:
 
 
 def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
-               mask: np.ndarray | None = None, max_pixels: int = 1 << 20) -> None:
+               mask: np.ndarray | None = None, weight: np.ndarray | None = None,
+               max_pixels: int = 1 << 20) -> None:
     """Add the patches of one (mosaic, target) pair to ``stats`` in place.
 
     Parameters
@@ -308,6 +313,11 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
         float32 (H, W, n_out) pixel-aligned target.
     mask
         Optional bool (H, W): only these pixels are used (subsampling).
+    weight
+        Optional float (H, W) non-negative sample weights: weighted least
+        squares, every product of a sample times its weight (the constant
+        column's product, ``xtx[c, -1, -1]``, is then the class's weight sum;
+        ``n`` still counts samples).
     max_pixels
         Pixels per band of rows (bounds memory: about 12 bytes per pixel of
         a band for its classes and sorted indices).
@@ -340,10 +350,18 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
         mask = np.ascontiguousarray(mask, dtype=np.bool_)
         if mask.shape != mosaic.shape:
             raise InputError(f"mask shape {mask.shape} differs from the raw's {mosaic.shape}")
+    if weight is not None:
+        weight = np.ascontiguousarray(weight, dtype=np.float32)
+        if weight.shape != mosaic.shape:
+            raise InputError(f"weight shape {weight.shape} differs from the raw's "
+                             f"{mosaic.shape}")
+        if not (np.all(np.isfinite(weight)) and weight.min() >= 0):
+            raise InputError("sample weights must be finite and non-negative")
     h, w = mosaic.shape
     yi, xi = d.mirror_maps(h, w)
     gram = _gram_kernel(d.patch, stats.n_out)
     no_mask = np.zeros((1, 1), dtype=np.bool_)
+    no_weight = np.zeros((1, 1), dtype=np.float32)
     n_threads = nb.get_num_threads()
     for y0, y1 in band_rows(h, w, max_pixels=max_pixels):
         cls = classify(mosaic, d, rows=(y0, y1))
@@ -353,5 +371,6 @@ def accumulate(stats: ClassStats, mosaic: np.ndarray, target: np.ndarray, *,
             continue
         counts = np.diff(starts)
         gram(mosaic, yi, xi, y0, idx, starts, _assign_classes(counts, n_threads), target,
+             weight if weight is not None else no_weight, weight is not None,
              stats.xtx, stats.xty, stats.yy)
         stats.n += counts

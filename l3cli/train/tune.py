@@ -8,14 +8,18 @@ single image), with S-CIELAB (ISETCam's 10° opponent transform, 96 dpi at
 scores them; the folds come from additive statistics (:mod:`l3cli.train.cv`),
 never from retraining.
 
-The search has three stages so that its cost stays a few dozen candidates:
+The search has four stages so that its cost stays a few dozen candidates:
 
 1. every target space x every patch size, at the starting levels, contrast
    bins and contrast rule (``--levels``, ``--contrast-bins``,
    ``--contrast-threshold``);
 2. for the best space and patch, every levels x contrast-bins pair;
 3. for the best of those, every contrast threshold of the grid (a fixed
-   threshold, or ``"quantile"``: the per-level quantiles of the data).
+   threshold, or ``"quantile"``: the per-level quantiles of the data);
+4. for the best of those, the dihedral augmentation and the sample weights
+   (``--augment`` x ``--sample-weight``, :mod:`l3cli.train.augment`,
+   :mod:`l3cli.train.weights`): a pipeline that is not mirror-symmetric, or
+   whose dark pixels matter more, is found here.
 
 The best candidate's table is solved from the statistics of all the
 training images (the statistics already collected), and its provenance
@@ -29,7 +33,7 @@ import logging
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -78,6 +82,8 @@ class TuneGrid:
     levels: tuple[int, ...] = (24, 36, 48)
     contrast_bins: tuple[int, ...] = (1, 2, 3)
     contrast_thresholds: tuple[float | None, ...] = (None, 0.1, 0.2)
+    augments: tuple[str, ...] = ("d4", "none")
+    sample_weights: tuple[str, ...] = ("luminance", "none")
     folds: int = DEFAULT_FOLDS
 
     def __post_init__(self) -> None:
@@ -96,11 +102,21 @@ class TuneGrid:
                               "must be > 0 (or \"quantile\")")
         if self.folds < 2:
             raise ConfigError(f"tune folds {self.folds} not allowed; use 2 or more")
+        from l3cli.train.augment import augment_elements
+        from l3cli.train.weights import check_weight
+
+        if not self.augments or not self.sample_weights:
+            raise ConfigError("tune augments and sample_weights need at least one value each")
+        for a in self.augments:
+            augment_elements(a)
+        for w in self.sample_weights:
+            check_weight(w)
 
     @classmethod
     def from_dict(cls, d: dict) -> TuneGrid:
         """From a config table (``[train.tune]``): keys as the attributes."""
-        known = {"spaces", "patches", "levels", "contrast_bins", "contrast_thresholds", "folds"}
+        known = {"spaces", "patches", "levels", "contrast_bins", "contrast_thresholds", "folds",
+                 "augments", "sample_weights"}
         extra = set(d) - known
         if extra:
             raise ConfigError(f"unknown tune keys {sorted(extra)}; allowed: {sorted(known)}")
@@ -120,12 +136,15 @@ class Candidate:
     levels: int
     contrast_bins: int
     contrast_threshold: float | None = None
+    augment: str = "none"
+    sample_weight: str = "none"
 
     def as_dict(self) -> dict:
         """JSON form (``contrast_threshold`` None: per-level quantiles)."""
         return {"target": self.target_space, "patch": self.patch, "levels": self.levels,
                 "contrast_bins": self.contrast_bins,
-                "contrast_threshold": self.contrast_threshold}
+                "contrast_threshold": self.contrast_threshold, "augment": self.augment,
+                "sample_weight": self.sample_weight}
 
 
 @dataclass
@@ -159,13 +178,15 @@ def _next_stage(stage: int, grid: TuneGrid, best: Candidate,
                 done: set[Candidate]) -> list[Candidate]:
     b = best
     if stage == 2:
-        cands = [Candidate(b.target_space, b.patch, lv, nb, b.contrast_threshold)
+        cands = [replace(b, levels=lv, contrast_bins=nb)
                  for lv in grid.levels for nb in grid.contrast_bins]
+    elif stage == 4:  # weights outer: one statistics pass per weighting
+        cands = [replace(b, augment=a, sample_weight=w)
+                 for w in grid.sample_weights for a in grid.augments]
     elif b.contrast_bins == 1:  # one bin: no contrast threshold to choose
         cands = []
     else:
-        cands = [Candidate(b.target_space, b.patch, b.levels, b.contrast_bins, t)
-                 for t in grid.contrast_thresholds]
+        cands = [replace(b, contrast_threshold=t) for t in grid.contrast_thresholds]
     return [c for c in cands if c not in done]
 
 
@@ -209,11 +230,12 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
                   else grid.contrast_bins[0])
     start_t = base.contrast_threshold
     spaces = grid.spaces or (default_target_space(pairs), "srgb")
-    plan = [Candidate(s, p, start_levels, start_bins, start_t)
+    plan = [Candidate(s, p, start_levels, start_bins, start_t, base.augment, base.sample_weight)
             for p in grid.patches for s in spaces]
     stage_ends = [len(plan)]
     n_total = (len(plan) + len(grid.levels) * len(grid.contrast_bins) - 1
-               + len(grid.contrast_thresholds))
+               + len(grid.contrast_thresholds)
+               + len(grid.augments) * len(grid.sample_weights) - 1)
     hists: dict[int, object] = {}
     layout = None
     layout_key = None
@@ -221,7 +243,7 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
 
     def stats_for(c: Candidate):
         nonlocal layout, layout_key
-        key = (c.patch, c.levels, c.contrast_bins, c.contrast_threshold)
+        key = (c.patch, c.levels, c.contrast_bins, c.contrast_threshold, c.sample_weight)
         if key != layout_key:
             opts = replace_opts(base, c)
             if c.patch not in hists:
@@ -232,7 +254,7 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         return layout
 
     for k in progress(range(n_total), label="tune      ", length=n_total, enabled=show_progress):
-        while k == len(plan) and len(stage_ends) < 3:  # a stage is done: plan the next
+        while k == len(plan) and len(stage_ends) < 4:  # a stage is done: plan the next
             best_c = min(results, key=lambda r: r.mean).candidate
             plan += _next_stage(len(stage_ends) + 1, grid, best_c, {r.candidate for r in results})
             stage_ends.append(len(plan))
@@ -267,11 +289,13 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
 
 
 def replace_opts(base: TrainOptions, c: Candidate) -> TrainOptions:
-    """``base`` with the candidate's target space, patch, levels and contrast bins."""
+    """``base`` with the candidate's target space, patch, levels, contrast bins and rule,
+    augmentation and sample weights."""
     d = base.as_dict()
     d.update(target_space=c.target_space, patch=c.patch, levels=c.levels,
              contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
-             tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE)
+             tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE,
+             augment=c.augment, sample_weight=c.sample_weight)
     return TrainOptions(**d)
 
 
@@ -279,9 +303,10 @@ def format_candidates(record: dict) -> str:
     """The candidate table of a tune record (best marked ``*``), sorted by score."""
     rows = sorted(record["candidates"], key=lambda r: r["cv_mean"])
     chosen = record["chosen"]
-    keys = ("target", "patch", "levels", "contrast_bins", "contrast_threshold")
-    out = [f"  {'':1} {'target':<12} {'patch':>5} {'levels':>6} {'bins':>4} {'threshold':>9}  "
-           f"{'CV S-CIELAB':>11}  per held-out unit"]
+    keys = ("target", "patch", "levels", "contrast_bins", "contrast_threshold", "augment",
+            "sample_weight")
+    out = [f"  {'':1} {'target':<12} {'patch':>5} {'levels':>6} {'bins':>4} {'threshold':>9} "
+           f"{'augment':>7} {'weight':>9}  {'CV S-CIELAB':>11}  per held-out unit"]
     for r in rows:
         mark = "*" if all(r.get(k) == chosen.get(k) for k in keys) else ""
         units = " ".join(f"{v:.3f}" for v in r["cv_units"])
@@ -290,7 +315,8 @@ def format_candidates(record: dict) -> str:
         if r["contrast_bins"] == 1:
             thr = "-"
         out.append(f"  {mark:1} {r['target']:<12} {r['patch']:>5} {r['levels']:>6} "
-                   f"{r['contrast_bins']:>4} {thr:>9}  {r['cv_mean']:>11.4f}  {units}")
+                   f"{r['contrast_bins']:>4} {thr:>9} {r.get('augment', 'none'):>7} "
+                   f"{r.get('sample_weight', 'none'):>9}  {r['cv_mean']:>11.4f}  {units}")
     return "\n".join(out)
 
 

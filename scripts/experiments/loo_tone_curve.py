@@ -3,7 +3,7 @@
     python scripts/experiments/loo_tone_curve.py FOLDER [key=value ...]
 
 Keys: training options (``levels=24``, ``patch=5``, ``contrast_bins=2``,
-``contrast_threshold=0.2``) and the curve's settings in
+``contrast_threshold=0.2``, ``augment=none|flips|d4``, ``sample_weight=none|luminance``) and the curve's settings in
 :mod:`l3cli.tonecurve` (``KNOTS``, ``SMOOTHNESS``, ``BLOCK``, ``FLAT_STD``).
 
 Unlike ``l3 train --tune`` (one curve from all the images: the held-out
@@ -28,6 +28,7 @@ from l3cli.train.curve import attach_curve
 from l3cli.train.cv import CV_SPACES, display_xyz, histogram, load_cv_images
 from l3cli.train.fit import definition_from_histogram, table_from_stats
 from l3cli.train.stats import ClassStats, accumulate
+from l3cli.train.weights import sample_weights
 
 
 def main() -> None:
@@ -37,12 +38,15 @@ def main() -> None:
         k, v = arg.split("=")
         if hasattr(tc, k):
             setattr(tc, k, type(getattr(tc, k))(v))
+        elif k in ("augment", "sample_weight"):
+            kw[k] = v
         else:
             kw[k] = int(v) if k in ("patch", "levels", "contrast_bins") else float(v)
     t0 = time.perf_counter()
     opts = TrainOptions(**kw)
     images = load_cv_images(find_pairs([folder]), opts)  # curve-free targets
     enc = 3 * CV_SPACES.index("srgb")
+    yy = 3 * CV_SPACES.index("xyz") + 1  # the weights' luminance, as l3 train's
     d = definition_from_histogram(images[0].cfa, histogram(images, opts), opts)
     samples = [tc.block_samples(im.mosaic, im.cfa, im.targets[:, :, enc:enc + 3],
                                 saturation=opts.saturation, mask=im.mask, block=tc.BLOCK)
@@ -54,8 +58,9 @@ def main() -> None:
         st = ClassStats.zeros(d, 3, target_space="linear-srgb")
         for i, im in enumerate(images):
             if i != u:
+                weight = sample_weights(im.targets[:, :, yy], im.mask, opts.sample_weight)
                 accumulate(st, im.mosaic, curve.linearise(im.targets[:, :, enc:enc + 3]),
-                           mask=im.mask)
+                           mask=im.mask, weight=weight)
         table = attach_curve(table_from_stats(st, opts), curve)
         out = render_mosaic(table, img.mosaic)
         scores.append(img.scorer.mean(display_xyz(out, "linear-srgb", True)))
