@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from l3cli.classify import MODE_RENDER, check_mosaic, run_tiles
+from l3cli.classify import MODE_DISPLAY, MODE_RENDER, check_mosaic, run_tiles
 from l3cli.errors import InputError, TableError
 from l3cli.render_rows import RENDER_LANES
 from l3cli.table import TransformTable
@@ -34,7 +34,8 @@ from l3cli.table import TransformTable
 if TYPE_CHECKING:
     from l3cli.io.raw import RawImage
 
-__all__ = ["check_fits", "pack_kernels", "render_mosaic", "render_raw", "render_file",
+__all__ = ["check_fits", "pack_kernels", "render_display", "render_mosaic", "render_raw",
+           "render_file",
            "render_task", "render_files", "table_for_task"]
 
 
@@ -108,6 +109,58 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
     run_tiles(mosaic, d, MODE_RENDER, rows=(y0, y1), kernels=pack_kernels(table),
               n_out=table.n_out, out=out)
+    return out
+
+
+def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
+                   out: np.ndarray | None = None,
+                   rows: tuple[int, int] | None = None) -> np.ndarray:
+    """Render a normalised mosaic straight to display integers (as TIFF, PNG and JPEG hold).
+
+    The tile kernel renders each row and display-encodes it while it is in
+    cache (:func:`l3cli.render_rows.encode_row`): no float image is held and
+    no second pass is made. The integers are those of
+    :func:`l3cli.io.encode.display_encode` applied to :func:`render_mosaic`'s
+    output (a test checks it); tables in ``lab`` take exactly that path.
+
+    Parameters
+    ----------
+    table
+        The transform table.
+    mosaic
+        float32 (H, W), 0 = black, 1 = white level.
+    bits
+        8 (uint8 out) or 16 (uint16 out).
+    out
+        Optional C-contiguous output of that dtype, (H, W, n_out) (or
+        (y1 - y0, W, n_out) with ``rows``).
+    rows
+        Optional ``(y0, y1)``: render only these rows.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 or uint16 (H, W, n_out) display values (sRGB for 3-channel tables).
+    """
+    from l3cli.io.encode import display_encode, display_params
+
+    d = table.definition
+    mosaic = check_mosaic(mosaic, d.cfa, d.patch)
+    h, w = mosaic.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    shape = (y1 - y0, w, table.n_out)
+    dtype = np.uint16 if bits == 16 else np.uint8
+    if out is None:
+        out = np.empty(shape, dtype=dtype)
+    elif out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous {np.dtype(dtype)} array of shape {shape}")
+    params = display_params(table.output_space, table.n_out, bits)
+    if params is None:  # lab: colour-science's conversion, on the float render
+        out[...] = display_encode(render_mosaic(table, mosaic, rows=(y0, y1)),
+                                  table.output_space, bits)
+        return out
+    run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=pack_kernels(table),
+              n_out=table.n_out, out=out, display=params)
     return out
 
 
