@@ -36,12 +36,15 @@ from l3cli.errors import InputError  # noqa: E402
 from l3cli.render_rows import encode_row, render_row4, render_row_any  # noqa: E402
 
 __all__ = ["MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER", "KernelTables",
-           "kernel_tables",
-           "check_mosaic", "band_rows", "run_tiles", "classify", "patch_features"]
+           "kernel_tables", "check_mosaic", "band_rows", "run_tiles", "classify",
+           "patch_features"]
 
 #: Output rows and columns of one parallel tile. A tile's padded band, its
 #: ring of horizontal sums and its output rows stay in the core's L2 cache.
-_TILE_ROWS = 32
+#: 64 rows rather than 32: the S - 1 rows of horizontal sums a tile shares with
+#: the tile above are computed twice, and halving that cost 4-5 % less CPU
+#: per render (9 MP, patch 5 and 7; 128 rows gave no more).
+_TILE_ROWS = 64
 _TILE_COLS = 512
 
 #: What the tile kernel does with each pixel's class (see :func:`run_tiles`).
