@@ -4,9 +4,10 @@ A folder is a pipeline, not a loop. Each file goes through
 
 1. decode (LibRaw through rawpy: C code, the GIL released),
 2. render (the numba tile kernel, parallel over every core) and, for
-   TIFF/PNG/JPEG, display-encode each rendered row inside the same kernel
-   (:func:`l3cli.render.render_display`), straight into 8/16-bit integers:
-   no float image is held;
+   TIFF/PNG/JPEG, display-encode (:func:`l3cli.render.render_display`: 8-bit
+   rows are encoded inside the kernel as they are rendered, 16-bit bands of
+   ~1 M pixels after theirs), straight into 8/16-bit integers: no full-size
+   float image is held;
 3. write (OpenImageIO's encoders, the GIL released), atomically,
 
 on a small pool of threads: while one file renders, the next decodes and the
@@ -168,8 +169,9 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
 def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
     """Render straight to display integers (:func:`l3cli.render.render_display`).
 
-    Each row is display-encoded inside the tile kernel as it is rendered: no
-    float image is held and no second pass over the image is made.
+    8-bit rows are display-encoded inside the tile kernel as they are
+    rendered; 16-bit output is rendered and encoded in bands. No full-size
+    float image is held.
     """
     from l3cli.render import render_display
 
