@@ -163,9 +163,10 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
     elif out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous {np.dtype(dtype)} array of shape {shape}")
     params = display_params(table.output_space, table.n_out, bits)
+    kernels = pack_kernels(table)
     if params is not None and bits == 8:
-        run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=pack_kernels(table),
-                  n_out=table.n_out, out=out, display=params)
+        run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=kernels, n_out=table.n_out,
+                  out=out, display=params)
         return out
     # 16 bits (its 400 kB of encoder tables compete with the kernels for the
     # cache inside the render: 15-25 % slower fused, measured) and lab: float
@@ -175,7 +176,8 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
     for b0 in range(y0, y1, step):
         b1 = min(y1, b0 + step)
         part = band[: b1 - b0]
-        render_mosaic(table, mosaic, out=part, rows=(b0, b1))
+        run_tiles(mosaic, d, MODE_RENDER, rows=(b0, b1), kernels=kernels, n_out=table.n_out,
+                  out=part)
         out[b0 - y0:b1 - y0] = display_encode(part, table.output_space, bits)
     return out
 
