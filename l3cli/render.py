@@ -148,7 +148,7 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
     numpy.ndarray
         uint8 or uint16 (H, W, n_out) display values (sRGB for 3-channel tables).
     """
-    from l3cli.io.encode import display_encode, display_params
+    from l3cli.io.encode import display_encode, display_params, encode_into
 
     if bits not in (8, 16):
         raise ValueError(f"bits must be 8 or 16, got {bits}")
@@ -178,7 +178,10 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
         part = band[: b1 - b0]
         run_tiles(mosaic, d, MODE_RENDER, rows=(b0, b1), kernels=kernels, n_out=table.n_out,
                   out=part)
-        out[b0 - y0:b1 - y0] = display_encode(part, table.output_space, bits)
+        if params is None:  # lab
+            out[b0 - y0:b1 - y0] = display_encode(part, table.output_space, bits)
+        else:
+            encode_into(part, params, bits, out[b0 - y0:b1 - y0])
     return out
 
 

@@ -30,7 +30,8 @@ import numpy as np
 
 from l3cli.colourspace import XYZ_TO_LINEAR_SRGB, check_space
 
-__all__ = ["DisplayParams", "display_encode", "display_params", "interpolation_table",
+__all__ = ["DisplayParams", "display_encode", "display_params", "encode_into",
+           "interpolation_table",
            "quantise_reference", "srgb_thresholds"]
 
 #: Bits of a float32 dropped to number its bucket: 2**(30 - 16) buckets over [0, 1]
@@ -248,6 +249,12 @@ def display_encode(image: np.ndarray, space: str, bits: int) -> np.ndarray:
         img = np.ascontiguousarray(convert(img, "lab", "linear-srgb"), dtype=np.float32)
         params = display_params("linear-srgb", 3, bits)
     out = np.empty(img.shape, dtype=np.uint16 if bits == 16 else np.uint8)
+    return encode_into(img, params, bits, out)
+
+
+def encode_into(img: np.ndarray, params: DisplayParams, bits: int, out: np.ndarray) -> np.ndarray:
+    """Display-encode float32 C-contiguous ``img`` (H, W, C) into ``out`` (same shape, uint8
+    for 8 bits, uint16 for 16, C-contiguous) with :func:`display_params`' ``params``."""
     flat = out.reshape(-1)
     _kernel()(img, *params, flat if bits == 8 else _NO_U8, flat if bits == 16 else _NO_U16,
               bits)
