@@ -15,7 +15,8 @@ previous one is written. Memory stays bounded: at most ``in_flight`` files
 (default 3) are between decode and write at any time, and a file's buffers
 are freed as soon as its stage is done. Render calls run one at a time (each
 already uses every core, and numba's default threading layer must not be
-entered from two threads at once). Before the first file, the kernels
+entered from two threads at once); a 16-bit band's display encoding runs
+outside that lock, beside the next band's render. Before the first file, the kernels
 are loaded from numba's on-disk cache on a tiny input beside the first decode
 (:func:`warm_up`).
 
@@ -170,13 +171,13 @@ def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
     """Render straight to display integers (:func:`l3cli.render.render_display`).
 
     8-bit rows are display-encoded inside the tile kernel as they are
-    rendered; 16-bit output is rendered and encoded in bands. No full-size
-    float image is held.
+    rendered; 16-bit output is rendered in bands (under the render lock) and
+    each band is encoded outside the lock, beside the next band's render. No
+    full-size float image is held.
     """
     from l3cli.render import render_display
 
-    with _RENDER_LOCK:
-        return render_display(table, mosaic, bits)
+    return render_display(table, mosaic, bits, render_lock=_RENDER_LOCK)
 
 
 def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,

@@ -18,9 +18,11 @@ SIMD multiply-add.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import os
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -118,7 +120,8 @@ DISPLAY_BAND_PIXELS = 1 << 20
 
 def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
                    out: np.ndarray | None = None,
-                   rows: tuple[int, int] | None = None) -> np.ndarray:
+                   rows: tuple[int, int] | None = None,
+                   render_lock: AbstractContextManager | None = None) -> np.ndarray:
     """Render a normalised mosaic straight to display integers (as TIFF, PNG and JPEG hold).
 
     For 8 bits the tile kernel renders each row and display-encodes it while
@@ -142,6 +145,10 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
         (y1 - y0, W, n_out) with ``rows``).
     rows
         Optional ``(y0, y1)``: render only these rows.
+    render_lock
+        Held around each call of the (parallel) render kernel; the encoding
+        of 16-bit bands runs outside it, beside the next render (the file
+        pipeline's lock).
 
     Returns
     -------
@@ -164,9 +171,11 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
         raise ValueError(f"out must be a C-contiguous {np.dtype(dtype)} array of shape {shape}")
     params = display_params(table.output_space, table.n_out, bits)
     kernels = pack_kernels(table)
+    lock = render_lock if render_lock is not None else contextlib.nullcontext()
     if params is not None and bits == 8:
-        run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=kernels, n_out=table.n_out,
-                  out=out, display=params)
+        with lock:
+            run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=kernels,
+                      n_out=table.n_out, out=out, display=params)
         return out
     # 16 bits (its 400 kB of encoder tables compete with the kernels for the
     # cache inside the render: 15-25 % slower fused, measured) and lab: float
@@ -176,8 +185,9 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
     for b0 in range(y0, y1, step):
         b1 = min(y1, b0 + step)
         part = band[: b1 - b0]
-        run_tiles(mosaic, d, MODE_RENDER, rows=(b0, b1), kernels=kernels, n_out=table.n_out,
-                  out=part)
+        with lock:
+            run_tiles(mosaic, d, MODE_RENDER, rows=(b0, b1), kernels=kernels,
+                      n_out=table.n_out, out=part)
         if params is None:  # lab
             out[b0 - y0:b1 - y0] = display_encode(part, table.output_space, bits)
         else:

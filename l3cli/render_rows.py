@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["RENDER_LANES", "encode_row", "render_row4", "render_row_any"]
+__all__ = ["RENDER_LANES", "encode_row", "encode_rows", "render_row4", "render_row_any"]
 
 #: Output lanes of the vectorised render path (tables with up to 4 outputs).
 RENDER_LANES = 4
@@ -141,3 +141,16 @@ def encode_row(src, n, use_matrix, m, thr, buckets, interp, shift, lin, out8, ou
                                     + np.float32(0.5)))
             q = q + np.uint64(v >= thr[q + np.uint64(1)]) - np.uint64(v < thr[q])
             out16[ou + np.uint64(k)] = q
+
+
+@nb.njit(cache=True, nogil=True)
+def encode_rows(img, use_matrix, matrix, thr, buckets, interp, shift, out8, out16, bits):
+    """Display-encode a float32 (H, W, C) image row by row (:func:`encode_row`) into the
+    flat ``out8`` (8 bits) or ``out16`` (16 bits); the kernel of
+    :func:`l3cli.io.encode.display_encode`."""
+    h, w, c = img.shape
+    flat = img.reshape(h, w * c)
+    lin = np.empty(w * c, dtype=np.float32)
+    for y in range(h):
+        encode_row(flat[y], w * c, use_matrix, matrix, thr, buckets, interp, shift, lin,
+                   out8, out16, bits, y * w * c)

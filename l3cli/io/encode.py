@@ -201,19 +201,15 @@ def display_params(space: str, n_channels: int, bits: int) -> DisplayParams | No
 
 @functools.cache
 def _kernel():
-    """The numba kernel (compiled, or loaded from numba's on-disk cache, on first use)."""
-    import numba as nb
+    """The numba kernel (compiled, or loaded from numba's on-disk cache, on first use).
 
-    from l3cli.render_rows import encode_row
-
-    @nb.njit(cache=True, nogil=True)
-    def encode_rows(img, use_matrix, matrix, thr, buckets, interp, shift, out8, out16, bits):
-        h, w, c = img.shape
-        flat = img.reshape(h, w * c)
-        lin = np.empty(w * c, dtype=np.float32)
-        for y in range(h):
-            encode_row(flat[y], w * c, use_matrix, matrix, thr, buckets, interp, shift, lin,
-                       out8, out16, bits, y * w * c)
+    It lives in :mod:`l3cli.render_rows` (imported here, on first use, so that
+    importing this module does not import numba) as a module-level function:
+    a kernel defined in here as a closure over ``encode_row`` would miss
+    numba's cache in every new process (the closure's pickled dispatcher
+    differs), costing a compile (~0.4 s) per ``l3 render`` to TIFF.
+    """
+    from l3cli.render_rows import encode_rows
 
     return encode_rows
 
