@@ -11,7 +11,10 @@ kernels: speed does not depend on the values), writes the mosaic as a 12-bit
 DNG, then times, interleaved and best of ``--repeat``:
 
 * ``l3 render`` core (:func:`l3cli.render.render_mosaic`, mosaic in memory,
-  float32 XYZ out);
+  float32 XYZ out), and the same straight to 8-bit display sRGB
+  (:func:`l3cli.render.render_display`, the display encoding fused into the
+  kernel: what ``l3 render`` does for JPEG/PNG, and what LibRaw's
+  ``postprocess`` returns);
 * rawpy ``postprocess`` with AHD, PPG and LINEAR demosaicing (file already
   opened and unpacked, 8-bit sRGB out);
 * colour-demosaicing's Malvar (2004) and Menon (2007) demosaicking of the
@@ -108,7 +111,7 @@ def main() -> None:
     import rawpy
 
     from l3cli.io.raw import write_raw
-    from l3cli.render import render_mosaic
+    from l3cli.render import render_display, render_mosaic
     from l3cli.table import save_table
 
     w, h = (int(v) for v in a.size.split("x"))
@@ -118,18 +121,23 @@ def main() -> None:
     dng = write_raw(tmp / "bench.dng", np.round(mosaic * 4095).astype(np.uint16), "RGGB",
                     white_level=4095)
     out = np.empty((h, w, 3), np.float32)
+    out8 = np.empty((h, w, 3), np.uint8)
     render_mosaic(table, mosaic[:64, :64])  # compile / load the cache
+    render_display(table, mosaic[:64, :64], 8)
     rows = {}
     with rawpy.imread(str(dng)) as raw:
         _ = raw.raw_image_visible  # unpack once
         algs = {"LibRaw AHD": rawpy.DemosaicAlgorithm.AHD,
                 "LibRaw PPG": rawpy.DemosaicAlgorithm.PPG,
                 "LibRaw LINEAR": rawpy.DemosaicAlgorithm.LINEAR}
-        timings = {k: [] for k in ["l3 render", *algs, "numpy copy (bandwidth)"]}
+        timings = {k: [] for k in ["l3 render", "l3 render → 8-bit sRGB (fused)", *algs,
+                                   "numpy copy (bandwidth)"]}
         src = np.empty(mosaic.nbytes + out.nbytes, np.uint8)
         dst = np.empty_like(src)
         for _ in range(a.repeat):
             timings["l3 render"].append(_best(lambda: render_mosaic(table, mosaic, out=out), 1))
+            timings["l3 render → 8-bit sRGB (fused)"].append(
+                _best(lambda: render_display(table, mosaic, 8, out=out8), 1))
             for name, alg in algs.items():
                 timings[name].append(_best(lambda alg=alg: raw.postprocess(demosaic_algorithm=alg), 1))
             timings["numpy copy (bandwidth)"].append(_best(lambda: np.copyto(dst, src), 1))

@@ -4,9 +4,10 @@ A folder is a pipeline, not a loop. Each file goes through
 
 1. decode (LibRaw through rawpy: C code, the GIL released),
 2. render (the numba tile kernel, parallel over every core) and, for
-   TIFF/PNG/JPEG, display-encode (:func:`l3cli.io.encode.display_encode`, a
-   ``nogil`` numba kernel) band by band, straight into 8/16-bit integers: no
-   full-size float image is held;
+   TIFF/PNG/JPEG, display-encode (:func:`l3cli.render.render_display`: 8-bit
+   rows are encoded inside the kernel as they are rendered, 16-bit bands of
+   ~1 M pixels after theirs), straight into 8/16-bit integers: no full-size
+   float image is held;
 3. write (OpenImageIO's encoders, the GIL released), atomically,
 
 on a small pool of threads: while one file renders, the next decodes and the
@@ -14,8 +15,8 @@ previous one is written. Memory stays bounded: at most ``in_flight`` files
 (default 3) are between decode and write at any time, and a file's buffers
 are freed as soon as its stage is done. Render calls run one at a time (each
 already uses every core, and numba's default threading layer must not be
-entered from two threads at once); a band's display encoding runs outside
-that lock, beside the next band's render. Before the first file, the kernels
+entered from two threads at once); a 16-bit band's display encoding runs
+outside that lock, beside the next band's render. Before the first file, the kernels
 are loaded from numba's on-disk cache on a tiny input beside the first decode
 (:func:`warm_up`).
 
@@ -188,55 +189,38 @@ class Prefetch:
 
 
 def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
-    """Load the render (and display-encode) kernels from numba's cache on a tiny input.
+    """Load the render kernel from numba's cache on a tiny input.
 
     Run beside the first file's decode, this moves numba's first-call cost
     (target set-up, cache loading: a few tenths of a second) off the
-    critical path of a one-file render.
+    critical path of a one-file render. The tile kernel is one compiled
+    function for float (EXR) and display (TIFF/PNG/JPEG) outputs.
     """
-    from l3cli.render import render_mosaic
+    from l3cli.render import render_display, render_mosaic
 
     preload_scipy_blas()
     s = max(table.patch, *table.cfa.period) * 2
-    display = out_path is not None and Path(out_path).suffix.lower() != ".exr"
+    tiny = np.zeros((s, s), dtype=np.float32)
     with _RENDER_LOCK:
-        img = render_mosaic(table, np.zeros((s, s), dtype=np.float32))
-        if display:
-            # inside the lock: the first file's first band would otherwise reach the
-            # encoder's (per-process, cached) tables while they are being built, and
-            # build them a second time beside this thread
-            from l3cli.io.encode import display_encode
+        if out_path is not None and Path(out_path).suffix.lower() != ".exr":
             from l3cli.io.image import format_of
 
-            display_encode(img, table.output_space, 16 if format_of(out_path) == "tiff" else 8)
-
-
-#: Rows of one render band for display outputs: about this many pixels.
-BAND_PIXELS = 1 << 20
+            render_display(table, tiny, 16 if format_of(out_path) == "tiff" else 8)
+        else:
+            render_mosaic(table, tiny)
 
 
 def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
-    """Render straight to display integers, band by band (no full float image).
+    """Render straight to display integers (:func:`l3cli.render.render_display`).
 
-    Each band is rendered (under the render lock) into a small float buffer
-    and display-encoded into its rows of the output outside the lock, so the
-    next band (or another file) renders meanwhile. A pixel depends on its
-    patch only, so bands give the same pixels as one whole render.
+    8-bit rows are display-encoded inside the tile kernel as they are
+    rendered; 16-bit output is rendered in bands (under the render lock) and
+    each band is encoded outside the lock, beside the next band's render. No
+    full-size float image is held.
     """
-    from l3cli.io.encode import display_encode
-    from l3cli.render import render_mosaic
+    from l3cli.render import render_display
 
-    h, w = mosaic.shape
-    rows = max(16, BAND_PIXELS // max(w, 1))
-    out = np.empty((h, w, table.n_out), dtype=np.uint16 if bits == 16 else np.uint8)
-    band = np.empty((min(rows, h), w, table.n_out), dtype=np.float32)
-    for y0 in range(0, h, rows):
-        y1 = min(h, y0 + rows)
-        part = band[: y1 - y0]
-        with _RENDER_LOCK:
-            render_mosaic(table, mosaic, out=part, rows=(y0, y1))
-        out[y0:y1] = display_encode(part, table.output_space, bits)
-    return out
+    return render_display(table, mosaic, bits, render_lock=_RENDER_LOCK)
 
 
 def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
@@ -247,8 +231,8 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
 
     The one implementation of a file's render, used by the pipeline's threads
     and by :func:`l3cli.render.render_file` (dask tasks, library callers).
-    Display outputs are rendered band by band straight to integers; tables
-    with per-raw gains or condition bins take the whole-image path.
+    Display outputs are rendered straight to integers; tables with per-raw
+    gains or condition bins take the whole-image path.
     """
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes

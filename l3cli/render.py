@@ -20,15 +20,17 @@ SIMD multiply-add.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import os
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from l3cli.classify import MODE_RENDER, check_mosaic, run_tiles
+from l3cli.classify import MODE_DISPLAY, MODE_RENDER, check_mosaic, run_tiles
 from l3cli.errors import InputError, TableError
 from l3cli.render_rows import RENDER_LANES
 from l3cli.table import TransformTable
@@ -36,7 +38,8 @@ from l3cli.table import TransformTable
 if TYPE_CHECKING:
     from l3cli.io.raw import RawImage
 
-__all__ = ["check_fits", "pack_kernels", "render_mosaic", "render_raw", "render_file",
+__all__ = ["check_fits", "pack_kernels", "render_display", "render_mosaic", "render_raw",
+           "render_file",
            "render_task", "render_files", "table_for_task"]
 
 
@@ -108,13 +111,104 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
         out = np.empty(shape, dtype=np.float32)
     elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
-    curve = None
-    if table.tone_lut is not None:  # kernels render the learned curve space
-        from l3cli.tonecurve import curve_arrays
-
-        curve = curve_arrays(*table.tone_lut)
     run_tiles(mosaic, d, MODE_RENDER, rows=(y0, y1), kernels=pack_kernels(table),
-              n_out=table.n_out, out=out, curve=curve)
+              n_out=table.n_out, out=out, curve=tone_curve_arrays(table))
+    return out
+
+
+def tone_curve_arrays(table: TransformTable) -> tuple[np.ndarray, ...] | None:
+    """The table's learned tone curve as the tile kernel reads it (None: no curve).
+
+    The kernels render the curve's linear space; the kernel maps each output
+    row through the curve (:func:`l3cli.tonecurve.curve_row`).
+    """
+    if table.tone_lut is None:
+        return None
+    from l3cli.tonecurve import curve_arrays
+
+    return curve_arrays(*table.tone_lut)
+
+
+#: Pixels of one float band of :func:`render_display`'s two-step path (16 bits, lab).
+DISPLAY_BAND_PIXELS = 1 << 20
+
+
+def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
+                   out: np.ndarray | None = None,
+                   rows: tuple[int, int] | None = None,
+                   render_lock: AbstractContextManager | None = None) -> np.ndarray:
+    """Render a normalised mosaic straight to display integers (as TIFF, PNG and JPEG hold).
+
+    For 8 bits the tile kernel renders each row and display-encodes it while
+    it is in cache (:func:`l3cli.render_rows.encode_row`): no float image is
+    held and no second pass is made. For 16 bits (and ``lab`` tables) bands
+    of about :data:`DISPLAY_BAND_PIXELS` are rendered to float and encoded
+    one after another. Either way the integers are those of
+    :func:`l3cli.io.encode.display_encode` applied to :func:`render_mosaic`'s
+    output (a test checks it).
+
+    Parameters
+    ----------
+    table
+        The transform table.
+    mosaic
+        float32 (H, W), 0 = black, 1 = white level.
+    bits
+        8 (uint8 out) or 16 (uint16 out).
+    out
+        Optional C-contiguous output of that dtype, (H, W, n_out) (or
+        (y1 - y0, W, n_out) with ``rows``).
+    rows
+        Optional ``(y0, y1)``: render only these rows.
+    render_lock
+        Held around each call of the (parallel) render kernel; the encoding
+        of 16-bit bands runs outside it, beside the next render (the file
+        pipeline's lock).
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 or uint16 (H, W, n_out) display values (sRGB for 3-channel tables).
+    """
+    from l3cli.io.encode import display_encode, display_params, encode_into
+
+    if bits not in (8, 16):
+        raise ValueError(f"bits must be 8 or 16, got {bits}")
+    d = table.definition
+    mosaic = check_mosaic(mosaic, d.cfa, d.patch)
+    h, w = mosaic.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    shape = (y1 - y0, w, table.n_out)
+    dtype = np.uint16 if bits == 16 else np.uint8
+    if out is None:
+        out = np.empty(shape, dtype=dtype)
+    elif out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous {np.dtype(dtype)} array of shape {shape}")
+    lock = render_lock if render_lock is not None else contextlib.nullcontext()
+    with lock:  # the encoder's tables (cached per process) are built once, not beside
+        params = display_params(table.output_space, table.n_out, bits)  # a warm-up's build
+    kernels = pack_kernels(table)
+    curve = tone_curve_arrays(table)
+    if params is not None and bits == 8:
+        with lock:
+            run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=kernels,
+                      n_out=table.n_out, out=out, curve=curve, display=params)
+        return out
+    # 16 bits (its 400 kB of encoder tables compete with the kernels for the
+    # cache inside the render: 15-25 % slower fused, measured) and lab: float
+    # bands of ~1 M pixels, each encoded after its render
+    step = max(1, DISPLAY_BAND_PIXELS // max(w, 1))
+    band = np.empty((min(step, y1 - y0), w, table.n_out), dtype=np.float32)
+    for b0 in range(y0, y1, step):
+        b1 = min(y1, b0 + step)
+        part = band[: b1 - b0]
+        with lock:
+            run_tiles(mosaic, d, MODE_RENDER, rows=(b0, b1), kernels=kernels,
+                      n_out=table.n_out, out=part, curve=curve)
+        if params is None:  # lab
+            out[b0 - y0:b1 - y0] = display_encode(part, table.output_space, bits)
+        else:
+            encode_into(part, params, bits, out[b0 - y0:b1 - y0])
     return out
 
 

@@ -65,14 +65,13 @@ def test_a_failing_file_in_the_middle(runner, tmp_path, table_path):
     assert sorted(p.name for p in out.iterdir()) == ["r0.jpg", "r2.jpg", "r3.jpg"]
 
 
-def test_display_bands_equal_one_whole_render(monkeypatch, table_path):
+def test_display_render_equals_render_then_encode(table_path):
     from l3cli import pipeline
     from l3cli.io.encode import display_encode
     from l3cli.render import render_mosaic, table_for_task
 
     table = table_for_task(table_path)
     m = np.random.default_rng(2).random((53, 40)).astype(np.float32)
-    monkeypatch.setattr(pipeline, "BAND_PIXELS", 7 * 40)  # 16-row bands (the minimum)
     for bits in (8, 16):
         got = pipeline._render_display(table, m, bits)
         want = display_encode(render_mosaic(table, m), table.output_space, bits)

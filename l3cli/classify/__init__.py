@@ -75,6 +75,7 @@ from l3cli.classify.definition import (
 from l3cli.classify.histograms import ContrastHistogram
 from l3cli.classify.kernel import (
     MODE_CLASSES,
+    MODE_DISPLAY,
     MODE_FEATURES,
     MODE_RENDER,
     KernelTables,
@@ -92,6 +93,7 @@ __all__ = [
     "CONTRAST_RULE",
     "DEFAULT_CONTRAST_EPS",
     "MODE_CLASSES",
+    "MODE_DISPLAY",
     "MODE_FEATURES",
     "MODE_RENDER",
     "SATURATION_RULE",

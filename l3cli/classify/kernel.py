@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+from typing import Any
 
 # OpenMP threads that wait passively instead of spinning: on a shared or busy
 # machine spinning workers steal the cores the kernels need (2x slower
@@ -32,19 +33,23 @@ from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # n
 from l3cli.classify.features import ContextGuide, context_guide  # noqa: E402
 from l3cli.classify.layout import KernelTables, kernel_tables  # noqa: E402
 from l3cli.errors import InputError  # noqa: E402
-from l3cli.render_rows import render_row4, render_row_any  # noqa: E402
+from l3cli.render_rows import encode_row, render_row4, render_row_any  # noqa: E402
 from l3cli.tonecurve import curve_row  # noqa: E402
 
-__all__ = ["MODE_CLASSES", "MODE_FEATURES", "MODE_RENDER", "KernelTables", "kernel_tables",
-           "check_mosaic", "band_rows", "run_tiles", "classify", "patch_features"]
+__all__ = ["MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER", "KernelTables",
+           "kernel_tables", "check_mosaic", "band_rows", "run_tiles", "classify",
+           "patch_features"]
 
 #: Output rows and columns of one parallel tile. A tile's padded band, its
 #: ring of horizontal sums and its output rows stay in the core's L2 cache.
-_TILE_ROWS = 32
+#: 64 rows rather than 32: the S - 1 rows of horizontal sums a tile shares with
+#: the tile above are computed twice, and halving that cost 4-5 % less CPU
+#: per render (9 MP, patch 5 and 7; 128 rows gave no more).
+_TILE_ROWS = 64
 _TILE_COLS = 512
 
 #: What the tile kernel does with each pixel's class (see :func:`run_tiles`).
-MODE_CLASSES, MODE_FEATURES, MODE_RENDER = 0, 1, 2
+MODE_CLASSES, MODE_FEATURES, MODE_RENDER, MODE_DISPLAY = 0, 1, 2, 3
 
 
 @contextlib.contextmanager
@@ -89,7 +94,8 @@ def _tile_kernel(S: int, PW: int):
                lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
                xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
                mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
-               cv_lo, cv_step):
+               cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
+               out16):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -179,6 +185,9 @@ def _tile_kernel(S: int, PW: int):
             jxy = np.empty(tw, dtype=np.float32)
             bst = np.empty(tw, dtype=np.float32)
             crow = np.empty(ctx.shape[1], dtype=np.float32)
+            # display mode: a row's float outputs (+ 1 lane of spill), then its encoding
+            rowf = np.empty(tw * n_out + 4 if mode == MODE_DISPLAY else 1, dtype=np.float32)
+            lin = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
             for k in range(nbr):
                 slot = k % S
                 py = (y0 + i0 + k - r) % ph
@@ -363,18 +372,25 @@ def _tile_kernel(S: int, PW: int):
                             exb[x] = exb[x] * n_hl + np.int32(bst[x] >= hl_cnt)
                     for x in range(tw):
                         clsr[x] = clsr[x] * n_ext + exb[x]
+                o = ((i0 + i) * W + x0) * n_out
                 if mode == MODE_CLASSES:
                     for x in range(tw):
                         out_cls[i0 + i, x0 + x] = clsr[x]
+                elif mode == MODE_DISPLAY:  # render the row, then encode it while in cache
+                    if n_out <= 4:
+                        render_row4(pb, i, 0, tw, S, clsr, K, rowf, 0, n_out)
+                    else:
+                        render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
+                    if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
+                        curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+                    encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp, shift,
+                               lin, out8, out16, enc_bits, o)
                 elif n_out <= 4:
-                    render_row4(pb, i, 0, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
-                                n_out)
+                    render_row4(pb, i, 0, tw, S, clsr, K, outf, o, n_out)
                 else:
-                    render_row_any(pb, i, tw, S, clsr, K, outf, ((i0 + i) * W + x0) * n_out,
-                                   n_out)
+                    render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
                 if mode == MODE_RENDER and cv_base.shape[1] > 1:  # learned tone curve
-                    curve_row(outf, ((i0 + i) * W + x0) * n_out, tw, n_out, cv_base, cv_slope,
-                              cv_lo, cv_step)
+                    curve_row(outf, o, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
 
     return kernel
 
@@ -409,6 +425,11 @@ _NO_F32 = np.zeros((1, 1), dtype=np.float32)
 _NO_I32 = np.zeros((1, 1), dtype=np.int32)
 _NO_OUT = np.zeros(1, dtype=np.float32)
 _NO_CURVE = (_NO_F32, _NO_F32, np.zeros(1, np.float32), np.zeros(1, np.float32))
+_NO_U8 = np.zeros(1, dtype=np.uint8)
+_NO_U16 = np.zeros(1, dtype=np.uint16)
+#: Encoder arguments when not in display mode (the order of ``DisplayParams``).
+_NO_DISPLAY = (False, np.eye(3), np.zeros(2, np.float32), np.zeros(1, np.uint16),
+               np.zeros(2, np.float32), 0)
 _NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
                          *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
 
@@ -418,7 +439,7 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
               out_features: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
               kernels: np.ndarray | None = None, n_out: int = 0,
               out: np.ndarray | None = None,
-              curve: tuple[np.ndarray, ...] | None = None) -> None:
+              curve: tuple[np.ndarray, ...] | None = None, display: Any = None) -> None:
     """Run the tile kernel over output rows ``rows`` (default: all) of a mosaic.
 
     The one entry point to the classifier; :func:`classify`,
@@ -443,10 +464,17 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     n_out
         Render only: outputs per pixel.
     out
-        Render only: float32 C-contiguous (y1 - y0, W, n_out).
+        Render: float32 C-contiguous (y1 - y0, W, n_out). Display: uint8 or
+        uint16 C-contiguous (y1 - y0, W, n_out).
     curve
-        Render only: a learned tone curve's look-up table
-        (:func:`l3cli.tonecurve.curve_arrays`), applied to each output row.
+        Render and display: a learned tone curve's look-up table
+        (:func:`l3cli.tonecurve.curve_arrays`), applied to each output row
+        (before the display encoding).
+    display
+        ``MODE_DISPLAY`` only: the encoder's
+        :class:`~l3cli.io.encode.DisplayParams`; each rendered row is
+        display-encoded into ``out`` (the same integers as
+        :func:`~l3cli.io.encode.display_encode` of the float render).
     """
     S = definition.patch
     h, w = mosaic.shape
@@ -459,14 +487,27 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     lev_o, con_o, sat_o = out_features if out_features is not None else (_NO_F32, _NO_F32,
                                                                          _NO_I32)
     K = kernels if kernels is not None else _NO_F32
-    outf = out.reshape(-1) if out is not None else _NO_OUT
+    out8, out16, bits, outf = _NO_U8, _NO_U16, 0, _NO_OUT
+    if mode == MODE_DISPLAY:
+        if out is None or display is None or out.dtype not in (np.uint8, np.uint16):
+            raise ValueError("display mode needs a uint8/uint16 out and the encoder's parameters")
+        bits = 8 if out.dtype == np.uint8 else 16
+        if bits == 8:
+            out8 = out.reshape(-1)
+        else:
+            out16 = out.reshape(-1)
+    else:
+        display = _NO_DISPLAY
+        if out is not None:
+            outf = out.reshape(-1)
     guide = _NO_GUIDE
     if definition.context_block and mode != MODE_FEATURES:
         guide = context_guide(mosaic, definition.cfa, definition.context_block)
     with _slp_vectorize():
         _tile_kernel(S, pw)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o,
                             lev_o, con_o, sat_o, K, n_out, outf,
-                            *(curve if curve is not None else _NO_CURVE))
+                            *(curve if curve is not None else _NO_CURVE), *display, bits, out8,
+                            out16)
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,

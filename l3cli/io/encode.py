@@ -24,16 +24,22 @@ by one float64 ulp, which changes a float32 value about once in 2**29.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numpy as np
 
 from l3cli.colourspace import XYZ_TO_LINEAR_SRGB, check_space
 
-__all__ = ["display_encode", "quantise_reference", "srgb_thresholds"]
+__all__ = ["DisplayParams", "display_encode", "display_params", "encode_into",
+           "interpolation_table",
+           "quantise_reference", "srgb_thresholds"]
 
-#: Bits of a float32 dropped to index the bucket table (2**(30 - 10) buckets over [0, 1]).
-_BUCKET_SHIFT = 10
+#: Bits of a float32 dropped to number its bucket: 2**(30 - 16) buckets over [0, 1]
+#: (128 per octave), tables of 32 kB (8 bits) and 128 kB (16 bits) that stay in cache.
+_BUCKET_SHIFT = 16
 _ONE_BITS = int(np.float32(1.0).view(np.int32))
+_NO_U8 = np.zeros(1, dtype=np.uint8)
+_NO_U16 = np.zeros(1, dtype=np.uint16)
 
 
 def _srgb_oetf64(lin32: np.ndarray) -> np.ndarray:
@@ -74,7 +80,7 @@ def srgb_thresholds(bits: int, encode: bool = True) -> tuple[np.ndarray, np.ndar
         [0, 1] whose code is >= k (``thresholds[0] = 0``, the last entry is
         +inf as a sentinel).
     buckets
-        uint16: the code of the first float32 of each bucket of ``2**10``
+        uint16: the code of the first float32 of each bucket of ``2**16``
         consecutive bit patterns in [0, 1].
     """
     n = 1 << bits
@@ -113,46 +119,97 @@ def srgb_thresholds(bits: int, encode: bool = True) -> tuple[np.ndarray, np.ndar
 
 @functools.cache
 def _walk(bits: int, encode: bool) -> int:
-    """Most codes a bucket spans (the steps of the kernel's walk): 1 for 8 bits, ~3 for 16."""
+    """Most codes a bucket spans: 1 for 8 bits (one comparison after the lookup)."""
     return max(1, int(np.diff(srgb_thresholds(bits, encode)[1].astype(np.int64)).max()))
 
 
 @functools.cache
-def _kernel():
-    """The numba kernel (compiled, or loaded from numba's on-disk cache, on first use)."""
-    import numba as nb
+def interpolation_table(bits: int, encode: bool = True) -> np.ndarray:
+    """Per bucket, the code as a linear function of a value's low 16 bits (for 16-bit output).
 
-    @nb.njit(cache=True, nogil=True)
-    def encode_rows(img, matrix, use_matrix, thr, buckets, shift, steps, out):
-        h, w, c = img.shape
-        flat = out.reshape(h, w * c)
-        lin = np.empty(w * c, dtype=np.float32)
-        bits = lin.view(np.int32)
-        m = matrix
-        for y in range(h):
-            if use_matrix:
-                for x in range(w):
-                    a = np.float64(img[y, x, 0])
-                    b = np.float64(img[y, x, 1])
-                    d = np.float64(img[y, x, 2])
-                    lin[3 * x] = np.float32(m[0, 0] * a + m[0, 1] * b + m[0, 2] * d)
-                    lin[3 * x + 1] = np.float32(m[1, 0] * a + m[1, 1] * b + m[1, 2] * d)
-                    lin[3 * x + 2] = np.float32(m[2, 0] * a + m[2, 1] * b + m[2, 2] * d)
-            else:
-                for x in range(w):
-                    for k in range(c):
-                        lin[c * x + k] = img[y, x, k]
-            for i in range(w * c):  # clip to [0, 1]; NaN gives 0
-                v = lin[i]
-                lin[i] = v if v > 0.0 else np.float32(0.0)
-                if v > 1.0:
-                    lin[i] = np.float32(1.0)
-            for i in range(w * c):  # the bucket's first code, then a fixed, branch-free walk
-                v = lin[i]
-                q = np.int64(buckets[bits[i] >> shift])
-                for _ in range(steps):
-                    q += v >= thr[q + 1]
-                flat[y, i] = q
+    Within a bucket (``2**16`` consecutive float32 bit patterns, one
+    exponent) a value is linear in its low bits ``f``, and the unrounded code
+    ``oetf(v) * (2**bits - 1)`` is smooth, so ``base + slope * f`` stays
+    within a fraction of a code of it (the transfer curve's bend over 1/128
+    of an octave). Rounded, it is the exact code or a neighbour, which the
+    encoder settles with the two thresholds around it (a test checks every
+    float32 in [0, 1]).
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 (n_buckets, 2): ``base`` (the unrounded code of the bucket's
+        first value) and ``slope`` (codes per unit of the low bits).
+    """
+    maxv = (1 << bits) - 1
+    n_b = (_ONE_BITS >> _BUCKET_SHIFT) + 1
+    pats = np.arange(n_b + 1, dtype=np.int64) << _BUCKET_SHIFT
+    v = pats.astype(np.int32).view(np.float32).astype(np.float64)
+    code = (_srgb_oetf64(v) if encode else v) * maxv
+    table = np.zeros((n_b, 2), dtype=np.float32)
+    table[:, 0] = code[:-1]
+    table[:-1, 1] = (code[1:-1] - code[:-2]) / (1 << _BUCKET_SHIFT)  # the last: 1.0 only
+    return table
+
+
+class DisplayParams(NamedTuple):
+    """What the display encoder (:func:`l3cli.render_rows.encode_row`) needs, in its order."""
+
+    #: Apply ``matrix`` (XYZ to linear sRGB) to each pixel of 3 values first.
+    use_matrix: bool
+    #: float64 (3, 3).
+    matrix: np.ndarray
+    #: float32 thresholds (:func:`srgb_thresholds`).
+    thr: np.ndarray
+    #: uint16 bucket codes (:func:`srgb_thresholds`) for 8 bits; unused for 16.
+    buckets: np.ndarray
+    #: float32 (2 n_buckets,): :func:`interpolation_table` flattened, for 16 bits; unused for 8.
+    interp: np.ndarray
+    #: Right shift of a value's float32 bits that numbers its bucket.
+    shift: int
+
+
+_NO_BUCKETS = np.zeros(1, dtype=np.uint16)
+_NO_INTERP = np.zeros((1, 2), dtype=np.float32)  # flattened when passed
+
+
+def display_params(space: str, n_channels: int, bits: int) -> DisplayParams | None:
+    """The encoder's parameters for images of ``n_channels`` in ``space``; None for ``lab``.
+
+    Three channels in ``xyz``, ``linear-srgb`` or ``srgb`` become display
+    sRGB; any other channel count, or ``space="data"``, is clipped and
+    quantised as is. Three ``lab`` channels need colour-science's conversion
+    first (None: the caller converts).
+    """
+    if bits not in (8, 16):
+        raise ValueError(f"bits must be 8 or 16, got {bits}")
+    space = space if space == "data" else check_space(space)
+    if n_channels == 3 and space == "lab":
+        return None
+    encode = n_channels == 3 and space in ("xyz", "linear-srgb")
+    use_matrix = bool(encode and space == "xyz")
+    thr, buckets = srgb_thresholds(bits, encode)
+    if bits == 16:
+        buckets, interp = _NO_BUCKETS, interpolation_table(bits, encode)
+    else:
+        if _walk(bits, encode) != 1:  # the 8-bit lookup makes one comparison
+            raise RuntimeError("an 8-bit bucket spans more than 2 codes")
+        interp = _NO_INTERP
+    return DisplayParams(use_matrix, XYZ_TO_LINEAR_SRGB if use_matrix else np.eye(3), thr,
+                         buckets, interp.reshape(-1), _BUCKET_SHIFT)
+
+
+@functools.cache
+def _kernel():
+    """The numba kernel (compiled, or loaded from numba's on-disk cache, on first use).
+
+    It lives in :mod:`l3cli.render_rows` (imported here, on first use, so that
+    importing this module does not import numba) as a module-level function:
+    a kernel defined in here as a closure over ``encode_row`` would miss
+    numba's cache in every new process (the closure's pickled dispatcher
+    differs), costing a compile (~0.4 s) per ``l3 render`` to TIFF.
+    """
+    from l3cli.render_rows import encode_rows
 
     return encode_rows
 
@@ -178,22 +235,23 @@ def display_encode(image: np.ndarray, space: str, bits: int) -> np.ndarray:
         the same integers as :func:`l3cli.colourspace.convert` followed by
         :func:`quantise_reference` (``lab`` images take that slower path).
     """
-    if bits not in (8, 16):
-        raise ValueError(f"bits must be 8 or 16, got {bits}")
     img = np.ascontiguousarray(image, dtype=np.float32)
     if img.ndim != 3:
         raise ValueError(f"image must be (H, W, C), got {img.shape}")
-    c = img.shape[2]
-    space = space if space == "data" else check_space(space)
-    if c == 3 and space == "lab":
+    params = display_params(space, img.shape[2], bits)
+    if params is None:  # lab: colour-science's conversion to linear sRGB first
         from l3cli.colourspace import convert
 
-        img = convert(img, space, "linear-srgb")
-        space = "linear-srgb"
-    encode = c == 3 and space in ("xyz", "linear-srgb")
-    thr, buckets = srgb_thresholds(bits, encode)
+        img = np.ascontiguousarray(convert(img, "lab", "linear-srgb"), dtype=np.float32)
+        params = display_params("linear-srgb", 3, bits)
     out = np.empty(img.shape, dtype=np.uint16 if bits == 16 else np.uint8)
-    matrix = XYZ_TO_LINEAR_SRGB if (encode and space == "xyz") else np.eye(3)
-    _kernel()(img, matrix, bool(encode and space == "xyz"), thr, buckets, _BUCKET_SHIFT,
-              _walk(bits, encode), out)
+    return encode_into(img, params, bits, out)
+
+
+def encode_into(img: np.ndarray, params: DisplayParams, bits: int, out: np.ndarray) -> np.ndarray:
+    """Display-encode float32 C-contiguous ``img`` (H, W, C) into ``out`` (same shape, uint8
+    for 8 bits, uint16 for 16, C-contiguous) with :func:`display_params`' ``params``."""
+    flat = out.reshape(-1)
+    _kernel()(img, *params, flat if bits == 8 else _NO_U8, flat if bits == 16 else _NO_U16,
+              bits)
     return out
