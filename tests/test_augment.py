@@ -265,7 +265,7 @@ def test_cross_validation_statistics_are_those_of_l3_train(tmp_path):
     assert not np.allclose(plain.kernels, direct.kernels, rtol=1e-3, atol=1e-4)
 
 
-def test_cli_defaults_for_pairs_folders_and_switching_off(tmp_path, runner):
+def test_cli_defaults_for_pairs_folders_and_switching_on(tmp_path, runner):
     from test_tune import _pairs
 
     from l3cli.cli.main import cli
@@ -274,15 +274,15 @@ def test_cli_defaults_for_pairs_folders_and_switching_off(tmp_path, runner):
     folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
     on, off = tmp_path / "on.npz", tmp_path / "off.npz"
     common = ["--patch", "5", "--levels", "4", "--contrast-bins", "1"]
-    res = runner.invoke(cli, ["train", str(folder), "-o", str(on), *common])
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(off), *common])
+    assert res.exit_code == 0, res.output
+    opts = load_table(off).provenance["options"]  # both off by default (defaults.py)
+    assert "augment" not in opts and "sample_weight" not in opts
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(on), *common,
+                              "--augment", "d4", "--sample-weight", "luminance"])
     assert res.exit_code == 0, res.output
     opts = load_table(on).provenance["options"]
     assert opts["augment"] == "d4" and opts["sample_weight"] == "luminance"
-    res = runner.invoke(cli, ["train", str(folder), "-o", str(off), *common,
-                              "--augment", "none", "--sample-weight", "none"])
-    assert res.exit_code == 0, res.output
-    opts = load_table(off).provenance["options"]
-    assert "augment" not in opts and "sample_weight" not in opts
     assert not np.allclose(load_table(on).kernels, load_table(off).kernels)
     bad = runner.invoke(cli, ["train", str(folder), "-o", str(off), "--augment", "d8"])
     assert bad.exit_code == 2

@@ -30,11 +30,10 @@ def _experiment():
 def test_white_balance_handling_reaches_the_fixed_illuminant_control(tmp_path):
     l3 = str(Path(sys.executable).parent / "l3")
     # The white-balance handling against its control under one fit: the data-side
-    # defaults of pairs folders (--augment d4, --sample-weight luminance, chosen on the
-    # real Infinite-ISP frames) move the two sides of this tiny case (3 scenes at
-    # 160x120) apart by chance -- mixed-wb 2.37 vs fixed 1.21 with them, 3.30 vs 3.23
-    # without; at 320x240 1.54 vs 1.35 with them, 1.91 vs 1.06 without -- so they are
-    # held fixed here.
+    # options (--augment d4, --sample-weight luminance; off by default) move the two
+    # sides of this tiny case (3 scenes at 160x120) apart by chance -- mixed-wb 2.37 vs
+    # fixed 1.21 with them, 3.30 vs 3.23 without; at 320x240 1.54 vs 1.35 with them,
+    # 1.91 vs 1.06 without -- so they are held off explicitly here.
     res = _experiment().run(tmp_path, l3=l3, size="160x120",
                             only=("mixed-wb", "mixed-nowb", "fixed"),
                             train_opts=("--augment", "none", "--sample-weight", "none"))
