@@ -197,3 +197,32 @@ def test_tune_refuses_augmentation_for_a_pipeline_that_is_not_mirror_symmetric(t
     assert by_aug["d4"] > 1.5 * by_aug["none"], by_aug
     assert res.table.provenance["tune"]["chosen"]["augment"] == "none"
     assert "augment" not in res.table.provenance["options"]
+
+
+def test_tune_on_white_balanced_shots_scores_and_keeps_the_white_balance(tmp_path: Path):
+    """Raws whose channels are scaled per shot (a white balance in the sidecar) and
+    renders of the same scene colours: with the white balance the folds see one colour
+    mapping (low CV scores); the tuned table carries the shots' adaptation model and
+    equals what ``l3 train`` makes with the chosen options."""
+    from l3cli.train import train
+
+    folder = tmp_path / "p"
+    folder.mkdir()
+    shots = {"a": (5, (0.5, 1.0, 0.8)), "b": (6, (0.7, 1.0, 0.5)), "c": (7, (0.4, 1.0, 0.6))}
+    for stem, (seed, neutral) in shots.items():
+        lin = 0.8 * scene(H, W, seed=seed)
+        gains = 1.0 / np.asarray(neutral, dtype=np.float32)  # the multipliers
+        write_headerless(folder, stem, lin / gains)  # the camera saw the shot's white
+        with open(folder / f"{stem}.raw.toml", "a") as f:
+            f.write(f"white_balance = {[float(g) for g in gains]}\n")
+        write_image(folder / f"{stem}.png", srgb_encode(np.clip(lin, 0, 1)), space="srgb")
+    grid = TuneGrid(spaces=("linear-srgb",), patches=(5,), levels=(4,), contrast_bins=(1,),
+                    augments=("none",), sample_weights=("none",))
+    pairs = find_pairs([folder])
+    wb = tune(pairs, TrainOptions(**OPTS, white_balance=True), grid)
+    plain = tune(pairs, TrainOptions(**OPTS), grid)
+    assert wb.best.mean < 0.5 * plain.best.mean, (wb.best.mean, plain.best.mean)
+    assert wb.table.white_balance is not None
+    direct = train(pairs, wb.options)
+    np.testing.assert_allclose(wb.table.kernels, direct.kernels, rtol=1e-5, atol=1e-6)
+    assert wb.table.provenance["tune"]["chosen"]["target"] == "linear-srgb"

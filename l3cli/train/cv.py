@@ -105,11 +105,33 @@ class CVImage:
 
 def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
                    opponent: str = DEFAULT_OPPONENT) -> list[CVImage]:
-    """Read every pair once, with its targets in all :data:`CV_SPACES`."""
+    """Read every pair once, with its targets in all :data:`CV_SPACES`.
+
+    With ``opts.white_balance`` (raws that carry a white balance) the images
+    are what ``l3 train`` trains on: mosaics normalised by their white
+    balance and targets with their shot's modelled adaptation taken out
+    (:func:`l3cli.whitebalance.fit_white_adaptation`, fitted once on all the
+    images, as the tone curve is), so a fold scores the table's colour
+    mapping before the adaptation that ``l3 render`` puts back.
+    """
+    from l3cli.whitebalance import training_mosaic, training_target
+
+    wb_opts = None
+    if opts.white_balance:
+        import copy
+
+        from l3cli.whitebalance import fit_white_adaptation
+
+        wb_opts = copy.copy(opts)
+        wb_opts.target_space = "linear-srgb"
+        wb_opts.target_adapt = fit_white_adaptation(pairs, wb_opts)[1] or None
     images = []
     for i, pair in enumerate(pairs):
         loaded = load_pair(pair, target_space="linear-srgb")
         raw, lin, valid = loaded.raw, loaded.target, loaded.weight_mask
+        if wb_opts is not None:
+            raw.mosaic = training_mosaic(raw, wb_opts)
+            lin = training_target(lin, pair.raw, wb_opts)
         targets = np.empty(lin.shape[:2] + (3 * len(CV_SPACES),), dtype=np.float32)
         for k, space in enumerate(CV_SPACES):
             targets[:, :, 3 * k:3 * k + 3] = convert(lin, "linear-srgb", space)

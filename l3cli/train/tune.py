@@ -282,9 +282,17 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     }
     prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
             "seed": opts.seed, "tune": record}
-    table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
-    if opts.tone_curve:
-        attach_curve(table, images[0].curve)
+    if opts.white_balance:
+        # the shots' adaptation model belongs in the table and its targets are fitted in
+        # the chosen target space: the regular training path, once, with the chosen options
+        from l3cli.train.fit import train
+
+        table = train(pairs, opts, show_progress=show_progress)
+        table.provenance.update(prov)
+    else:
+        table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
+        if opts.tone_curve:
+            attach_curve(table, images[0].curve)
     return TuneResult(results, best, opts, table, names, folds, seconds, record)
 
 
