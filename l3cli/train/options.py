@@ -1,0 +1,168 @@
+"""Training options: :class:`TrainOptions` and the defaults that depend on the inputs.
+
+One home for what ``l3 train`` is asked to do (class layout, target space,
+fit, white balance, tone curve, augmentation, sample weights); the defaults
+themselves live in :mod:`l3cli.defaults`. Used by :mod:`l3cli.train.fit`
+(which re-exports these names), the cross-validation and ``--tune``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from l3cli import defaults
+from l3cli.classify import check_patch
+from l3cli.colourspace import check_space
+from l3cli.errors import ConfigError
+from l3cli.pairs import Pair
+from l3cli.train.ridge import DEFAULT_LAMBDA_GRID
+
+__all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions",
+           "TONE_CURVE_SPACE", "NO_CURVE"]
+
+#: The target space a learned tone curve works with (its encoding is display sRGB).
+TONE_CURVE_SPACE = "linear-srgb"
+#: The warning when the renders cannot teach a tone curve.
+NO_CURVE = ("too few flat, unclipped areas in the training renders to learn their tone "
+            "curve; training without one (as --no-tone-curve)")
+
+def pairs_kind(pairs: Sequence[Pair]) -> str:
+    """``"pairs"`` when every input is a rendered pair (a real camera), else ``"simulation"``."""
+    pairs = list(pairs)
+    return "pairs" if pairs and all(p.align for p in pairs) else "simulation"
+
+
+def layout_defaults(pairs: Sequence[Pair]) -> dict:
+    """The default class layout and target space for these inputs.
+
+    :data:`l3cli.defaults.PAIRS_LAYOUT` when every input is a pairs folder,
+    else :data:`l3cli.defaults.SIMULATION_LAYOUT` (keys ``patch``, ``levels``,
+    ``contrast_bins``, ``contrast_threshold``, ``target_space``).
+    """
+    kind = pairs_kind(pairs)
+    return dict(defaults.PAIRS_LAYOUT if kind == "pairs" else defaults.SIMULATION_LAYOUT)
+
+
+def default_target_space(pairs: Sequence[Pair]) -> str:
+    """The default target space for these inputs (:func:`layout_defaults`)."""
+    return layout_defaults(pairs)["target_space"]
+
+
+class TrainOptions:
+    """Options of :func:`train` (keyword-only; see ``l3 train --help``)."""
+
+    def __init__(self, *, patch: int = defaults.PATCH, levels: int = defaults.LEVELS,
+                 spacing: str = defaults.LEVEL_SPACING,
+                 contrast_bins: int = defaults.CONTRAST_BINS,
+                 saturation: float = defaults.SATURATION,
+                 level_range: tuple[float, float] | None = None,
+                 contrast_threshold: float | None = None,
+                 merge_positions: bool = defaults.MERGE_POSITIONS,
+                 target_space: str = "xyz", sample_fraction: float = defaults.SAMPLE_FRACTION,
+                 seed: int = defaults.SEED, min_samples_factor: float = defaults.MIN_SAMPLES_FACTOR,
+                 lambda_grid: Sequence[float] = tuple(DEFAULT_LAMBDA_GRID),
+                 white_balance: bool = False,
+                 wb_override: Sequence[float] | None = None,
+                 target_adapt: dict[str, list] | None = None,
+                 by: str | None = None,
+                 orientation_bins: int = defaults.ORIENTATION_BINS,
+                 coherence: float = defaults.COHERENCE,
+                 context_block: int = defaults.CONTEXT_BLOCK,
+                 context_bins: int = defaults.CONTEXT_BINS,
+                 context_rule: str = defaults.CONTEXT_RULE,
+                 highlight_bins: int = defaults.HIGHLIGHT_BINS,
+                 highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
+                 tone_curve: bool = defaults.TONE_CURVE,
+                 augment: str = defaults.AUGMENT,
+                 sample_weight: str = defaults.SAMPLE_WEIGHT) -> None:
+        from l3cli.train.augment import augment_elements
+        from l3cli.train.weights import check_weight
+
+        if levels < 2:
+            raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
+        if contrast_bins < 1:
+            raise ConfigError(f"contrast bins {contrast_bins} is not allowed; use 1 or more")
+        if not 0.0 < sample_fraction <= 1.0:
+            raise ConfigError(f"sample fraction {sample_fraction} is not allowed; use (0, 1]")
+        if not 0.0 < saturation <= 1.5:
+            raise ConfigError(f"saturation threshold {saturation} is not allowed; use (0, 1.5]")
+        if min_samples_factor <= 1.0:
+            raise ConfigError(f"min samples factor {min_samples_factor} must be > 1")
+        if orientation_bins < 0 or orientation_bins % 2 or orientation_bins > 16:
+            raise ConfigError(f"--orientation-bins {orientation_bins} is not allowed; use 0 "
+                              "(off) or an even number from 2 to 16")
+        if not 0.0 <= coherence < 1.0:
+            raise ConfigError(f"--coherence {coherence} is not allowed; use [0, 1)")
+        if context_block < 0:
+            raise ConfigError(f"--context-block {context_block} is not allowed; use 0 (off) "
+                              "or a block size in pixels")
+        if context_block and context_bins < 2:
+            raise ConfigError(f"--context-bins {context_bins} is not allowed; use 2 or more")
+        if highlight_bins not in (0, 2):
+            raise ConfigError(f"--highlight-bins {highlight_bins} is not allowed; use 0 or 2")
+        if not 0.0 < highlight_fraction <= 1.0:
+            raise ConfigError(f"--highlight-fraction {highlight_fraction} is not allowed; "
+                              "use (0, 1]")
+        self.patch = check_patch(patch, "--patch")
+        self.levels = int(levels)
+        self.spacing = spacing
+        self.contrast_bins = int(contrast_bins)
+        self.saturation = float(saturation)
+        self.level_range = level_range
+        if contrast_threshold is not None and not float(contrast_threshold) > 0:
+            raise ConfigError(f"contrast threshold {contrast_threshold} is not allowed; use > 0")
+        self.contrast_threshold = (None if contrast_threshold is None
+                                   else float(contrast_threshold))
+        self.merge_positions = bool(merge_positions)
+        self.target_space = check_space(target_space)
+        self.sample_fraction = float(sample_fraction)
+        self.seed = int(seed)
+        self.min_samples_factor = float(min_samples_factor)
+        self.lambda_grid = np.asarray(lambda_grid, dtype=np.float64)
+        # White balance as an input (l3cli.whitebalance): normalise each raw by its
+        # as-shot gains (or wb_override); target_adapt maps a capture's raw path to the
+        # 3x3 adaptation taken out of its target (set by train() itself).
+        self.white_balance = bool(white_balance)
+        self.wb_override = None if wb_override is None else [float(v) for v in wb_override]
+        self.target_adapt = target_adapt
+        self.by = by  # condition bins: None or one of l3cli.conditions.CONDITIONS
+        self.orientation_bins = int(orientation_bins)
+        self.coherence = float(coherence)
+        self.context_block = int(context_block)
+        self.context_bins = int(context_bins)
+        self.context_rule = context_rule
+        self.highlight_bins = int(highlight_bins)
+        self.highlight_fraction = float(highlight_fraction)
+        if tone_curve and self.target_space != TONE_CURVE_SPACE:
+            raise ConfigError(f"a learned tone curve needs the {TONE_CURVE_SPACE} target, not "
+                              f"{self.target_space}; use --no-tone-curve")
+        self.tone_curve = bool(tone_curve)
+        self.tone_model = None  # the fitted l3cli.tonecurve.ToneCurve (set by train())
+        augment_elements(augment)  # a known choice
+        self.augment = augment
+        self.sample_weight = check_weight(sample_weight)
+
+    def as_dict(self) -> dict:
+        """The options as a JSON-serialisable dict (recorded in the table's provenance).
+
+        The feature options appear only when a feature is on, so the
+        provenance of a table without them is as before.
+        """
+        d = dict(vars(self))
+        d["lambda_grid"] = self.lambda_grid.tolist()
+        if not self.orientation_bins:
+            del d["orientation_bins"], d["coherence"]
+        if not self.context_block:
+            del d["context_block"], d["context_bins"], d["context_rule"]
+        if not self.highlight_bins:
+            del d["highlight_bins"], d["highlight_fraction"]
+        del d["tone_model"]
+        if not self.tone_curve:
+            del d["tone_curve"]
+        if self.augment == "none":
+            del d["augment"]
+        if self.sample_weight == "none":
+            del d["sample_weight"]
+        return d
