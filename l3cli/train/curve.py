@@ -17,7 +17,7 @@ import numpy as np
 from l3cli.colourspace import srgb_encode
 from l3cli.pairs import Pair, load_pair
 from l3cli.table import TransformTable
-from l3cli.train.fit import NO_CURVE, TrainOptions, sample_mask
+from l3cli.train.fit import NO_CURVE, TrainOptions, training_pixels
 
 __all__ = ["curve_samples", "fit_pairs_curve", "chosen_curve", "attach_curve"]
 
@@ -49,9 +49,7 @@ def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions):
     samples = []
     for i, pair in enumerate(pairs):
         loaded = load_pair(pair, target_space=opts.target_space)
-        mask = sample_mask(loaded.raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
-        if loaded.weight_mask is not None:
-            mask = loaded.weight_mask if mask is None else mask & loaded.weight_mask
+        mask = training_pixels(loaded.raw.mosaic.shape, loaded.weight_mask, opts, i)
         samples.append(curve_samples(training_mosaic(loaded.raw, opts), loaded.raw.cfa,
                                      training_target(loaded.target, pair.raw, opts), mask, opts))
     return chosen_curve(samples)

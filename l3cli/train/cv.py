@@ -31,6 +31,7 @@ and that space's renders are mapped back through it before scoring.
 
 from __future__ import annotations
 
+import copy
 import functools
 import logging
 from collections.abc import Sequence
@@ -50,8 +51,8 @@ from l3cli.train.fit import (
     TrainOptions,
     definition_from_histogram,
     histogram_task,
-    sample_mask,
     table_from_stats,
+    training_pixels,
 )
 from l3cli.train.stats import ClassStats, accumulate
 
@@ -118,8 +119,6 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
 
     wb_opts = None
     if opts.white_balance:
-        import copy
-
         from l3cli.whitebalance import fit_white_adaptation
 
         wb_opts = copy.copy(opts)
@@ -135,9 +134,7 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
         targets = np.empty(lin.shape[:2] + (3 * len(CV_SPACES),), dtype=np.float32)
         for k, space in enumerate(CV_SPACES):
             targets[:, :, 3 * k:3 * k + 3] = convert(lin, "linear-srgb", space)
-        mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
-        if valid is not None:
-            mask = valid if mask is None else mask & valid
+        mask = training_pixels(raw.mosaic.shape, valid, opts, i)
         xyz = targets[:, :, 6:9]
         images.append(CVImage(pair, raw.mosaic, raw.cfa, targets, mask, bool(pair.align),
                               ReferenceSCIELAB(xyz, white=D65_XYZ, opponent=opponent)))

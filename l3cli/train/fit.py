@@ -49,7 +49,7 @@ from l3cli.train.options import (  # re-exported: l3cli.train.fit's public names
 from l3cli.train.ridge import solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
-__all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions", "sample_mask", "histogram_task", "PartialStats", "stats_task",
+__all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions", "sample_mask", "training_pixels", "histogram_task", "PartialStats", "stats_task",
            "define_classes", "definition_from_histogram",
            "collect_stats", "solve_stats", "table_from_stats", "fallback_sources", "train",
            "TONE_CURVE_SPACE", "NO_CURVE"]
@@ -64,6 +64,16 @@ def sample_mask(shape: tuple[int, int], fraction: float, seed: int, index: int,
         return None
     rng = np.random.default_rng([seed, index, stream])
     return rng.random(shape, dtype=np.float32) < fraction
+
+
+def training_pixels(shape: tuple[int, int], valid: np.ndarray | None, opts: TrainOptions,
+                    index: int) -> np.ndarray | None:
+    """The pixels of image number ``index`` that train (None = all): its valid render
+    pixels (``valid``, None = all) within ``opts.sample_fraction``'s subset."""
+    mask = sample_mask(shape, opts.sample_fraction, opts.seed, index)
+    if valid is None:
+        return mask
+    return valid if mask is None else mask & valid
 
 
 def _need_histogram(opts: TrainOptions) -> bool:
@@ -173,9 +183,7 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
         raise InputError(
             f"{pair.raw}: CFA {raw.cfa.spec} differs from the table's {definition.cfa.spec}"
         )
-    mask = sample_mask(raw.mosaic.shape, opts.sample_fraction, opts.seed, i)
-    if valid is not None:
-        mask = valid if mask is None else mask & valid
+    mask = training_pixels(raw.mosaic.shape, valid, opts, i)
     from l3cli.train.weights import luminance, sample_weights
     from l3cli.whitebalance import training_mosaic, training_target
 

@@ -57,6 +57,7 @@ from l3cli.train.fit import (
     TrainOptions,
     default_target_space,
     table_from_stats,
+    train,
 )
 
 __all__ = ["TuneGrid", "Candidate", "CandidateResult", "TuneResult", "DEFAULT_FOLDS",
@@ -267,7 +268,6 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         log.info("tune %s: %.4f", c.as_dict(), results[-1].mean)
     best = min(results, key=lambda r: r.mean)
     opts = replace_opts(base, best.candidate)
-    lay = stats_for(best.candidate)
     names = [u.name(images) for u in units]
     seconds = time.perf_counter() - t0
     record = {
@@ -285,11 +285,10 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     if opts.white_balance:
         # the shots' adaptation model belongs in the table and its targets are fitted in
         # the chosen target space: the regular training path, once, with the chosen options
-        from l3cli.train.fit import train
-
         table = train(pairs, opts, show_progress=show_progress)
         table.provenance.update(prov)
     else:
+        lay = stats_for(best.candidate)
         table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
         if opts.tone_curve:
             attach_curve(table, images[0].curve)
