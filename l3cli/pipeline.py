@@ -39,6 +39,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from l3cli import buffers
 from l3cli.errors import L3Error
 from l3cli.progress import progress
 
@@ -259,9 +260,13 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     else:
         img = _render_display(table, raw.mosaic, 16 if fmt == "tiff" else 8)
     t2 = time.perf_counter()
+    mosaic = raw.mosaic
     del raw
+    buffers.release(mosaic)  # the next file's decode reuses its pages
+    del mosaic
     out = write_image(out_path, img, space=table.output_space,
                       attributes={"l3:table": str(table_name)}, metadata=shot, **options)
+    buffers.release(img)
     return out, (t1 - t0, t2 - t1, time.perf_counter() - t2)
 
 
@@ -280,10 +285,14 @@ def _locked(items: Iterator[T]) -> Iterator[T]:
 
 
 def _quiet_warm_up(table: Any, out_path: str | os.PathLike) -> None:
+    from l3cli.startup import resume_gc
+
     try:
         warm_up(table, out_path)
     except Exception as exc:  # noqa: BLE001 - the real render reports real errors
         log.debug("warm-up failed: %s", exc)
+    finally:
+        resume_gc()  # start-up is over (l3 render paused the collector)
 
 
 def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os.PathLike]], *,
@@ -331,14 +340,16 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
     if not jobs:
         return []
     results: list[Path | None] = [None] * len(jobs)
-    errors: list[tuple[int, BaseException]] = []
+    first: BaseException | None = None  # the first failure in input order (later ones: counted,
+    failed = 0                          # not kept: a traceback holds its file's arrays)
     preload_scipy_blas()  # before any thread can reach numba's first call
-    with ThreadPoolExecutor(max_workers=max(1, int(in_flight)),
-                            thread_name_prefix="l3-render") as pool:
+    with (buffers.recycling(int(in_flight) + 1),
+          ThreadPoolExecutor(max_workers=max(1, int(in_flight)),
+                             thread_name_prefix="l3-render") as pool):
         warm = threading.Thread(target=_quiet_warm_up, args=(table, jobs[0][1]),
                                 name="l3-warm-up", daemon=True)
         warm.start()
-        futures: list[Future[tuple[Path, tuple[float, float, float]]]] = [
+        futures: list[Future[tuple[Path, tuple[float, float, float]]] | None] = [
             pool.submit(render_one, table, table_name, raw, out, options, white_balance,
                         prefetch)
             for raw, out in jobs
@@ -347,11 +358,16 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
             for i, fut in enumerate(_locked(progress(futures, label="render",
                                                      length=len(futures),
                                                      enabled=show_progress))):
+                futures[i] = None  # done with it (a failure's traceback holds its arrays)
                 try:
                     results[i], times = fut.result()
                 except Exception as exc:  # noqa: BLE001 - re-raised below, first in order
-                    errors.append((i, exc))
+                    failed += 1
+                    first = first if first is not None else exc
+                    del exc
                     continue
+                finally:
+                    del fut
                 if log.isEnabledFor(logging.DEBUG):
                     from l3cli.io.raw import STDERR_LOCK
 
@@ -360,14 +376,14 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
                                   jobs[i][0], *times)
         except BaseException:
             for fut in futures:
-                fut.cancel()
+                if fut is not None:
+                    fut.cancel()
             raise
         finally:
             warm.join()
-    if errors:
-        _, first = errors[0]
-        if len(errors) > 1 and isinstance(first, L3Error):
-            raise type(first)(f"{first} (and {len(errors) - 1} more of {len(jobs)} files "
+    if first is not None:
+        if failed > 1 and isinstance(first, L3Error):
+            raise type(first)(f"{first} (and {failed - 1} more of {len(jobs)} files "
                               "failed)") from first
         raise first
     return [p for p in results if p is not None]

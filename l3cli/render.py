@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from l3cli import buffers
 from l3cli.classify import MODE_DISPLAY, MODE_RENDER, check_mosaic, run_tiles
 from l3cli.errors import InputError, TableError
 from l3cli.render_rows import RENDER_LANES
@@ -108,7 +109,7 @@ def render_mosaic(table: TransformTable, mosaic: np.ndarray, *, out: np.ndarray 
     y0, y1 = rows if rows is not None else (0, h)
     shape = (y1 - y0, w, table.n_out)
     if out is None:
-        out = np.empty(shape, dtype=np.float32)
+        out = buffers.empty(shape, np.float32)
     elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
     run_tiles(mosaic, d, MODE_RENDER, rows=(y0, y1), kernels=pack_kernels(table),
@@ -181,7 +182,7 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
     shape = (y1 - y0, w, table.n_out)
     dtype = np.uint16 if bits == 16 else np.uint8
     if out is None:
-        out = np.empty(shape, dtype=dtype)
+        out = buffers.empty(shape, dtype)
     elif out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous {np.dtype(dtype)} array of shape {shape}")
     lock = render_lock if render_lock is not None else contextlib.nullcontext()

@@ -11,7 +11,11 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from l3cli.startup import lean_cache_loads
+
 __all__ = ["RENDER_LANES", "encode_row", "encode_rows", "render_row4", "render_row_any"]
+
+lean_cache_loads()  # cached kernels load without numba's registry refresh
 
 #: Output lanes of the vectorised render path (tables with up to 4 outputs).
 RENDER_LANES = 4

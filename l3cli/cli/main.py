@@ -20,7 +20,7 @@ from typing import Any
 
 import click
 
-from l3cli import __version__, progress
+from l3cli import __version__, progress, startup
 from l3cli.errors import L3Error
 
 
@@ -49,6 +49,10 @@ _COMMANDS: dict[str, str] = {
     "inspect": "l3cli.cli.inspect:inspect",
 }
 
+#: Commands whose start-up is trimmed (:mod:`l3cli.startup`): one OpenBLAS
+#: thread (they call no BLAS routine) and no garbage collection while they load.
+_LEAN_START = frozenset({"render", "info"})
+
 
 class _LazyGroup(click.Group):
     """A click group that imports each subcommand's module on first use."""
@@ -57,12 +61,26 @@ class _LazyGroup(click.Group):
         return sorted(set(super().list_commands(ctx)) | set(_COMMANDS))
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in _LEAN_START:
+            startup.single_threaded_blas()  # before numpy loads (l3cli.startup)
         if cmd_name in _COMMANDS:
             mod_name, attr = _COMMANDS[cmd_name].split(":")
             return getattr(importlib.import_module(mod_name), attr)
         return super().get_command(ctx, cmd_name)
 
+    def resolve_command(self, ctx: click.Context, args: list[str]):  # noqa: D401 - click API
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if name in _LEAN_START:  # while it imports and loads its kernels (invoke resumes)
+            startup.pause_gc()
+        return name, cmd, rest
+
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
+        try:
+            return self._invoke(ctx)
+        finally:
+            startup.resume_gc()
+
+    def _invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except L3Error as exc:

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from l3cli import buffers
 from l3cli.cfa import CFA
 from l3cli.errors import ConfigError, InputError
 from l3cli.io import fd2
@@ -148,7 +149,7 @@ def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.
     if dn.dtype.itemsize > 2:  # numpy would subtract wider integers in float64
         dn = dn.astype(np.float32)
     (h, w), reps = dn.shape, -(-dn.shape[1] // pw)
-    out = np.empty((h, w), dtype=np.float32)
+    out = buffers.empty((h, w), np.float32)  # a finished file's, in a folder render
     for y in range(min(ph, h)):
         rows = out[y::ph]
         np.subtract(dn[y::ph], np.tile(offset[y], reps)[:w], out=rows)

@@ -311,6 +311,10 @@ def _combine_spectra(specs: np.ndarray, tables: np.ndarray, idx: np.ndarray) -> 
 def _combine_kernel():
     import numba as nb
 
+    from l3cli.startup import lean_cache_loads
+
+    lean_cache_loads()
+
     @nb.njit(cache=True, parallel=True)
     def kernel(specs, tables, idx):  # pragma: no cover - compiled
         k, hp, wf = specs.shape

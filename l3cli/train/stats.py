@@ -35,8 +35,11 @@ from l3cli.cfa import CFA
 from l3cli.classify import ClassDefinition, band_rows, describe_difference
 from l3cli.errors import InputError, TableError
 from l3cli.io.atomic import atomic_path
+from l3cli.startup import lean_cache_loads
 
 __all__ = ["ClassStats", "accumulate"]
+
+lean_cache_loads()  # cached kernels load without numba's registry refresh
 
 STATS_FORMAT = "l3-stats"
 STATS_VERSION = 1

@@ -1,0 +1,124 @@
+"""Process start-up: what a short ``l3 render`` spends before its first pixel.
+
+A one-file render is mostly start-up (``docs/performance.md``). Three costs
+here are not l3's own work, and each has one switch in this module:
+
+* **OpenBLAS threads.** numpy and scipy each load an OpenBLAS that starts a
+  thread per core; the threads spin for a while after start-up, stealing a
+  core from the decode and the imports (``perf``: 3 % of an eight-file
+  render, ~0.15 s of CPU). The render path calls no BLAS routine, so
+  :func:`single_threaded_blas` asks for one thread before numpy loads.
+* **The cyclic garbage collector** walks the growing heap again and again
+  while numba's modules import and register (~0.08 s of a one-file
+  render); ``l3 render`` turns it off (:func:`pause_gc`) from the
+  command's start until its kernels are loaded (:func:`resume_gc`).
+* **numba's cache loading.** Loading a kernel from numba's on-disk cache
+  first "refreshes" numba's CPU target: it imports numba's implementation
+  registries (the typing and lowering of all of Python and numpy) and
+  installs them, ~0.17 s, which only *compiling* needs. :func:`lean_cache_loads`
+  loads cached kernels with only what running them needs (numba's runtime
+  library); a cache miss compiles as before, and numba's compiler refreshes
+  the target itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import logging
+import os
+import sys
+import threading
+from collections.abc import Iterator
+
+__all__ = ["gc_paused", "lean_cache_loads", "pause_gc", "resume_gc", "single_threaded_blas"]
+
+log = logging.getLogger(__name__)
+
+_gc_lock = threading.Lock()
+_gc_paused = False
+_lean_installed = False
+
+
+def single_threaded_blas() -> bool:
+    """One OpenBLAS thread for this process, if numpy is not loaded yet.
+
+    Leaves an ``OPENBLAS_NUM_THREADS`` the user set alone, and changes
+    nothing once numpy is imported (OpenBLAS reads it when it loads).
+    Returns whether the setting applies.
+    """
+    if "numpy" in sys.modules:
+        return False
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    return True
+
+
+def pause_gc() -> None:
+    """No cyclic garbage collection until :func:`resume_gc`.
+
+    Does nothing when collection is already off (the caller's choice, which
+    :func:`resume_gc` then leaves alone).
+    """
+    global _gc_paused
+    with _gc_lock:
+        if gc.isenabled() and not _gc_paused:
+            gc.disable()
+            _gc_paused = True
+
+
+@contextlib.contextmanager
+def gc_paused() -> Iterator[None]:
+    """:func:`pause_gc` for a block (collection resumes at its end at the latest)."""
+    pause_gc()
+    try:
+        yield
+    finally:
+        resume_gc()
+
+
+def resume_gc() -> None:
+    """Turn collection back on if :func:`gc_paused` turned it off (idempotent)."""
+    global _gc_paused
+    with _gc_lock:
+        if _gc_paused:
+            _gc_paused = False
+            gc.enable()
+
+
+def lean_cache_loads() -> bool:
+    """Load numba's cached kernels without refreshing its CPU target (once per process).
+
+    numba's ``Cache.load_overload`` refreshes the target context before it
+    reads a cached overload; a refresh imports and installs every typing and
+    lowering registry, which compiling needs and running machine code does
+    not. This replaces it by the runtime initialisation (the NRT symbols
+    cached code links against) and the load itself. On a miss the dispatcher
+    compiles, and numba's compiler refreshes the target first, as always.
+    A numba without these internals is left as it is. Returns whether the
+    lean load is installed.
+    """
+    global _lean_installed
+    if _lean_installed:
+        return True
+    try:
+        from numba.core import caching
+        from numba.core.runtime import nrt
+
+        cls = caching.Cache
+        needed = ("_load_overload", "_guard_against_spurious_io_errors", "load_overload")
+        if not all(hasattr(cls, name) for name in needed) or not hasattr(nrt, "rtsys"):
+            return False
+        rtsys = nrt.rtsys
+
+        def load_overload(self, sig, target_context):  # numba's signature
+            rtsys.initialize(target_context)
+            with self._guard_against_spurious_io_errors():
+                return self._load_overload(sig, target_context)
+            return None  # the guard swallowed an I/O error: compile
+
+        load_overload.__doc__ = "l3: " + (cls.load_overload.__doc__ or "").strip()
+        cls.load_overload = load_overload
+        _lean_installed = True
+    except Exception as exc:  # noqa: BLE001 - an optimisation only
+        log.debug("lean numba cache loads not installed: %s", exc)
+    return _lean_installed

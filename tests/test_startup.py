@@ -1,0 +1,166 @@
+"""Start-up trims (l3cli.startup) and the buffer pool of a folder render (l3cli.buffers)."""
+
+from __future__ import annotations
+
+import gc
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+from l3cli import buffers, startup
+from l3cli.cli.main import cli
+from tests.conftest import REPO
+from tests.test_render_pipeline import _raws, table_path  # noqa: F401 - fixture
+
+
+# ------------------------------------------------------------------ buffers
+def test_pool_reuses_a_released_array_of_the_same_shape_and_dtype():
+    with buffers.recycling(keep=2):
+        a = buffers.empty((4, 6), np.float32)
+        a_id = id(a)
+        buffers.release(a)
+        b = buffers.empty((4, 6), np.float32)
+        assert id(b) == a_id  # the same array back, no new allocation
+        c = buffers.empty((4, 6), np.uint16)  # another dtype: a new one
+        assert c.dtype == np.uint16 and id(c) != a_id
+        d = buffers.empty((4, 6), np.float32)  # b is still lent: a new one
+        assert d is not b
+
+
+def test_pool_takes_back_only_what_it_lent_and_keeps_at_most_keep():
+    with buffers.recycling(keep=1):
+        outside = np.empty((3, 3), np.float32)
+        buffers.release(outside)  # not lent: ignored
+        assert buffers.empty((3, 3), np.float32) is not outside
+        x, y = buffers.empty((2, 2), np.uint8), buffers.empty((2, 2), np.uint8)
+        buffers.release(x)
+        buffers.release(y)  # over keep=1: dropped
+        buffers.release(x)  # twice: the second is ignored
+        got = [buffers.empty((2, 2), np.uint8) for _ in range(2)]
+        assert sum(g is x or g is y for g in got) == 1
+
+
+def test_without_a_pool_empty_is_numpy_empty_and_release_ignores():
+    a = buffers.empty((2, 3), np.float32)
+    assert a.shape == (2, 3) and a.dtype == np.float32 and a.flags.c_contiguous
+    buffers.release(a)
+    assert buffers.empty((2, 3), np.float32) is not a
+    with buffers.recycling():
+        pass
+    with buffers.recycling():  # a pool does not outlive its block
+        b = buffers.empty((2, 3), np.float32)
+    buffers.release(b)
+    assert buffers._free is None and not buffers._lent
+
+
+def test_a_lent_array_that_dies_is_forgotten():
+    with buffers.recycling():
+        a = buffers.empty((5,), np.float32)
+        assert len(buffers._lent) == 1
+        del a
+        gc.collect()
+        assert not buffers._lent
+
+
+def test_folder_render_recycles_and_equals_one_by_one(runner, tmp_path, table_path):  # noqa: F811
+    """Five files through three in flight: buffers come back, outputs are unchanged."""
+    from l3cli.io.image import read_image
+
+    raws = _raws(tmp_path, 5, seed=3)
+    calls = {"new": 0, "reused": 0}
+    real = buffers.empty
+
+    def counting(shape, dtype):
+        key = (tuple(shape), np.dtype(dtype).str)
+        if buffers._free is not None:
+            calls["reused" if buffers._free.get(key) else "new"] += 1
+        return real(shape, dtype)
+
+    buffers.empty = counting
+    try:
+        res = runner.invoke(cli, ["render", str(table_path), *map(str, raws), "-o",
+                                  str(tmp_path / "out"), "--format", "tiff"])
+    finally:
+        buffers.empty = real
+    assert res.exit_code == 0, res.output
+    assert calls["reused"] > 0 and calls["new"] + calls["reused"] >= 10
+    for r in raws:
+        solo = tmp_path / f"{r.stem}.tif"
+        assert runner.invoke(cli, ["render", str(table_path), str(r), "-o",
+                                   str(solo)]).exit_code == 0
+        np.testing.assert_array_equal(read_image(tmp_path / "out" / f"{r.stem}.tif")[0],
+                                      read_image(solo)[0])
+
+
+# ------------------------------------------------------------------ startup
+def test_gc_is_on_again_after_render_and_after_a_failed_render(runner, tmp_path,
+                                                              table_path):  # noqa: F811
+    raw = _raws(tmp_path, 1)[0]
+    assert gc.isenabled()
+    res = runner.invoke(cli, ["render", str(table_path), str(raw), "-o", str(tmp_path / "a.png")])
+    assert res.exit_code == 0 and gc.isenabled()
+    res = runner.invoke(cli, ["render", str(table_path), str(tmp_path / "missing.dng"), "-o",
+                              str(tmp_path / "b.png")])
+    assert res.exit_code != 0 and gc.isenabled()
+    res = runner.invoke(cli, ["render", "--no-such-option"])
+    assert res.exit_code == 2 and gc.isenabled()
+
+
+def test_gc_pause_leaves_a_caller_disabled_collector_alone():
+    gc.disable()
+    try:
+        with startup.gc_paused():
+            assert not gc.isenabled()
+        assert not gc.isenabled()  # not ours to turn on
+    finally:
+        gc.enable()
+    with startup.gc_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+
+
+def _child(code: str, env: dict | None = None) -> str:
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
+                         env={**os.environ, **(env or {})}, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_render_and_info_run_one_openblas_thread_unless_the_user_says_otherwise():
+    code = ("import sys; from l3cli.cli.main import cli\n"
+            "cli.get_command(None, 'render'); import numpy\n"
+            "from threadpoolctl import threadpool_info\n"
+            "print(max(i['num_threads'] for i in threadpool_info() "
+            "if i['internal_api'] == 'openblas'))")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
+                         env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.split()[-1]) == 1
+    assert int(_child(code, {"OPENBLAS_NUM_THREADS": "2"})) == 2
+
+
+def test_cached_kernels_load_lean_and_render_the_same(tmp_path, table_path):  # noqa: F811
+    """A fresh process loads the render kernel from numba's cache without importing
+    numba's implementation registries, and renders what this process renders."""
+    from l3cli.io.raw import read_raw
+    from l3cli.render import render_mosaic, table_for_task
+
+    raw = _raws(tmp_path, 1, seed=7)[0]
+    code = (
+        "import sys, json, numpy as np\n"
+        "from l3cli.render import render_mosaic, table_for_task\n"
+        "from l3cli.io.raw import read_raw\n"
+        f"t = table_for_task({str(table_path)!r}); m = read_raw({str(raw)!r}).mosaic\n"
+        "img = render_mosaic(t, m)\n"
+        "from l3cli import startup\n"
+        "print(json.dumps({'lean': startup._lean_installed,"
+        " 'registries': 'numba.np.linalg' in sys.modules, 'img': img.ravel().tolist()}))\n")
+    _child(code)  # fills numba's cache for this signature if a test has not yet
+    got = json.loads(_child(code))
+    assert got["lean"] and not got["registries"]
+    want = render_mosaic(table_for_task(table_path), read_raw(raw).mosaic)
+    np.testing.assert_array_equal(np.asarray(got["img"], dtype=np.float32), want.ravel())
