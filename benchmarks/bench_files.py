@@ -18,8 +18,8 @@ included):
 * ``l3 render TABLE DNG... -o DIR --format FMT`` (one process for the folder);
 * one Python process looping over the files with rawpy (LibRaw AHD, then PPG)
   and writing with OpenImageIO with the same encoder settings: JPEG quality 95
-  4:4:4 from 8-bit sRGB, uncompressed 16-bit TIFF, float32 EXR with ``zips``
-  (linear, from LibRaw's 16-bit output);
+  4:4:4 from 8-bit sRGB, uncompressed 16-bit TIFF, uncompressed float32 EXR
+  (linear, from LibRaw's 16-bit output; l3's defaults);
 
 and one file end to end (one DNG to JPEG). Peak memory (``ru_maxrss`` of the
 child) is reported beside each l3 run, and for a folder of ``--memory-files``
@@ -54,7 +54,7 @@ sys.path.insert(0, str(HERE))
 DEFAULT_DNG = REPO.parent / "shared" / "data" / "raw" / "misc" / "blackmagic_pocket4k_rggb.dng"
 #: format -> (l3 --format, output suffix)
 FORMATS = {"JPEG q95 4:4:4": ("jpg", ".jpg"), "TIFF 16-bit, uncompressed": ("tiff", ".tif"),
-           "EXR float, zips": ("exr", ".exr")}
+           "EXR float, uncompressed": ("exr", ".exr")}
 
 
 # ----------------------------------------------------------------- the peer
@@ -80,7 +80,7 @@ def peer(alg: str, fmt: str, out_dir: str, files: list[str]) -> None:
                                       no_auto_bright=True)
                 data = lin.astype(np.float32) * np.float32(1 / 65535)
                 spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, "float")
-                spec.attribute("compression", "zips")
+                spec.attribute("compression", "none")
         path = str(Path(out_dir) / (Path(f).stem + {"jpg": ".jpg", "tiff": ".tif"}.get(fmt, ".exr")))
         out = oiio.ImageOutput.create(path)
         out.open(path, spec)

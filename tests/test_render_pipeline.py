@@ -91,8 +91,8 @@ def test_compression_and_half_options(runner, tmp_path, table_path):
 
     for args, name, compression, fmt in (
             ([], "a.tif", "none", "uint16"), (["--compression", "zip"], "b.tif", "zip", "uint16"),
-            ([], "c.exr", "zips", "float"), (["--half", "--compression", "piz"], "d.exr", "piz",
-                                              "half")):
+            ([], "c.exr", "none", "float"), (["--half"], "d.exr", "zips", "half"),
+            (["--half", "--compression", "piz"], "e.exr", "piz", "half")):
         res = runner.invoke(cli, ["render", str(table_path), str(raw), "-o",
                                   str(tmp_path / name), *args])
         assert res.exit_code == 0, res.output

@@ -16,8 +16,8 @@ from l3cli.cli.paths import FORMATS as _FORMATS
               help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
                    "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
 @click.option("--compression", metavar="NAME", default=None,
-              help="TIFF: none (default), lzw or zip. EXR: none, rle, zips (default), zip "
-                   "or piz. All lossless.")
+              help="TIFF: none (default), lzw or zip. EXR: none (default for float32), rle, "
+                   "zips (default with --half), zip or piz. All lossless.")
 @click.option("--half", is_flag=True, help="EXR: write half floats (16-bit) instead of 32-bit.")
 @click.option("--quality", type=click.IntRange(1, 100), default=95, show_default=True,
               help="JPEG quality (4:4:4 chroma).")
