@@ -343,7 +343,7 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
     first: BaseException | None = None  # the first failure in input order (later ones: counted,
     failed = 0                          # not kept: a traceback holds its file's arrays)
     preload_scipy_blas()  # before any thread can reach numba's first call
-    with (buffers.recycling(int(in_flight) + 1),
+    with (buffers.recycling(2 * (int(in_flight) + 1)),  # mosaics and outputs
           ThreadPoolExecutor(max_workers=max(1, int(in_flight)),
                              thread_name_prefix="l3-render") as pool):
         warm = threading.Thread(target=_quiet_warm_up, args=(table, jobs[0][1]),

@@ -43,6 +43,20 @@ def test_pool_takes_back_only_what_it_lent_and_keeps_at_most_keep():
         assert sum(g is x or g is y for g in got) == 1
 
 
+def test_pool_drops_the_oldest_beyond_its_count_and_byte_bounds(monkeypatch):
+    with buffers.recycling(keep=2):
+        a, b, c = (buffers.empty((4,), np.float32), buffers.empty((5,), np.float32),
+                   buffers.empty((6,), np.float32))
+        for arr in (a, b, c):  # mixed sizes: only the 2 most recent stay
+            buffers.release(arr)
+        assert [x.shape for x in buffers._free] == [(5,), (6,)]
+        monkeypatch.setattr(buffers, "MAX_FREE_BYTES", 30)  # 24 + 20 bytes > 30
+        d = buffers.empty((6,), np.float32)
+        assert d is c
+        buffers.release(d)
+        assert [x.shape for x in buffers._free] == [(6,)]
+
+
 def test_without_a_pool_empty_is_numpy_empty_and_release_ignores():
     a = buffers.empty((2, 3), np.float32)
     assert a.shape == (2, 3) and a.dtype == np.float32 and a.flags.c_contiguous
@@ -74,9 +88,9 @@ def test_folder_render_recycles_and_equals_one_by_one(runner, tmp_path, table_pa
     real = buffers.empty
 
     def counting(shape, dtype):
-        key = (tuple(shape), np.dtype(dtype).str)
         if buffers._free is not None:
-            calls["reused" if buffers._free.get(key) else "new"] += 1
+            free = any(a.shape == tuple(shape) and a.dtype == dtype for a in buffers._free)
+            calls["reused" if free else "new"] += 1
         return real(shape, dtype)
 
     buffers.empty = counting

@@ -45,7 +45,7 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
 
     with contextlib.ExitStack() as stack:
         # the prefetched decodes' mosaics come from the pipeline's buffer pool
-        stack.enter_context(buffers.recycling(IN_FLIGHT + 1))
+        stack.enter_context(buffers.recycling(2 * (IN_FLIGHT + 1)))
         # the first raws decode (on the core start-up leaves idle) while the
         # render code (numba) imports and loads
         prefetch = (stack.enter_context(Prefetch(raws, count=IN_FLIGHT))
