@@ -11,16 +11,15 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from l3cli.startup import lean_cache_loads
+from l3cli.startup import lean_cache
 
 __all__ = ["RENDER_LANES", "encode_row", "encode_rows", "render_row4", "render_row_any"]
-
-lean_cache_loads()  # cached kernels load without numba's registry refresh
 
 #: Output lanes of the vectorised render path (tables with up to 4 outputs).
 RENDER_LANES = 4
 
 
+@lean_cache
 @nb.njit(cache=True, fastmath={"contract"})
 def render_row4(pb, i, x, tw, S, cls_row, K, outf, o, n_out):
     """Render pixels ``x .. tw-1`` of tile row ``i`` for tables of <= 4 outputs.
@@ -76,6 +75,7 @@ def render_row4(pb, i, x, tw, S, cls_row, K, outf, o, n_out):
         o += n_out
 
 
+@lean_cache
 @nb.njit(cache=True, fastmath={"contract"})
 def render_row_any(pb, i, tw, S, cls_row, K, outf, o, n_out):
     """Render a tile row for tables of any number of outputs (``K`` (n_classes,
@@ -97,6 +97,7 @@ def render_row_any(pb, i, tw, S, cls_row, K, outf, o, n_out):
         o += n_out
 
 
+@lean_cache
 @nb.njit(cache=True, nogil=True)
 def encode_row(src, n, use_matrix, m, thr, buckets, interp, shift, lin, out8, out16, bits, o):
     """Display-encode ``n`` float values of ``src`` into ``out8``/``out16`` from ``o``.
@@ -147,6 +148,7 @@ def encode_row(src, n, use_matrix, m, thr, buckets, interp, shift, lin, out8, ou
             out16[ou + np.uint64(k)] = q
 
 
+@lean_cache
 @nb.njit(cache=True, nogil=True)
 def encode_rows(img, use_matrix, matrix, thr, buckets, interp, shift, out8, out16, bits):
     """Display-encode a float32 (H, W, C) image row by row (:func:`encode_row`) into the

@@ -15,10 +15,11 @@ here are not l3's own work, and each has one switch in this module:
 * **numba's cache loading.** Loading a kernel from numba's on-disk cache
   first "refreshes" numba's CPU target: it imports numba's implementation
   registries (the typing and lowering of all of Python and numpy) and
-  installs them, ~0.17 s, which only *compiling* needs. :func:`lean_cache_loads`
-  loads cached kernels with only what running them needs (numba's runtime
-  library); a cache miss compiles as before, and numba's compiler refreshes
-  the target itself.
+  installs them, ~0.17 s, which only *compiling* needs. :func:`lean_cache`
+  makes l3's kernels load with only what running them needs (numba's
+  runtime library); a cache miss compiles as before, and numba's compiler
+  refreshes the target itself. Other numba functions in the process are
+  left alone.
 """
 
 from __future__ import annotations
@@ -30,14 +31,14 @@ import os
 import sys
 import threading
 from collections.abc import Iterator
+from typing import Any
 
-__all__ = ["gc_paused", "lean_cache_loads", "pause_gc", "resume_gc", "single_threaded_blas"]
+__all__ = ["gc_paused", "lean_cache", "pause_gc", "resume_gc", "single_threaded_blas"]
 
 log = logging.getLogger(__name__)
 
 _gc_lock = threading.Lock()
 _gc_paused = False
-_lean_installed = False
 
 
 def single_threaded_blas() -> bool:
@@ -85,40 +86,37 @@ def resume_gc() -> None:
             gc.enable()
 
 
-def lean_cache_loads() -> bool:
-    """Load numba's cached kernels without refreshing its CPU target (once per process).
+def lean_cache(dispatcher: Any) -> Any:
+    """Let ``dispatcher`` (an ``njit(cache=True)`` function) load from numba's cache lean.
 
     numba's ``Cache.load_overload`` refreshes the target context before it
     reads a cached overload; a refresh imports and installs every typing and
     lowering registry, which compiling needs and running machine code does
-    not. This replaces it by the runtime initialisation (the NRT symbols
-    cached code links against) and the load itself. On a miss the dispatcher
-    compiles, and numba's compiler refreshes the target first, as always.
-    A numba without these internals is left as it is. Returns whether the
-    lean load is installed.
+    not. For this dispatcher only, the load becomes the runtime
+    initialisation (the NRT symbols cached code links against) and the load
+    itself. On a miss the dispatcher compiles, and numba's compiler
+    refreshes the target first, as always. A numba without these internals
+    is left as it is. Returns ``dispatcher`` (use it as a decorator, above
+    ``@numba.njit``).
     """
-    global _lean_installed
-    if _lean_installed:
-        return True
+    cache = getattr(dispatcher, "_cache", None)
     try:
         from numba.core import caching
         from numba.core.runtime import nrt
 
-        cls = caching.Cache
         needed = ("_load_overload", "_guard_against_spurious_io_errors", "load_overload")
-        if not all(hasattr(cls, name) for name in needed) or not hasattr(nrt, "rtsys"):
-            return False
+        if (not isinstance(cache, caching.Cache) or not all(hasattr(cache, n) for n in needed)
+                or not hasattr(nrt, "rtsys")):
+            return dispatcher
         rtsys = nrt.rtsys
 
-        def load_overload(self, sig, target_context):  # numba's signature
+        def load_overload(sig, target_context):  # numba's Cache.load_overload, lean
             rtsys.initialize(target_context)
-            with self._guard_against_spurious_io_errors():
-                return self._load_overload(sig, target_context)
+            with cache._guard_against_spurious_io_errors():
+                return cache._load_overload(sig, target_context)
             return None  # the guard swallowed an I/O error: compile
 
-        load_overload.__doc__ = "l3: " + (cls.load_overload.__doc__ or "").strip()
-        cls.load_overload = load_overload
-        _lean_installed = True
+        cache.load_overload = load_overload
     except Exception as exc:  # noqa: BLE001 - an optimisation only
-        log.debug("lean numba cache loads not installed: %s", exc)
-    return _lean_installed
+        log.debug("lean cache loads not set up for %s: %s", dispatcher, exc)
+    return dispatcher

@@ -31,13 +31,11 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from l3cli.startup import lean_cache_loads
+from l3cli.startup import lean_cache
 
 __all__ = ["KNOTS", "LUT_SIZE", "ToneCurve", "block_samples", "fit_tone_curve", "select_curve",
            "apply_curve",
            "curve_arrays", "curve_row"]
-
-lean_cache_loads()  # cached kernels load without numba's registry refresh
 
 #: Intervals of the piecewise-linear curve over the encoded value [0, 1] (leave-one-image-out
 #: on the bundled frames: 8 -> 0.62, 16 -> 0.453, 24 -> 0.451, 32 -> 0.448).
@@ -273,6 +271,7 @@ def _increasing(f: np.ndarray) -> np.ndarray:
     return g / g[-1]
 
 
+@lean_cache
 @numba.njit(cache=True, fastmath=True)
 def curve_row(outf, o, tw, n_out, base, slope, lo, step_inv):  # pragma: no cover - compiled
     """Map ``tw`` pixels of ``n_out`` values at ``outf[o:]`` through the look-up table.

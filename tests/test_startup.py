@@ -170,11 +170,27 @@ def test_cached_kernels_load_lean_and_render_the_same(tmp_path, table_path):  # 
         "from l3cli.io.raw import read_raw\n"
         f"t = table_for_task({str(table_path)!r}); m = read_raw({str(raw)!r}).mosaic\n"
         "img = render_mosaic(t, m)\n"
-        "from l3cli import startup\n"
-        "print(json.dumps({'lean': startup._lean_installed,"
+        "from l3cli.classify.kernel import _tile_kernel\n"
+        "load = _tile_kernel(t.patch, t.cfa.period[1])._cache.load_overload\n"
+        "print(json.dumps({'lean': load.__qualname__.startswith('lean_cache'),"
         " 'registries': 'numba.np.linalg' in sys.modules, 'img': img.ravel().tolist()}))\n")
     _child(code)  # fills numba's cache for this signature if a test has not yet
     got = json.loads(_child(code))
     assert got["lean"] and not got["registries"]
     want = render_mosaic(table_for_task(table_path), read_raw(raw).mosaic)
     np.testing.assert_array_equal(np.asarray(got["img"], dtype=np.float32), want.ravel())
+
+
+def test_lean_cache_leaves_other_numba_functions_alone():
+    import numba
+
+    def f(x):  # pragma: no cover - compiled
+        return x + 1
+
+    plain = numba.njit(cache=True)(f)
+    assert plain._cache.load_overload.__qualname__.endswith("Cache.load_overload")
+    uncached = startup.lean_cache(numba.njit(f))  # no cache: nothing to change
+    assert uncached(1) == 2
+    lean = startup.lean_cache(numba.njit(cache=True)(f))
+    assert lean._cache.load_overload.__qualname__.startswith("lean_cache")
+    assert plain._cache.load_overload.__qualname__.endswith("Cache.load_overload")

@@ -34,6 +34,7 @@ from l3cli.classify.features import ContextGuide, context_guide  # noqa: E402
 from l3cli.classify.layout import KernelTables, kernel_tables  # noqa: E402
 from l3cli.errors import InputError  # noqa: E402
 from l3cli.render_rows import encode_row, render_row4, render_row_any  # noqa: E402
+from l3cli.startup import lean_cache  # noqa: E402
 from l3cli.tonecurve import curve_row  # noqa: E402
 
 __all__ = ["MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER", "KernelTables",
@@ -89,6 +90,7 @@ def _tile_kernel(S: int, PW: int):
     r = S // 2
     TR = _TILE_ROWS
 
+    @lean_cache  # loads from numba's cache without its registry refresh
     @nb.njit(cache=True, parallel=True)
     def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
                lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,

@@ -311,10 +311,9 @@ def _combine_spectra(specs: np.ndarray, tables: np.ndarray, idx: np.ndarray) -> 
 def _combine_kernel():
     import numba as nb
 
-    from l3cli.startup import lean_cache_loads
+    from l3cli.startup import lean_cache
 
-    lean_cache_loads()
-
+    @lean_cache
     @nb.njit(cache=True, parallel=True)
     def kernel(specs, tables, idx):  # pragma: no cover - compiled
         k, hp, wf = specs.shape

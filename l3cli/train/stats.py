@@ -35,11 +35,9 @@ from l3cli.cfa import CFA
 from l3cli.classify import ClassDefinition, band_rows, describe_difference
 from l3cli.errors import InputError, TableError
 from l3cli.io.atomic import atomic_path
-from l3cli.startup import lean_cache_loads
+from l3cli.startup import lean_cache
 
 __all__ = ["ClassStats", "accumulate"]
-
-lean_cache_loads()  # cached kernels load without numba's registry refresh
 
 STATS_FORMAT = "l3-stats"
 STATS_VERSION = 1
@@ -151,6 +149,7 @@ class ClassStats:
 
 
 # --------------------------------------------------------------- kernels
+@lean_cache
 @nb.njit(cache=True)
 def _class_sort(cls, mask, use_mask, nc):
     """Band pixels (flat indices) in class order, and each class's start (counting sort).
@@ -200,6 +199,7 @@ def _gram_kernel(S: int, n_out: int):
     r = S // 2
     B = _BLOCK
 
+    @lean_cache
     @nb.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
     def gram(mosaic, yi, xi, y0, idx, starts, assign, target, weight, use_w, xtx, xty, yy):
         W = mosaic.shape[1]
