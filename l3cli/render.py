@@ -199,7 +199,7 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
     # cache inside the render: 15-25 % slower fused, measured) and lab: float
     # bands of ~1 M pixels, each encoded after its render
     step = max(1, DISPLAY_BAND_PIXELS // max(w, 1))
-    band = np.empty((min(step, y1 - y0), w, table.n_out), dtype=np.float32)
+    band = buffers.empty((min(step, y1 - y0), w, table.n_out), np.float32)  # reused per file
     for b0 in range(y0, y1, step):
         b1 = min(y1, b0 + step)
         part = band[: b1 - b0]
@@ -210,6 +210,8 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
             out[b0 - y0:b1 - y0] = display_encode(part, table.output_space, bits)
         else:
             encode_into(part, params, bits, out[b0 - y0:b1 - y0])
+    del part
+    buffers.release(band)
     return out
 
 
