@@ -24,16 +24,14 @@ here are not l3's own work, and each has one switch in this module:
 
 from __future__ import annotations
 
-import contextlib
 import gc
 import logging
 import os
 import sys
 import threading
-from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["gc_paused", "lean_cache", "pause_gc", "resume_gc", "single_threaded_blas"]
+__all__ = ["lean_cache", "pause_gc", "resume_gc", "single_threaded_blas"]
 
 log = logging.getLogger(__name__)
 
@@ -67,18 +65,8 @@ def pause_gc() -> None:
             _gc_paused = True
 
 
-@contextlib.contextmanager
-def gc_paused() -> Iterator[None]:
-    """:func:`pause_gc` for a block (collection resumes at its end at the latest)."""
-    pause_gc()
-    try:
-        yield
-    finally:
-        resume_gc()
-
-
 def resume_gc() -> None:
-    """Turn collection back on if :func:`gc_paused` turned it off (idempotent)."""
+    """Turn collection back on if :func:`pause_gc` turned it off (idempotent)."""
     global _gc_paused
     with _gc_lock:
         if _gc_paused:

@@ -126,13 +126,15 @@ def test_gc_is_on_again_after_render_and_after_a_failed_render(runner, tmp_path,
 def test_gc_pause_leaves_a_caller_disabled_collector_alone():
     gc.disable()
     try:
-        with startup.gc_paused():
-            assert not gc.isenabled()
+        startup.pause_gc()
+        assert not gc.isenabled()
+        startup.resume_gc()
         assert not gc.isenabled()  # not ours to turn on
     finally:
         gc.enable()
-    with startup.gc_paused():
-        assert not gc.isenabled()
+    startup.pause_gc()
+    assert not gc.isenabled()
+    startup.resume_gc()
     assert gc.isenabled()
 
 
