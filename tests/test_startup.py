@@ -196,3 +196,55 @@ def test_lean_cache_leaves_other_numba_functions_alone():
     lean = startup.lean_cache(numba.njit(cache=True)(f))
     assert lean._cache.load_overload.__qualname__.startswith("lean_cache")
     assert plain._cache.load_overload.__qualname__.endswith("Cache.load_overload")
+
+
+# ------------------------------------------------------------------ exit
+_TEARDOWN_PROBE = (
+    "import atexit, sys\n"
+    "class Probe:\n"
+    "    def __del__(self):\n"
+    "        print('teardown ran', flush=True)\n"
+    "probe = Probe()  # a module global: its __del__ runs only in the interpreter's teardown\n"
+    "atexit.register(lambda: print('exit handlers ran', flush=True))\n"
+)
+
+
+def _main_child(argv: list[str], extra: str = "") -> subprocess.CompletedProcess:
+    code = (_TEARDOWN_PROBE + extra + f"sys.argv = ['l3', *{argv!r}]\n"
+            "from l3cli.cli.main import main\nmain()\n")
+    return subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_a_finished_render_skips_the_teardown_but_runs_exit_handlers(tmp_path,
+                                                                    table_path):  # noqa: F811
+    raw = _raws(tmp_path, 1)[0]
+    out = tmp_path / "a.png"
+    res = _main_child(["render", str(table_path), str(raw), "-o", str(out)])
+    assert res.returncode == 0, res.stderr
+    assert "exit handlers ran" in res.stdout and "teardown ran" not in res.stdout
+    assert out.stat().st_size > 0
+    # an error and a usage error keep their exit status and their message
+    res = _main_child(["info", str(tmp_path / "missing.dng")])
+    assert res.returncode == 1 and "missing.dng: no such file" in res.stderr
+    assert "exit handlers ran" in res.stdout and "teardown ran" not in res.stdout
+    res = _main_child(["render", "--no-such-option"])
+    assert res.returncode == 2 and "no-such-option" in res.stderr
+
+
+def test_other_commands_and_live_threads_get_the_normal_exit(tmp_path):
+    res = _main_child(["smooth", "--help"])  # not a lean command: never armed
+    assert res.returncode == 0 and "teardown ran" in res.stdout
+    # a non-daemon thread still working: exit_now waits for it like sys.exit
+    flag = tmp_path / "thread-done"
+    extra = ("import threading, time\n"
+             "from l3cli import startup\n"
+             "startup.arm_exit_now()\n"
+             "def work():\n"
+             "    time.sleep(0.3)\n"
+             f"    open({str(flag)!r}, 'w').close()\n"
+             "threading.Thread(target=work).start()\n"
+             "startup.exit_now(3)\n")
+    res = subprocess.run([sys.executable, "-c", _TEARDOWN_PROBE + extra], cwd=REPO,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 3 and flag.exists() and "teardown ran" in res.stdout

@@ -72,6 +72,7 @@ class _LazyGroup(click.Group):
         name, cmd, rest = super().resolve_command(ctx, args)
         if name in _LEAN_START:  # while it imports and loads its kernels (invoke resumes)
             startup.pause_gc()
+            startup.arm_exit_now()  # main() may skip the interpreter's teardown
         return name, cmd, rest
 
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
@@ -150,8 +151,12 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
 
 
 def main() -> None:  # pragma: no cover - console entry point
-    """Console entry point of ``l3``."""
-    cli()
+    """Console entry point of ``l3``: the group, then a quick exit for the lean
+    commands (:func:`l3cli.startup.exit_now`)."""
+    try:
+        cli()
+    except SystemExit as exc:
+        startup.exit_now(exc.code)
 
 
 if __name__ == "__main__":  # pragma: no cover
