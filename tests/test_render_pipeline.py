@@ -65,6 +65,22 @@ def test_a_failing_file_in_the_middle(runner, tmp_path, table_path):
     assert sorted(p.name for p in out.iterdir()) == ["r0.jpg", "r2.jpg", "r3.jpg"]
 
 
+def test_format_accepts_the_other_suffix_spellings(runner, tmp_path, table_path):
+    raws = _raws(tmp_path, 2)
+    for given, suffix in (("TIF", ".tif"), ("jpeg", ".jpg"), ("tiff", ".tif")):
+        out = tmp_path / f"out-{given}"
+        res = runner.invoke(cli, ["render", str(table_path), *map(str, raws), "-o", str(out),
+                                  "--format", given])
+        assert res.exit_code == 0, res.output
+        assert sorted(p.name for p in out.iterdir()) == [f"r0{suffix}", f"r1{suffix}"]
+    res = runner.invoke(cli, ["render", str(table_path), str(raws[0]), "-o",
+                              str(tmp_path / "x.jpg"), "--format", "tif"])
+    assert res.exit_code != 0 and "--format tiff" in res.output  # the suffix disagrees
+    res = runner.invoke(cli, ["render", str(table_path), str(raws[0]), "-o",
+                              str(tmp_path / "x.bmp"), "--format", "bmp"])
+    assert res.exit_code == 2
+
+
 def test_display_render_equals_render_then_encode(table_path):
     from l3cli import pipeline
     from l3cli.io.encode import display_encode

@@ -6,8 +6,7 @@ from pathlib import Path
 
 import click
 
-from l3cli.cli.options import output_opt, quiet, seed_opt
-from l3cli.cli.paths import FORMATS as _FORMATS
+from l3cli.cli.options import format_opt, output_opt, quiet, seed_opt
 
 _METHODS = ("bilinear", "malvar2004", "menon2007")
 
@@ -41,9 +40,8 @@ def _expand_raws(raws: tuple[str, ...]) -> list[Path]:
               show_default=True, help="Demosaicking method (colour-demosaicing).")
 @click.option("--target", "target_space", type=click.Choice(["xyz", "linear-srgb", "srgb", "lab"]),
               default="xyz", show_default=True, help="Output colour space (as a table's).")
-@click.option("--format", "fmt", type=click.Choice(sorted(_FORMATS)), default=None,
-              help="Output format (default: from OUT's suffix, else exr). EXR keeps the target "
-                   "space (linear); TIFF/PNG/JPEG get display sRGB.")
+@format_opt(help="Output format (default: from OUT's suffix, else exr). EXR keeps the target "
+                 "space (linear); TIFF/PNG/JPEG get display sRGB.")
 @click.option("--save-model", type=click.Path(dir_okay=False),
               help="Also write the fitted method and matrix as JSON.")
 @seed_opt

@@ -29,6 +29,22 @@ scheduler_opt = click.option(
 )
 
 
+#: ``--format`` spellings that name a format by another of its suffixes.
+FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
+
+
+def format_opt(help: str):
+    """``--format exr|jpg|png|tiff`` (``tif`` and ``jpeg`` accepted too) with the
+    command's own help text; the value is the canonical name, or None."""
+    from l3cli.cli.paths import FORMATS
+
+    return click.option(
+        "--format", "fmt", default=None, help=help,
+        type=click.Choice(sorted([*FORMATS, *FORMAT_ALIASES]), case_sensitive=False),
+        callback=lambda ctx, param, value: (FORMAT_ALIASES.get(value.lower(), value.lower())
+                                            if value is not None else None))
+
+
 def _gains(ctx: click.Context, param: click.Parameter, value: str | None):
     """``--white-balance R,G,B``: the gains as an array (green-normalised), or None."""
     if value is None:

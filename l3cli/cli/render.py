@@ -4,17 +4,22 @@ from __future__ import annotations
 
 import click
 
-from l3cli.cli.options import output_opt, quiet, scheduler_opt, white_balance_opt, workers_opt
-from l3cli.cli.paths import FORMATS as _FORMATS
+from l3cli.cli.options import (
+    format_opt,
+    output_opt,
+    quiet,
+    scheduler_opt,
+    white_balance_opt,
+    workers_opt,
+)
 
 
 @click.command(short_help="Render raw files with a transform table.")
 @click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
 @click.argument("raws", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @output_opt
-@click.option("--format", "fmt", type=click.Choice(sorted(_FORMATS)), default=None,
-              help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
-                   "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
+@format_opt(help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
+                 "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
 @click.option("--compression", metavar="NAME", default=None,
               help="TIFF: none (default), lzw or zip. EXR: none (default for float32), rle, "
                    "zips (default with --half), zip or piz. All lossless.")
