@@ -1,6 +1,6 @@
-"""Process start-up: what a short ``l3 render`` spends before its first pixel.
+"""Process start-up and exit: what a short ``l3 render`` spends around its pixels.
 
-A one-file render is mostly start-up (``docs/performance.md``). Three costs
+A one-file render is mostly start-up (``docs/performance.md``). Four costs
 here are not l3's own work, and each has one switch in this module:
 
 * **OpenBLAS threads.** numpy and scipy each load an OpenBLAS that starts a
@@ -14,8 +14,8 @@ here are not l3's own work, and each has one switch in this module:
   command's start until its kernels are loaded (:func:`resume_gc`).
 * **Interpreter teardown.** After the last file is written, Python's
   finalisation collects and tears down every module (numba, LLVM,
-  OpenImageIO): ~0.2 s of a one-file render that no user waits for on
-  purpose. :func:`exit_now` ends a finished ``l3 render`` / ``l3 info``
+  OpenImageIO): ~0.1 s of a one-file render, with nothing left to
+  do. :func:`exit_now` ends a finished ``l3 render`` / ``l3 info``
   after running the exit handlers and flushing the standard streams.
 * **numba's cache loading.** Loading a kernel from numba's on-disk cache
   first "refreshes" numba's CPU target: it imports numba's implementation
@@ -35,7 +35,7 @@ import logging
 import os
 import sys
 import threading
-from typing import Any
+from typing import Any, NoReturn
 
 __all__ = ["arm_exit_now", "exit_now", "lean_cache", "pause_gc", "resume_gc",
            "single_threaded_blas"]
@@ -88,7 +88,7 @@ def arm_exit_now() -> None:
     _exit_now_armed = True
 
 
-def exit_now(code: Any) -> None:
+def exit_now(code: Any) -> NoReturn:
     """End the process with ``code`` (a :class:`SystemExit` code), without its teardown.
 
     Only once armed (:func:`arm_exit_now`) and only when no other non-daemon
