@@ -9,7 +9,8 @@ Inputs: ``--copies`` copies of one real 9-MP DNG (default: the Blackmagic
 Pocket 4K frame of the shared data set, ``../shared/data/raw/misc/``; a clone
 without it skips the timing tables with a note) in a temporary folder, and a
 table with the layout of ``bench_render.py`` (4 positions x 40 levels x 2
-contrasts, random kernels: speed does not depend on the values).
+contrasts) whose kernels render a photograph (:func:`photo_table`: the
+render's speed does not depend on the values, the encoders' does).
 
 Timed, interleaved, best of ``--repeat``, each a fresh process started from
 the shell's point of view (Python start-up, imports and kernel loading
@@ -20,6 +21,10 @@ included):
   and writing with OpenImageIO with the same encoder settings: JPEG quality 95
   4:4:4 from 8-bit sRGB, uncompressed 16-bit TIFF, uncompressed float32 EXR
   (linear, from LibRaw's 16-bit output; l3's defaults);
+* the *floor*: one Python process that only decodes each file with LibRaw and
+  writes an image of the output's size with the same encoder, 3 files at a
+  time (:func:`floor`). Every renderer pays this; ``AHD / floor`` is the
+  largest speed-up over AHD that any renderer could show on this machine;
 
 and one file end to end (one DNG to JPEG). Peak memory (``ru_maxrss`` of the
 child) is reported beside each l3 run, and for a folder of ``--memory-files``
@@ -60,34 +65,86 @@ FORMATS = {"JPEG q95 4:4:4": ("jpg", ".jpg"), "TIFF 16-bit, uncompressed": ("tif
 
 
 # ----------------------------------------------------------------- the peer
-def peer(alg: str, fmt: str, out_dir: str, files: list[str]) -> None:
-    """The peer process: rawpy (LibRaw) + OpenImageIO, one file after another."""
+def _encoder_spec(fmt: str, shape: tuple[int, ...]):
+    """OpenImageIO spec of the benchmark's encoder settings for ``fmt``."""
     import OpenImageIO as oiio
+
+    h, w = shape[:2]
+    if fmt == "jpg":
+        spec = oiio.ImageSpec(w, h, 3, "uint8")
+        spec.attribute("Compression", "jpeg:95")
+        spec.attribute("jpeg:subsampling", "4:4:4")
+    else:
+        spec = oiio.ImageSpec(w, h, 3, "uint16" if fmt == "tiff" else "float")
+        spec.attribute("compression", "none")
+    return spec
+
+
+def _write(path: str, spec, data: np.ndarray) -> None:
+    import OpenImageIO as oiio
+
+    out = oiio.ImageOutput.create(path)
+    out.open(path, spec)
+    out.write_image(data)
+    out.close()
+
+
+def floor(fmt: str, out_dir: str, files: list[str]) -> None:
+    """The floor process: what every renderer of these files pays, and nothing else.
+
+    Each file is decoded by LibRaw (``unpack``, as l3 reads it) and an image
+    of the output's size is written with the benchmark's encoder settings,
+    3 files at a time (l3's pipeline depth). The written image is made once,
+    from the first file: its 2x2 CFA cells as RGB, shown at full size, so the
+    encoder sees a photograph's content. No demosaicking, no colour: a
+    renderer that cost nothing would take this long.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
     import rawpy
 
+    with rawpy.imread(files[0]) as raw:
+        m = raw.raw_image_visible.astype(np.float32) / np.float32(raw.white_level)
+    h, w = (m.shape[0] // 2) * 2, (m.shape[1] // 2) * 2
+    cells = m[:h, :w].reshape(h // 2, 2, w // 2, 2)
+    rgb = np.stack([cells[:, 0, :, 0], cells[:, 0, :, 1], cells[:, 1, :, 1]], axis=-1)
+    rgb = np.sqrt(np.clip(rgb * 4, 0, 1))  # quantised at half size, then shown at full size
+    half = {"jpg": lambda: np.round(rgb * 255).astype(np.uint8),
+            "tiff": lambda: np.round(rgb * 65535).astype(np.uint16)}.get(
+        fmt, lambda: rgb.astype(np.float32))()
+    data = np.repeat(np.repeat(half, 2, axis=0), 2, axis=1)
+    spec = _encoder_spec(fmt, data.shape)
+    suffix = {"jpg": ".jpg", "tiff": ".tif"}.get(fmt, ".exr")
+
+    def one(f: str) -> None:
+        with rawpy.imread(f) as raw:
+            raw.raw_image_visible.astype(np.float32)
+        _write(str(Path(out_dir) / (Path(f).stem + suffix)), spec, data)
+
+    with ThreadPoolExecutor(3) as pool:
+        list(pool.map(one, files))
+
+
+def peer(alg: str, fmt: str, out_dir: str, files: list[str]) -> None:
+    """The peer process: rawpy (LibRaw) + OpenImageIO, one file after another."""
+    import rawpy
+
+    if alg == "floor":
+        floor(fmt, out_dir, files)
+        return
     algo = {"AHD": rawpy.DemosaicAlgorithm.AHD, "PPG": rawpy.DemosaicAlgorithm.PPG}[alg]
     for f in files:
         with rawpy.imread(f) as raw:
             if fmt == "jpg":
                 data = raw.postprocess(demosaic_algorithm=algo, output_bps=8)
-                spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, "uint8")
-                spec.attribute("Compression", "jpeg:95")
-                spec.attribute("jpeg:subsampling", "4:4:4")
             elif fmt == "tiff":
                 data = raw.postprocess(demosaic_algorithm=algo, output_bps=16)
-                spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, "uint16")
-                spec.attribute("compression", "none")
             else:
                 lin = raw.postprocess(demosaic_algorithm=algo, output_bps=16, gamma=(1, 1),
                                       no_auto_bright=True)
                 data = lin.astype(np.float32) * np.float32(1 / 65535)
-                spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, "float")
-                spec.attribute("compression", "none")
         path = str(Path(out_dir) / (Path(f).stem + {"jpg": ".jpg", "tiff": ".tif"}.get(fmt, ".exr")))
-        out = oiio.ImageOutput.create(path)
-        out.open(path, spec)
-        out.write_image(data)
-        out.close()
+        _write(path, _encoder_spec(fmt, data.shape), data)
 
 
 # ------------------------------------------------------------------ helpers
@@ -116,12 +173,43 @@ def _fresh(folder: Path) -> Path:
     return folder
 
 
-def table_file(folder: Path) -> Path:
+def photo_table():
+    """``bench_render``'s table layout with kernels that render a photograph.
+
+    Each class's kernel is the bilinear demosaic of its CFA position (the
+    centre pixel, or the mean of its nearest neighbours of each channel in
+    the 3x3 centre), then linear sRGB → XYZ, times an exposure gain, the same
+    at every level. Render speed does not depend on the values (every kernel
+    has all 26 taps), but the encoders do: a table of random kernels renders
+    noise, whose JPEGs are 5x larger and slower to write than a photograph's.
+    """
     from bench_render import bench_table
 
+    from l3cli.colourspace import LINEAR_SRGB_TO_XYZ
+
+    t = bench_table()
+    d = t.definition
+    s, r = d.patch, d.patch // 2
+    group_kernel = {}
+    for pos in range(d.cfa.n_positions):
+        nb = d.cfa.neighbourhood(pos, s)
+        k = np.zeros((s * s + 1, 3), dtype=np.float64)
+        for ch, name in enumerate("RGB"):
+            c = d.cfa.channels.index(name)
+            near = [(y, x) for y in range(r - 1, r + 2) for x in range(r - 1, r + 2)
+                    if nb[y, x] == c and (nb[r, r] != c or (y, x) == (r, r))]
+            for y, x in near:
+                k[y * s + x, ch] = 1.0 / len(near)
+        group_kernel[int(d.position_group[pos])] = 4.0 * k @ LINEAR_SRGB_TO_XYZ.T
+    g = d.class_tuple(np.arange(d.n_classes))[0]
+    t.kernels[:] = np.stack([group_kernel[int(x)] for x in g]).astype(np.float32)
+    return t
+
+
+def table_file(folder: Path) -> Path:
     from l3cli.table import save_table
 
-    return save_table(folder / "table.npz", bench_table())
+    return save_table(folder / "table.npz", photo_table())
 
 
 def timing_tables(dng: Path, tmp: Path, copies: int, repeat: int) -> list[str]:
@@ -138,12 +226,13 @@ def timing_tables(dng: Path, tmp: Path, copies: int, repeat: int) -> list[str]:
              f"{repeat}, interleaved; peer = one Python process: rawpy (LibRaw) + OpenImageIO, "
              "same encoder settings.", "",
              "| output | l3 render | LibRaw AHD | LibRaw PPG | l3 vs AHD | l3 vs PPG "
-             "| CPU s: l3 / AHD / PPG | l3 peak RSS |", "|---|---|---|---|---|---|---|---|"]
+             "| CPU s: l3 / AHD / PPG | l3 peak RSS | floor (decode + write) | AHD / floor |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     cases = [(name, fmt, files) for name, (fmt, _) in FORMATS.items()]
     cases.append(("one file → JPEG", "jpg", files[:1]))
     for name, fmt, fs in cases:
-        best = {"l3": np.inf, "AHD": np.inf, "PPG": np.inf}
+        best = {"l3": np.inf, "AHD": np.inf, "PPG": np.inf, "floor": np.inf}
         cpu = dict(best)
         rss = 0.0
         for _ in range(repeat):
@@ -156,14 +245,15 @@ def timing_tables(dng: Path, tmp: Path, copies: int, repeat: int) -> list[str]:
             dt, mb, c = _run(cmd)
             best["l3"], cpu["l3"] = min(best["l3"], dt), min(cpu["l3"], c)
             rss = max(rss, mb)
-            for alg in ("AHD", "PPG"):
+            for alg in ("AHD", "PPG", "floor"):
                 out = _fresh(tmp / "out")
                 dt, _, c = _run([*me, "--peer", alg, fmt, str(out), *fs])
                 best[alg], cpu[alg] = min(best[alg], dt), min(cpu[alg], c)
         lines.append(f"| {name} | {best['l3']:.2f} s | {best['AHD']:.2f} s | {best['PPG']:.2f} s "
                      f"| {best['AHD'] / best['l3']:.2f}x | {best['PPG'] / best['l3']:.2f}x "
                      f"| {cpu['l3']:.1f} / {cpu['AHD']:.1f} / {cpu['PPG']:.1f} "
-                     f"| {rss:.0f} MB |")
+                     f"| {rss:.0f} MB | {best['floor']:.2f} s "
+                     f"| {best['AHD'] / best['floor']:.2f}x |")
         print(lines[-1], flush=True)
     return lines
 
