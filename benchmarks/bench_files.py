@@ -109,9 +109,12 @@ def floor(fmt: str, out_dir: str, files: list[str]) -> None:
     cells = m[:h, :w].reshape(h // 2, 2, w // 2, 2)
     rgb = np.stack([cells[:, 0, :, 0], cells[:, 0, :, 1], cells[:, 1, :, 1]], axis=-1)
     rgb = np.sqrt(np.clip(rgb * 4, 0, 1))  # quantised at half size, then shown at full size
-    half = {"jpg": lambda: np.round(rgb * 255).astype(np.uint8),
-            "tiff": lambda: np.round(rgb * 65535).astype(np.uint16)}.get(
-        fmt, lambda: rgb.astype(np.float32))()
+    if fmt == "jpg":
+        half = np.round(rgb * 255).astype(np.uint8)
+    elif fmt == "tiff":
+        half = np.round(rgb * 65535).astype(np.uint16)
+    else:
+        half = rgb.astype(np.float32)
     data = np.repeat(np.repeat(half, 2, axis=0), 2, axis=1)
     spec = _encoder_spec(fmt, data.shape)
     suffix = {"jpg": ".jpg", "tiff": ".tif"}.get(fmt, ".exr")
@@ -190,7 +193,7 @@ def photo_table():
     t = bench_table()
     d = t.definition
     s, r = d.patch, d.patch // 2
-    group_kernel = {}
+    group_kernel = np.zeros((d.n_groups, s * s + 1, 3))
     for pos in range(d.cfa.n_positions):
         nb = d.cfa.neighbourhood(pos, s)
         k = np.zeros((s * s + 1, 3), dtype=np.float64)
@@ -200,9 +203,8 @@ def photo_table():
                     if nb[y, x] == c and (nb[r, r] != c or (y, x) == (r, r))]
             for y, x in near:
                 k[y * s + x, ch] = 1.0 / len(near)
-        group_kernel[int(d.position_group[pos])] = 4.0 * k @ LINEAR_SRGB_TO_XYZ.T
-    g = d.class_tuple(np.arange(d.n_classes))[0]
-    t.kernels[:] = np.stack([group_kernel[int(x)] for x in g]).astype(np.float32)
+        group_kernel[d.position_group[pos]] = 4.0 * k @ LINEAR_SRGB_TO_XYZ.T
+    t.kernels[:] = group_kernel[d.class_tuple(np.arange(d.n_classes))[0]]
     return t
 
 
