@@ -13,10 +13,12 @@ A folder is a pipeline, not a loop. Each file goes through
 on a small pool of threads: while one file renders, the next decodes and the
 previous one is written. Memory stays bounded: at most ``in_flight`` files
 (default 3) are between decode and write at any time, and a file's buffers
-are freed as soon as its stage is done. Render calls run one at a time (each
-already uses every core, and numba's default threading layer must not be
-entered from two threads at once); a 16-bit band's display encoding runs
-outside that lock, beside the next band's render. Before the first file, the kernels
+are freed as soon as its stage is done. Files take the render stage one at
+a time and in input order (:class:`RenderTurns`: each render already uses
+every core, numba's default threading layer must not be entered from two
+threads at once, and a file that finishes its render early is written
+early); a 16-bit band's display encoding runs outside the render lock,
+beside the next band's render. Before the first file, the kernels
 are loaded from numba's on-disk cache on a tiny input beside the first decode
 (:func:`warm_up`).
 
@@ -27,6 +29,7 @@ end, naming its file; a failed file leaves no output (writes are atomic).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
@@ -43,8 +46,8 @@ from l3cli import buffers
 from l3cli.errors import L3Error
 from l3cli.progress import progress
 
-__all__ = ["IN_FLIGHT", "Prefetch", "preload_scipy_blas", "render_one", "render_pipeline",
-           "warm_up"]
+__all__ = ["IN_FLIGHT", "Prefetch", "RenderTurns", "preload_scipy_blas", "render_one",
+           "render_pipeline", "warm_up"]
 
 #: Files between decode and write at a time (one decoding, one rendering, one
 #: being written): at the peak about 3 x (mosaic + output), the output being
@@ -53,6 +56,43 @@ IN_FLIGHT = 3
 
 _RENDER_LOCK = threading.Lock()
 T = TypeVar("T")
+
+
+class RenderTurns:
+    """Files take the render stage in input order, one at a time.
+
+    Without an order the render lock goes to whichever thread asks, so the
+    first ``in_flight`` files render band by band in turn and all finish
+    together, late: their writes and the next decodes wait, then pile up.
+    In order, file ``i`` renders alone while file ``i - 1`` is written and
+    file ``i + 2`` decodes. A file that fails (or is skipped) before its
+    render passes its turn on (:meth:`done`), so no later file waits for it.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._next = 0
+        self._done: set[int] = set()
+
+    @contextlib.contextmanager
+    def turn(self, i: int) -> Iterator[None]:
+        """Wait for file ``i``'s turn, hold it, then pass it on."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._next >= i)
+        try:
+            yield
+        finally:
+            self.done(i)
+
+    def done(self, i: int) -> None:
+        """File ``i`` is past the render stage (idempotent)."""
+        with self._cond:
+            if i >= self._next:
+                self._done.add(i)
+            while self._next in self._done:
+                self._done.discard(self._next)
+                self._next += 1
+            self._cond.notify_all()
 
 log = logging.getLogger(__name__)
 
@@ -227,13 +267,15 @@ def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
 def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
                out_path: str | os.PathLike, options: dict[str, Any],
                white_balance: np.ndarray | None = None, prefetch: Prefetch | None = None,
+               turn: contextlib.AbstractContextManager | None = None,
                ) -> tuple[Path, tuple[float, float, float]]:
     """Read, render and write one file; the output path and the stage times (s).
 
     The one implementation of a file's render, used by the pipeline's threads
     and by :func:`l3cli.render.render_file` (dask tasks, library callers).
     Display outputs are rendered straight to integers; tables with per-raw
-    gains or condition bins take the whole-image path.
+    gains or condition bins take the whole-image path. ``turn`` is held
+    around the render stage (the pipeline's :meth:`RenderTurns.turn`).
     """
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
@@ -248,17 +290,19 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     check_fits(table, raw, table_name=table_name)
     shot = exif_attributes(raw.metadata.get("shot", {}))
     t1 = time.perf_counter()
-    if (table.white_balance is not None or table.conditions is not None
-            or white_balance is not None):
-        # per-raw gains, adaptation or kernels: the whole-image path (which also
-        # refuses gains for a table trained without white balance)
-        with _RENDER_LOCK:
-            img = render_raw(table, raw, table_name=table_name, white_balance=white_balance)
-    elif fmt == "exr":
-        with _RENDER_LOCK:
-            img = render_mosaic(table, raw.mosaic)
-    else:
-        img = _render_display(table, raw.mosaic, 16 if fmt == "tiff" else 8)
+    with turn if turn is not None else contextlib.nullcontext():
+        if (table.white_balance is not None or table.conditions is not None
+                or white_balance is not None):
+            # per-raw gains, adaptation or kernels: the whole-image path (which also
+            # refuses gains for a table trained without white balance)
+            with _RENDER_LOCK:
+                img = render_raw(table, raw, table_name=table_name,
+                                 white_balance=white_balance)
+        elif fmt == "exr":
+            with _RENDER_LOCK:
+                img = render_mosaic(table, raw.mosaic)
+        else:
+            img = _render_display(table, raw.mosaic, 16 if fmt == "tiff" else 8)
     t2 = time.perf_counter()
     mosaic = raw.mosaic
     del raw
@@ -349,10 +393,18 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
         warm = threading.Thread(target=_quiet_warm_up, args=(table, jobs[0][1]),
                                 name="l3-warm-up", daemon=True)
         warm.start()
+        turns = RenderTurns()
+
+        def job(i: int, raw: str | os.PathLike, out: str | os.PathLike
+                ) -> tuple[Path, tuple[float, float, float]]:
+            try:
+                return render_one(table, table_name, raw, out, options, white_balance,
+                                  prefetch, turn=turns.turn(i))
+            finally:
+                turns.done(i)  # also when it failed before its render
+
         futures: list[Future[tuple[Path, tuple[float, float, float]]] | None] = [
-            pool.submit(render_one, table, table_name, raw, out, options, white_balance,
-                        prefetch)
-            for raw, out in jobs
+            pool.submit(job, i, raw, out) for i, (raw, out) in enumerate(jobs)
         ]
         try:
             for i, fut in enumerate(_locked(progress(futures, label="render",

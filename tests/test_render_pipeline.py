@@ -259,3 +259,89 @@ def test_display_tables_are_built_once_beside_the_warm_up(tmp_path, table_path, 
     render_pipeline(table_for_task(table_path), [(raws[0], tmp_path / "out" / "a.png")],
                     table_name="t.npz")
     assert sorted(set(built)) == sorted(built) and built  # each table built once
+
+
+def test_render_turns_go_in_input_order_and_a_skipped_file_passes_its_turn():
+    """Files ready in reverse order still render 0, 1, 2, ...; a file that never reaches
+    its render (decode failed) calls done() and the next one is not left waiting."""
+    import threading
+    import time
+
+    from l3cli.pipeline import RenderTurns
+
+    turns = RenderTurns()
+    entered: list[int] = []
+
+    def job(i: int) -> None:
+        try:
+            if i == 2:
+                return  # fails before its render
+            with turns.turn(i):
+                entered.append(i)
+                time.sleep(0.01)
+        finally:
+            turns.done(i)
+
+    threads = [threading.Thread(target=job, args=(i,)) for i in reversed(range(5))]
+    for t in threads:
+        t.start()
+        time.sleep(0.01)  # later files ask first
+    for t in threads:
+        t.join(timeout=10)
+    assert not any(t.is_alive() for t in threads)
+    assert entered == [0, 1, 3, 4]
+
+
+def test_folder_renders_take_their_turns_in_input_order(tmp_path, table_path, monkeypatch):
+    """In a folder render the render stage runs file by file in input order (whichever
+    decode finishes first), each file's render alone."""
+    import time
+
+    import l3cli.io.raw as rawmod
+    from l3cli import pipeline
+    from l3cli.table import load_table
+
+    raws = _raws(tmp_path, 5)
+
+    orig = rawmod.read_raw
+
+    def slow_first(path):
+        if str(path).endswith("r0.dng"):
+            time.sleep(0.3)  # the first file decodes last
+        return orig(path)
+
+    monkeypatch.setattr(rawmod, "read_raw", slow_first)
+    active: list[int] = []
+    most: list[int] = []
+    orig_display = pipeline._render_display
+
+    def record(table, mosaic, bits):
+        active.append(1)
+        most.append(len(active))
+        try:
+            return orig_display(table, mosaic, bits)
+        finally:
+            active.pop()
+
+    monkeypatch.setattr(pipeline, "_render_display", record)
+    seen: list[str] = []
+    orig_one = pipeline.render_one
+
+    def track(table, name, raw, out, *a, turn=None, **k):
+        class Spy:
+            def __enter__(self):
+                r = turn.__enter__()
+                seen.append(str(raw))
+                return r
+
+            def __exit__(self, *exc):
+                return turn.__exit__(*exc)
+
+        return orig_one(table, name, raw, out, *a, turn=Spy(), **k)
+
+    monkeypatch.setattr(pipeline, "render_one", track)
+    jobs = [(r, tmp_path / f"o{i}.jpg") for i, r in enumerate(raws)]
+    pipeline.render_pipeline(load_table(table_path), jobs, in_flight=3)
+    assert seen == [str(r) for r in raws]
+    assert max(most) == 1  # one file's render at a time
+    assert all((tmp_path / f"o{i}.jpg").exists() for i in range(5))
