@@ -108,10 +108,11 @@ def encode_row(src, n, use_matrix, m, thr, buckets, interp, shift, lin, out8, ou
     values) clip to [0, 1] (NaN gives 0), then look the code up by the
     value's bucket (its float32 bits shifted right by ``shift``): for 8 bits
     the bucket's first code and one comparison with the next threshold; for
-    16 bits the rounded linear estimate of
-    :func:`l3cli.io.encode.interpolation_table` in the low bits (the exact
-    code or a neighbour), settled by the two thresholds around it. ``lin`` is scratch of at least ``n`` float32; ``bits`` (8 or
-    16) picks the output array. No fast-math here: the matrix product is the
+    16 bits the floor of the linear estimate of
+    :func:`l3cli.io.encode.interpolation_table` in the low bits (within 0.1
+    of the unrounded code, so the code or the one below it), settled by one
+    comparison with the next threshold. ``lin`` is scratch of at least ``n``
+    float32; ``bits`` (8 or 16) picks the output array. No fast-math here: the matrix product is the
     plain float64 one, as numpy computes it.
     """
     if use_matrix:
@@ -139,13 +140,10 @@ def encode_row(src, n, use_matrix, m, thr, buckets, interp, shift, lin, out8, ou
     else:
         low = np.uint32((1 << shift) - 1)
         for k in range(n):  # the estimate is in [0, 2**16 - 1] (the table's ends are exact)
-            v = lin[k]
             b = lb[k]
             j = np.uint64(2) * np.uint64(b >> shift)
-            q = np.uint64(np.uint32(interp[j] + interp[j + np.uint64(1)] * np.float32(b & low)
-                                    + np.float32(0.5)))
-            q = q + np.uint64(v >= thr[q + np.uint64(1)]) - np.uint64(v < thr[q])
-            out16[ou + np.uint64(k)] = q
+            q = np.uint64(np.uint32(interp[j] + interp[j + np.uint64(1)] * np.float32(b & low)))
+            out16[ou + np.uint64(k)] = q + np.uint64(lin[k] >= thr[q + np.uint64(1)])
 
 
 @lean_cache

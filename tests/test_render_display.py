@@ -116,8 +116,8 @@ def _sweep(matrix, thr, buckets, interp, shift, bits, one, chunk):
 @pytest.mark.parametrize("bits", [8, 16])
 @pytest.mark.parametrize("space", ["linear-srgb", "data"])
 def test_encoder_lookup_is_exact_for_every_float32_in_0_1(bits, space):
-    """The bucket tables (8 bits) and the interpolated estimate settled by two thresholds
-    (16 bits) give the thresholds' code for all 1,065,353,217 float32 values in [0, 1]
+    """The bucket tables (8 bits) and the floor of the interpolated estimate settled by one
+    threshold (16 bits) give the thresholds' code for all 1,065,353,217 float32 values in [0, 1]
     (values outside are clipped first; the thresholds are checked against the reference
     recipe in test_encode.py)."""
     p = display_params(space, 3, bits)

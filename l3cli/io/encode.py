@@ -130,10 +130,11 @@ def interpolation_table(bits: int, encode: bool = True) -> np.ndarray:
     Within a bucket (``2**16`` consecutive float32 bit patterns, one
     exponent) a value is linear in its low bits ``f``, and the unrounded code
     ``oetf(v) * (2**bits - 1)`` is smooth, so ``base + slope * f`` stays
-    within a fraction of a code of it (the transfer curve's bend over 1/128
-    of an octave). Rounded, it is the exact code or a neighbour, which the
-    encoder settles with the two thresholds around it (a test checks every
-    float32 in [0, 1]).
+    within a tenth of a code of it (the transfer curve's bend over 1/128 of
+    an octave; most at the kink between its linear and power segments).
+    Its floor is therefore the exact code or the one below, which the
+    encoder settles with one comparison against the next threshold (a test
+    checks every float32 in [0, 1]).
 
     Returns
     -------
