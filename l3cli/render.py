@@ -33,7 +33,7 @@ import numpy as np
 from l3cli import buffers
 from l3cli.classify import MODE_DISPLAY, MODE_RENDER, check_mosaic, run_tiles
 from l3cli.errors import InputError, TableError
-from l3cli.render_rows import RENDER_LANES
+from l3cli.render_rows import RENDER_LANES, pack_lanes
 from l3cli.table import TransformTable
 
 if TYPE_CHECKING:
@@ -50,16 +50,18 @@ def pack_kernels(table: TransformTable) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32 (n_classes, (S*S + 1) * L), tap-major (patch row-major, then the
-        constant), with ``L = 4`` output lanes (zero-padded) for tables of up
-        to 4 outputs and ``L = n_out`` otherwise.
+        float32 (n_classes, (S*S + 1) * L). Tables of up to 4 outputs: ``L = 4``
+        lanes (zero-padded), in the row-pair layout of
+        :func:`l3cli.render_rows.pack_lanes`; otherwise ``L = n_out``,
+        tap-major (patch row-major, then the constant).
     """
     k = np.asarray(table.kernels, dtype=np.float32)  # (n_classes, q, n_out)
     nc, q, n_out = k.shape
-    lanes = RENDER_LANES if n_out <= RENDER_LANES else n_out
-    packed = np.zeros((nc, q, lanes), dtype=np.float32)
+    if n_out > RENDER_LANES:
+        return np.ascontiguousarray(k.reshape(nc, q * n_out))
+    packed = np.zeros((nc, q, RENDER_LANES), dtype=np.float32)
     packed[:, :, :n_out] = k
-    return np.ascontiguousarray(packed.reshape(nc, q * lanes))
+    return pack_lanes(packed)
 
 
 def check_fits(table: TransformTable, raw: RawImage, *, table_name: str = "table") -> None:

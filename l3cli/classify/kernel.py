@@ -33,7 +33,7 @@ from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # n
 from l3cli.classify.features import ContextGuide, context_guide  # noqa: E402
 from l3cli.classify.layout import KernelTables, kernel_tables  # noqa: E402
 from l3cli.errors import InputError  # noqa: E402
-from l3cli.render_rows import encode_row, render_row4, render_row_any  # noqa: E402
+from l3cli.render_rows import encode_row, render_row4, render_row_any, row_pairs  # noqa: E402
 from l3cli.startup import lean_cache  # noqa: E402
 from l3cli.tonecurve import curve_row  # noqa: E402
 
@@ -70,6 +70,24 @@ def _slp_vectorize():
         nb.config.SLP_VECTORIZE = old
 
 
+def _callee_stamp() -> tuple[int, ...]:
+    """Size and modification time of the modules compiled into the tile kernel.
+
+    numba's cache checks only the kernel's own source file, not those of the
+    functions it calls (:mod:`l3cli.render_rows`, :mod:`l3cli.tonecurve`).
+    The kernel holds this stamp as a closure constant, which is part of
+    numba's cache key, so an edit there recompiles it instead of loading a
+    stale kernel.
+    """
+    from l3cli import render_rows, tonecurve
+
+    stamp: list[int] = []
+    for module in (render_rows, tonecurve):
+        st = os.stat(module.__file__)
+        stamp += [st.st_size, st.st_mtime_ns]
+    return tuple(stamp)
+
+
 @functools.cache
 def _tile_kernel(S: int, PW: int):
     """The classifier (and renderer) compiled for patch size ``S``.
@@ -89,6 +107,7 @@ def _tile_kernel(S: int, PW: int):
     """
     r = S // 2
     TR = _TILE_ROWS
+    stamp = _callee_stamp()
 
     @lean_cache  # loads from numba's cache without its registry refresh
     @nb.njit(cache=True, parallel=True)
@@ -98,6 +117,8 @@ def _tile_kernel(S: int, PW: int):
                mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
                cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
                out16):
+        if stamp[0] < 0:  # never: holds the stamp in the kernel's closure (cache key)
+            return
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -151,6 +172,11 @@ def _tile_kernel(S: int, PW: int):
                 else:
                     for xx in range(twp):
                         pb[k, xx] = mosaic[src, xi[x0 + xx]]
+            if n_out <= 4 and (mode == MODE_RENDER or mode == MODE_DISPLAY):
+                pb2 = np.empty((nbr - 1, 2 * twp), dtype=np.float32)  # row pairs (render_rows)
+                row_pairs(pb, pb2, nbr - 1)
+            else:
+                pb2 = pb
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
             ring_q = np.empty((S, nch, tw), dtype=np.float32)
             ring_b = np.empty((S, tw), dtype=np.int32)
@@ -380,7 +406,7 @@ def _tile_kernel(S: int, PW: int):
                         out_cls[i0 + i, x0 + x] = clsr[x]
                 elif mode == MODE_DISPLAY:  # render the row, then encode it while in cache
                     if n_out <= 4:
-                        render_row4(pb, i, 0, tw, S, clsr, K, rowf, 0, n_out)
+                        render_row4(pb2, pb, i, tw, S, clsr, K, rowf, 0, n_out)
                     else:
                         render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
                     if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
@@ -388,7 +414,7 @@ def _tile_kernel(S: int, PW: int):
                     encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp, shift,
                                lin, out8, out16, enc_bits, o)
                 elif n_out <= 4:
-                    render_row4(pb, i, 0, tw, S, clsr, K, outf, o, n_out)
+                    render_row4(pb2, pb, i, tw, S, clsr, K, outf, o, n_out)
                 else:
                     render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
                 if mode == MODE_RENDER and cv_base.shape[1] > 1:  # learned tone curve
