@@ -4,10 +4,9 @@ A folder is a pipeline, not a loop. Each file goes through
 
 1. decode (LibRaw through rawpy: C code, the GIL released),
 2. render (the numba tile kernel, parallel over every core) and, for
-   TIFF/PNG/JPEG, display-encode (:func:`l3cli.render.render_display`: 8-bit
-   rows are encoded inside the kernel as they are rendered, 16-bit bands of
-   ~1 M pixels after theirs), straight into 8/16-bit integers: no full-size
-   float image is held;
+   TIFF/PNG/JPEG, display-encode (:func:`l3cli.render.render_display`: rows
+   are encoded inside the kernel as they are rendered), straight into
+   8/16-bit integers: no full-size float image is held;
 3. write (OpenImageIO's encoders, the GIL released), atomically,
 
 on a small pool of threads: while one file renders, the next decodes and the
@@ -17,8 +16,7 @@ are freed as soon as its stage is done. Files take the render stage one at
 a time and in input order (:class:`RenderTurns`: each render already uses
 every core, numba's default threading layer must not be entered from two
 threads at once, and a file that finishes its render early is written
-early); a 16-bit band's display encoding runs outside the render lock,
-beside the next band's render. Before the first file, the kernels
+early). Before the first file, the kernels
 are loaded from numba's on-disk cache on a tiny input beside the first decode
 (:func:`warm_up`).
 
@@ -61,9 +59,10 @@ T = TypeVar("T")
 class RenderTurns:
     """Files take the render stage in input order, one at a time.
 
-    Without an order the render lock goes to whichever thread asks, so the
-    first ``in_flight`` files render band by band in turn and all finish
-    together, late: their writes and the next decodes wait, then pile up.
+    Without an order the render lock goes to whichever thread asks: a later
+    file can render before an earlier one (whose write, and the decode
+    after it, then wait), and files rendered in bands (``lab`` tables) take
+    turns band by band and all finish together, late.
     In order, file ``i`` renders alone while file ``i - 1`` is written and
     file ``i + 2`` decodes. A file that fails (or is skipped) before its
     render passes its turn on (:meth:`done`), so no later file waits for it.
@@ -254,10 +253,8 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
 def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
     """Render straight to display integers (:func:`l3cli.render.render_display`).
 
-    8-bit rows are display-encoded inside the tile kernel as they are
-    rendered; 16-bit output is rendered in bands (under the render lock) and
-    each band is encoded outside the lock, beside the next band's render. No
-    full-size float image is held.
+    Rows are display-encoded inside the tile kernel as they are rendered
+    (under the render lock); no full-size float image is held.
     """
     from l3cli.render import render_display
 

@@ -132,7 +132,7 @@ def tone_curve_arrays(table: TransformTable) -> tuple[np.ndarray, ...] | None:
     return curve_arrays(*table.tone_lut)
 
 
-#: Pixels of one float band of :func:`render_display`'s two-step path (16 bits, lab).
+#: Pixels of one float band of :func:`render_display`'s two-step path (``lab`` tables).
 DISPLAY_BAND_PIXELS = 1 << 20
 
 
@@ -142,11 +142,12 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
                    render_lock: AbstractContextManager | None = None) -> np.ndarray:
     """Render a normalised mosaic straight to display integers (as TIFF, PNG and JPEG hold).
 
-    For 8 bits the tile kernel renders each row and display-encodes it while
-    it is in cache (:func:`l3cli.render_rows.encode_row`): no float image is
-    held and no second pass is made. For 16 bits (and ``lab`` tables) bands
-    of about :data:`DISPLAY_BAND_PIXELS` are rendered to float and encoded
-    one after another. Either way the integers are those of
+    The tile kernel renders each row and display-encodes it while it is in
+    cache (:func:`l3cli.render_rows.encode_row`), 8 or 16 bits: no float
+    image is held and no second pass is made. Only ``lab`` tables (whose
+    conversion is colour-science's) render bands of about
+    :data:`DISPLAY_BAND_PIXELS` to float and encode them one after another.
+    Either way the integers are those of
     :func:`l3cli.io.encode.display_encode` applied to :func:`render_mosaic`'s
     output (a test checks it).
 
@@ -164,9 +165,8 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
     rows
         Optional ``(y0, y1)``: render only these rows.
     render_lock
-        Held around each call of the (parallel) render kernel; the encoding
-        of 16-bit bands runs outside it, beside the next render (the file
-        pipeline's lock).
+        Held around each call of the (parallel) render kernel (the file
+        pipeline's lock); a ``lab`` band's encoding runs outside it.
 
     Returns
     -------
@@ -192,14 +192,13 @@ def render_display(table: TransformTable, mosaic: np.ndarray, bits: int, *,
         params = display_params(table.output_space, table.n_out, bits)  # a warm-up's build
     kernels = pack_kernels(table)
     curve = tone_curve_arrays(table)
-    if params is not None and bits == 8:
+    if params is not None:
         with lock:
             run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=kernels,
                       n_out=table.n_out, out=out, curve=curve, display=params)
         return out
-    # 16 bits (its 400 kB of encoder tables compete with the kernels for the
-    # cache inside the render: 15-25 % slower fused, measured) and lab: float
-    # bands of ~1 M pixels, each encoded after its render
+    # lab (colour-science's conversion): float bands of ~1 M pixels, each
+    # encoded after its render
     step = max(1, DISPLAY_BAND_PIXELS // max(w, 1))
     band = buffers.empty((min(step, y1 - y0), w, table.n_out), np.float32)  # reused per file
     for b0 in range(y0, y1, step):

@@ -126,22 +126,22 @@ def test_encoder_lookup_is_exact_for_every_float32_in_0_1(bits, space):
     assert bad == 0
 
 
-def test_fused_16_bit_kernel_path_and_16_bit_bands(monkeypatch):
-    """16 bits: the kernel's fused path (kept for callers of run_tiles) and the banded
-    two-step path render_display takes both give render-then-encode's integers."""
+def test_16_bit_fused_path_and_the_banded_lab_path(monkeypatch):
+    """16 bits are encoded inside the kernel (whole image and a row range); ``lab`` tables
+    take the banded two-step path (float bands, then colour-science's conversion). Both
+    give render-then-encode's integers."""
     from l3cli import render
-    from l3cli.classify import MODE_DISPLAY, run_tiles
 
     t = _table("RGGB", 5, 3, "xyz", seed=6)
     m = _mosaic(41, 600, seed=7)
     want = display_encode(render_mosaic(t, m), "xyz", 16)
-    out = np.empty((41, 600, 3), np.uint16)
-    run_tiles(m, t.definition, MODE_DISPLAY, kernels=render.pack_kernels(t), n_out=3, out=out,
-              display=display_params("xyz", 3, 16))
-    np.testing.assert_array_equal(out, want)
-    monkeypatch.setattr(render, "DISPLAY_BAND_PIXELS", 600 * 4)  # 4-row bands, a ragged last
     np.testing.assert_array_equal(render_display(t, m, 16), want)
     np.testing.assert_array_equal(render_display(t, m, 16, rows=(5, 38)), want[5:38])
+    lab = _table("RGGB", 5, 3, "lab", seed=6)
+    want = display_encode(render_mosaic(lab, m), "lab", 16)
+    monkeypatch.setattr(render, "DISPLAY_BAND_PIXELS", 600 * 4)  # 4-row bands, a ragged last
+    np.testing.assert_array_equal(render_display(lab, m, 16), want)
+    np.testing.assert_array_equal(render_display(lab, m, 16, rows=(5, 38)), want[5:38])
 
 
 def test_encoder_kernel_loads_from_numba_cache_in_a_new_process(tmp_path):
