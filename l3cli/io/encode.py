@@ -91,22 +91,29 @@ def srgb_thresholds(bits: int, encode: bool = True) -> tuple[np.ndarray, np.ndar
         return quantise_reference(pattern.astype(np.int32).view(np.float32), bits,
                                   encode=encode).astype(np.int64)
 
-    # bracket each threshold near the analytic inverse, then bisect over bit patterns
+    # bracket each threshold near the analytic inverse (a few bit patterns off it;
+    # wider where that fails), then bisect over bit patterns, the open brackets only
     mid_code = (codes - 0.5) / maxv
     guess = mid_code if not encode else np.where(
         mid_code <= 0.04045, mid_code / 12.92, ((mid_code + 0.055) / 1.055) ** 2.4)
     g = guess.astype(np.float32).view(np.int32).astype(np.int64)
-    lo = np.maximum(g - 64, 0)  # bit patterns: Q(lo) < k
-    hi = np.minimum(g + 64, _ONE_BITS)  # Q(hi) >= k (Q(1.0) = n - 1)
-    bad = (q_of(lo) >= codes) & (lo > 0)
-    lo[bad] = 0
-    bad = q_of(hi) < codes
-    hi[bad] = _ONE_BITS
-    while np.any(hi - lo > 1):
-        mid = (lo + hi) // 2
-        ge = q_of(mid) >= codes
-        hi = np.where(ge, mid, hi)
-        lo = np.where(ge, lo, mid)
+    lo = np.maximum(g - 4, 0)  # bit patterns: Q(lo) < k
+    hi = np.minimum(g + 4, _ONE_BITS)  # Q(hi) >= k (Q(1.0) = n - 1)
+    bad = np.flatnonzero((q_of(lo) >= codes) & (lo > 0))
+    for step in (64, None):  # then the whole range
+        lo[bad] = np.maximum(g[bad] - step, 0) if step else 0
+        bad = bad[(q_of(lo[bad]) >= codes[bad]) & (lo[bad] > 0)]
+    bad = np.flatnonzero(q_of(hi) < codes)
+    for step in (64, None):
+        hi[bad] = np.minimum(g[bad] + step, _ONE_BITS) if step else _ONE_BITS
+        bad = bad[q_of(hi[bad]) < codes[bad]]
+    todo = np.flatnonzero(hi - lo > 1)
+    while todo.size:
+        mid = (lo[todo] + hi[todo]) // 2
+        ge = q_of(mid) >= codes[todo]
+        hi[todo] = np.where(ge, mid, hi[todo])
+        lo[todo] = np.where(ge, lo[todo], mid)
+        todo = todo[hi[todo] - lo[todo] > 1]
     thr = np.empty(n + 1, dtype=np.float32)
     thr[0] = 0.0
     thr[1:n] = hi.astype(np.int32).view(np.float32)
