@@ -14,8 +14,8 @@ pass over tiles of output pixels (:func:`l3cli.classify.run_tiles`): a tile's
 padded band is classified and rendered while it is in the core's cache, and
 beside the mosaic and the output only a few tile buffers per thread are held,
 so memory stays bounded for any frame size. The kernels of a table are packed
-once (:func:`pack_kernels`) so that the (up to 4) outputs of a tap are one
-SIMD multiply-add.
+once (:func:`pack_kernels`) so that a tap of two patch rows, 4 output lanes
+each, is one 8-lane multiply-add (:func:`l3cli.render_rows.affine4`).
 """
 
 from __future__ import annotations

