@@ -141,7 +141,7 @@ def test_non_dng_cfa_writes_tiff_with_sidecar(tmp_path):
 
 
 @pytest.mark.parametrize("spec", ["RGGB", "RGB/GBR/BRG", "R"])
-@pytest.mark.parametrize("h", [1, 3, 64, 67, 131])
+@pytest.mark.parametrize("h", [3, 5, 64, 67, 131])
 def test_normalise_in_blocks_equals_the_elementwise_formula(spec, h):
     """Blocks of whole CFA periods, then the rows of a partial period: every pixel is the
     float32 (DN - black_p) * (1 / (white - black_p)) of its own position, bit for bit."""
@@ -150,8 +150,6 @@ def test_normalise_in_blocks_equals_the_elementwise_formula(spec, h):
 
     cfa = CFA.from_spec(spec)
     ph, pw = cfa.period
-    if h < ph:
-        pytest.skip("shorter than a period")
     rng = np.random.default_rng(h)
     dn = rng.integers(0, 4096, (h, 37)).astype(np.uint16)
     black = rng.random((ph, pw)) * 100
