@@ -5,6 +5,7 @@ lane must still see the same rounded operations as the plain loop below
 (per patch row a chain of fused multiply-adds over its taps, starting from
 the rounded product, and the rows' sums added to the constant in row order),
 so the pixels are bit for bit equal, for every patch size and output count.
+Tables of more than 4 outputs take the generic loop, checked the same way.
 """
 
 from __future__ import annotations
@@ -51,6 +52,38 @@ def test_row_pair_render_is_bit_identical_to_the_one_row_loop(patch, n_out):
     want = _one_row_at_a_time(np.ascontiguousarray(m[np.ix_(yi, xi)]),
                               classify(m, t.definition), t.kernels.astype(np.float32))
     assert got.shape == want.shape
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
+@nb.njit(fastmath={"contract"})
+def _all_taps_in_order(padded, cls, k):
+    """Tables of more than 4 outputs: out = const + the taps in raster order, one chain."""
+    h, w = cls.shape
+    nc, q, n_out = k.shape
+    S = int(round((q - 1) ** 0.5))
+    out = np.empty((h, w, n_out), np.float32)
+    for y in range(h):
+        for x in range(w):
+            c = cls[y, x]
+            for o in range(n_out):
+                a = k[c, S * S, o]
+                for dy in range(S):
+                    for dx in range(S):
+                        a += padded[y + dy, x + dx] * k[c, dy * S + dx, o]
+                out[y, x, o] = a
+    return out
+
+
+@pytest.mark.parametrize("n_out", [5, 6])
+def test_tables_of_more_than_4_outputs_render_every_output(n_out):
+    """More than 4 outputs take the generic loop (kernels tap-major, n_out lanes)."""
+    t = make_table("RGGB", patch=5, n_out=n_out, seed=n_out)
+    rng = np.random.default_rng(n_out)
+    m = (rng.random((40, 90)) * 1.1).astype(np.float32)
+    got = render_mosaic(t, m)
+    yi, xi = t.definition.mirror_maps(*m.shape)
+    want = _all_taps_in_order(np.ascontiguousarray(m[np.ix_(yi, xi)]),
+                              classify(m, t.definition), t.kernels.astype(np.float32))
     np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
