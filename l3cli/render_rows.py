@@ -117,10 +117,10 @@ def affine4(typingctx, pb2_t, pb_t, i_t, x_t, c_t, k_t, s_t):
         base = 0
         for r0, m in row_groups(S):
             vt = ir.VectorType(_F32, 4 * m)
-            fma = cgutils.get_or_insert_function(
-                builder.module, ir.FunctionType(vt, [vt, vt, vt]), f"llvm.fmuladd.v{4 * m}f32")
             # fmuladd: fused where the CPU has FMA, else multiply then add, as numba's
             # `contract` flag makes the scalar loop (same pixels on any CPU)
+            fma = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(vt, [vt, vt, vt]), f"llvm.fmuladd.v{4 * m}f32")
             s = ir.Constant(vt, None)  # +0: the first multiply-add is the rounded product
             for dx in range(S):
                 col = builder.add(x, const(dx))
