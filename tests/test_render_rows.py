@@ -21,8 +21,10 @@ from tests.test_table import make_table
 
 
 @nb.njit(fastmath={"contract"})
-def _one_row_at_a_time(padded, cls, k):
-    """out[y, x, q] = const + sum over patch rows (chain over the row's taps)."""
+def _plain_loop(padded, cls, k, row_sums):
+    """out[y, x, q] = const + the taps: with ``row_sums`` one chain per patch row, the rows'
+    sums added in order (the row-pair path); without, one chain over all taps in raster
+    order (the generic loop of tables with more than 4 outputs)."""
     h, w = cls.shape
     nc, q, n_out = k.shape
     S = int(round((q - 1) ** 0.5))
@@ -33,12 +35,21 @@ def _one_row_at_a_time(padded, cls, k):
             for o in range(n_out):
                 a = k[c, S * S, o]
                 for dy in range(S):
-                    r = np.float32(0.0)
+                    r = np.float32(0.0) if row_sums else a
                     for dx in range(S):
                         r += padded[y + dy, x + dx] * k[c, dy * S + dx, o]
-                    a += r
+                    a = a + r if row_sums else r
                 out[y, x, o] = a
     return out
+
+
+def _check_against_plain_loop(t, m, *, row_sums):
+    got = render_mosaic(t, m)
+    yi, xi = t.definition.mirror_maps(*m.shape)
+    want = _plain_loop(np.ascontiguousarray(m[np.ix_(yi, xi)]), classify(m, t.definition),
+                       t.kernels.astype(np.float32), row_sums)
+    assert got.shape == want.shape
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
 @pytest.mark.parametrize("patch", [1, 3, 5, 7])
@@ -47,31 +58,7 @@ def test_row_pair_render_is_bit_identical_to_the_one_row_loop(patch, n_out):
     t = make_table("RGGB", patch=patch, n_out=n_out, seed=patch + n_out)
     rng = np.random.default_rng(patch * 10 + n_out)
     m = (rng.random((70, 530)) * 1.1).astype(np.float32)  # two tile rows, two tile columns
-    got = render_mosaic(t, m)
-    yi, xi = t.definition.mirror_maps(*m.shape)
-    want = _one_row_at_a_time(np.ascontiguousarray(m[np.ix_(yi, xi)]),
-                              classify(m, t.definition), t.kernels.astype(np.float32))
-    assert got.shape == want.shape
-    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
-
-
-@nb.njit(fastmath={"contract"})
-def _all_taps_in_order(padded, cls, k):
-    """Tables of more than 4 outputs: out = const + the taps in raster order, one chain."""
-    h, w = cls.shape
-    nc, q, n_out = k.shape
-    S = int(round((q - 1) ** 0.5))
-    out = np.empty((h, w, n_out), np.float32)
-    for y in range(h):
-        for x in range(w):
-            c = cls[y, x]
-            for o in range(n_out):
-                a = k[c, S * S, o]
-                for dy in range(S):
-                    for dx in range(S):
-                        a += padded[y + dy, x + dx] * k[c, dy * S + dx, o]
-                out[y, x, o] = a
-    return out
+    _check_against_plain_loop(t, m, row_sums=True)
 
 
 @pytest.mark.parametrize("n_out", [5, 6])
@@ -80,11 +67,7 @@ def test_tables_of_more_than_4_outputs_render_every_output(n_out):
     t = make_table("RGGB", patch=5, n_out=n_out, seed=n_out)
     rng = np.random.default_rng(n_out)
     m = (rng.random((40, 90)) * 1.1).astype(np.float32)
-    got = render_mosaic(t, m)
-    yi, xi = t.definition.mirror_maps(*m.shape)
-    want = _all_taps_in_order(np.ascontiguousarray(m[np.ix_(yi, xi)]),
-                              classify(m, t.definition), t.kernels.astype(np.float32))
-    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
+    _check_against_plain_loop(t, m, row_sums=False)
 
 
 def test_pack_lanes_layout():
