@@ -189,8 +189,8 @@ class Prefetch:
                 # a job that came for its file before the decode began decodes it itself
                 slot.started = not (self._stop.is_set() or slot.taken)
             try:
-                if slot.started:
-                    slot.raw = read_raw(p)
+                if slot.started:  # LibRaw only: no numba (still importing) in this thread
+                    slot.raw = read_raw(p, libraw_only=True)
             except BaseException as exc:  # noqa: BLE001 - handed to the job that takes it
                 slot.error = exc
             finally:

@@ -211,14 +211,16 @@ def test_prefetch_leaves_a_file_not_yet_begun_to_its_job(tmp_path, monkeypatch):
     gate, calls = threading.Event(), []
     real = raw_io.read_raw
 
-    def slow(path):
+    def slow(path, **kw):
         calls.append(str(path))
         gate.wait(10)
-        return real(path)
+        return real(path, **kw)
 
     monkeypatch.setattr(raw_io, "read_raw", slow)
     with Prefetch(raws, count=3) as pre:
-        while not calls:  # the first decode is running
+        for _ in range(1000):  # the first decode is running (10 s at most)
+            if calls:
+                break
             threading.Event().wait(0.01)
         assert pre.take(raws[1]) is None  # not begun: handed back at once
         gate.set()
@@ -228,7 +230,9 @@ def test_prefetch_leaves_a_file_not_yet_begun_to_its_job(tmp_path, monkeypatch):
     gate.clear()
     calls.clear()
     with Prefetch(raws, count=3) as pre:
-        while not calls:
+        for _ in range(1000):
+            if calls:
+                break
             threading.Event().wait(0.01)
         threading.Timer(0.2, gate.set).start()
     assert calls == [str(raws[0])]  # leaving stopped the files not yet begun
@@ -305,10 +309,10 @@ def test_folder_renders_take_their_turns_in_input_order(tmp_path, table_path, mo
 
     orig = rawmod.read_raw
 
-    def slow_first(path):
+    def slow_first(path, **kw):
         if str(path).endswith("r0.dng"):
             time.sleep(0.3)  # the first file decodes last
-        return orig(path)
+        return orig(path, **kw)
 
     monkeypatch.setattr(rawmod, "read_raw", slow_first)
     active: list[int] = []

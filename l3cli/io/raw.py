@@ -369,15 +369,46 @@ def _visible_pattern(pattern: np.ndarray, top: int, left: int) -> np.ndarray:
     return pattern[np.ix_((top + np.arange(ph)) % ph, (left + np.arange(pw)) % pw)]
 
 
-def _read_rawpy(path: Path) -> RawImage:
+def _lossy_dng(path: Path) -> tuple[Any, np.ndarray] | None:
+    """A lossy-JPEG DNG decoded by :mod:`l3cli.io.dng_lossy` (LibRaw's values, faster):
+    (LibRaw's handle, for the metadata; the visible mosaic), or None for any other file."""
+    from l3cli.io import dng_lossy
+
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None  # LibRaw's own read reports it
+    tiles = dng_lossy.probe(data)
+    mosaic = None if tiles is None else dng_lossy.decode(data, tiles)
+    if mosaic is None:
+        return None
+    try:
+        with fd2.captured(str(path)):
+            rp = dng_lossy.libraw_metadata(data, tiles)
+    except Exception as exc:  # noqa: BLE001 - LibRaw's own path reports it
+        log.debug("%s: lossy DNG metadata: %s", path, exc)
+        return None
+    sz = rp.sizes
+    if (sz.raw_height, sz.raw_width) != mosaic.shape:
+        rp.close()
+        return None
+    return rp, mosaic[sz.top_margin:sz.top_margin + sz.height,
+                      sz.left_margin:sz.left_margin + sz.width]
+
+
+def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
     import rawpy
 
     rp = None
     failure: Exception | None = None
+    fast = _lossy_dng(path) if path.suffix.lower() == ".dng" and not libraw_only else None
     with fd2.captured(str(path)) as said:
         try:
-            rp = rawpy.imread(str(path))
-            vis = rp.raw_image_visible  # unpacks the raw data
+            if fast is not None:
+                rp, vis = fast
+            else:
+                rp = rawpy.imread(str(path))
+                vis = rp.raw_image_visible  # unpacks the raw data
         except (rawpy.LibRawError, OSError, ValueError, AttributeError) as exc:
             failure = exc
     if failure is not None:
@@ -422,7 +453,7 @@ def _read_rawpy(path: Path) -> RawImage:
         return _raw_image(path, vis, cfa, black, white, meta)
 
 
-def read_raw(path: str | os.PathLike) -> RawImage:
+def read_raw(path: str | os.PathLike, *, libraw_only: bool = False) -> RawImage:
     """Read a raw mosaic from any supported source.
 
     Parameters
@@ -430,6 +461,10 @@ def read_raw(path: str | os.PathLike) -> RawImage:
     path
         A raw file LibRaw opens, a headerless ``.raw`` with ``.raw.toml``
         sidecar, or a ``.tif``/``.png`` mosaic with a ``.toml`` sidecar.
+    libraw_only
+        Let LibRaw decode lossy-JPEG DNGs too, instead of
+        :mod:`l3cli.io.dng_lossy` (the same values; that decoder is faster
+        but needs numba, which a caller may not have imported yet).
 
     Returns
     -------
@@ -458,7 +493,7 @@ def read_raw(path: str | os.PathLike) -> RawImage:
             f"{path}: a {suffix} image is not a raw file (a mosaic image needs a sidecar "
             f"{sidecar_path(path).name})"
         )
-    return _read_rawpy(path)
+    return _read_rawpy(path, libraw_only)
 
 
 # --------------------------------------------------------------------- writing

@@ -1,0 +1,154 @@
+"""The lossy-JPEG DNG decoder (l3cli.io.dng_lossy) against LibRaw and the JPEG standard."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+import rawpy
+
+from l3cli.errors import InputError
+from l3cli.io import dng_lossy
+from l3cli.io.raw import read_raw, write_raw
+
+
+@pytest.fixture
+def bmd(shared_data):
+    """The Blackmagic Pocket 4K DNG (12-bit lossy JPEG tiles) and its bytes."""
+    path = shared_data / "raw/misc/blackmagic_pocket4k_rggb.dng"
+    return path, path.read_bytes()
+
+
+def _libraw(path):
+    with rawpy.imread(str(path)) as rp:
+        return rp.raw_image.copy(), _meta(rp)
+
+
+def _meta(rp):
+    return (list(rp.black_level_per_channel), rp.white_level, list(rp.camera_whitebalance),
+            rp.raw_pattern.tolist(), rp.color_desc, tuple(rp.sizes),
+            np.asarray(rp.rgb_xyz_matrix).tolist(), rp.raw_type)
+
+
+def test_decode_is_libraw_bit_for_bit(bmd):
+    """Every 16-bit value of the 9-MP frame equals LibRaw's, and so does the metadata."""
+    path, data = bmd
+    tiles = dng_lossy.probe(data)
+    assert tiles is not None and len(tiles.offsets) == 4
+    ours = dng_lossy.decode(data, tiles)
+    ref, ref_meta = _libraw(path)
+    assert ours.dtype == np.uint16 and ours.shape == ref.shape == (2176, 4128)
+    assert np.array_equal(ours, ref)
+    rp = dng_lossy.libraw_metadata(data, tiles)
+    with rp:
+        assert _meta(rp) == ref_meta
+        assert not np.array_equal(rp.raw_image, ref)  # LibRaw decoded nothing
+
+
+def test_read_raw_same_either_way(bmd):
+    """read_raw: the fast decoder and LibRaw's give the same mosaic and metadata."""
+    path, _ = bmd
+    fast, slow = read_raw(path), read_raw(path, libraw_only=True)
+    assert np.array_equal(fast.mosaic, slow.mosaic)
+    assert fast.cfa.spec == slow.cfa.spec
+    assert np.array_equal(fast.black_level, slow.black_level)
+    assert fast.white_level == slow.white_level
+    assert fast.metadata == slow.metadata
+
+
+def test_stream_ending_early_falls_back_to_libraw(bmd, tmp_path):
+    """A tile whose scan ends (a marker) before its last block is not decoded here:
+    read_raw hands the file to LibRaw, whose own error (data corrupted) it reports,
+    word for word as when LibRaw alone reads it."""
+    path, data = bmd
+    tiles = dng_lossy.probe(data)
+    cut = bytearray(data)
+    mid = tiles.offsets[1] + tiles.counts[1] // 2
+    cut[mid:mid + 2] = b"\xff\xd9"  # an end-of-image marker halfway through tile 2
+    assert dng_lossy.decode(bytes(cut), tiles) is None
+    bad = tmp_path / "cut.dng"
+    bad.write_bytes(bytes(cut))
+    messages = []
+    for libraw_only in (False, True):
+        with pytest.raises(InputError, match="cannot unpack raw data") as err:
+            read_raw(bad, libraw_only=libraw_only)
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
+
+
+def test_other_layouts_are_not_taken(tmp_path):
+    """Uncompressed DNGs and files that are not DNG are left to LibRaw."""
+    dn = np.random.default_rng(0).integers(0, 4095, (32, 48)).astype(np.uint16)
+    dng = write_raw(tmp_path / "a.dng", dn, "RGGB", black_level=64, white_level=4095)
+    assert dng_lossy.probe(dng.read_bytes()) is None
+    assert dng_lossy.probe(b"not a tiff at all") is None
+    raw = read_raw(dng)
+    assert np.allclose(raw.mosaic, (dn.astype(float) - 64) / (4095 - 64), atol=1e-6)
+
+
+def test_huffman_table_standard_dc_codes():
+    """ITU-T T.81 table K.3 (luminance DC): categories 0-5 have the codes 00, 010,
+    011, 100, 101, 110; category 6 is 1110 and 11 is 111111110 (9 bits)."""
+    counts = bytes([0, 1, 5, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0])
+    values = bytes(range(12))
+    table = dng_lossy._huffman_table(counts, values)
+    assert table[0] == 9
+    lut = table[1:]
+
+    def look(code: str) -> tuple[int, int]:
+        e = int(lut[int(code.ljust(9, "0"), 2)])
+        return e >> 8, e & 0xFF
+
+    assert look("00") == (2, 0)
+    assert look("010") == (3, 1)
+    assert look("110") == (3, 5)
+    assert look("1110") == (4, 6)
+    assert look("111111110") == (9, 11)
+    assert look("111111111") == (0, 0)  # no code: dcraw's table holds zeros there
+
+
+@pytest.mark.parametrize(("bits", "length", "value"),
+                         [(0b000, 3, -7), (0b011, 3, -4), (0b100, 3, 4), (0b111, 3, 7),
+                          (0b0, 1, -1), (0b1, 1, 1), (0, 0, 0), (0x7FF, 12, -2048)])
+def test_sign_extension(bits, length, value):
+    """T.81 F.2.2.1: a magnitude category's low half codes the negative values."""
+    assert dng_lossy._extend(bits, length) == value
+
+
+@numba.njit
+def _run_idct(w0, basis, out):
+    dng_lossy._idct(w0, basis, out)
+
+
+def test_idct_is_dcraws_float32_loops():
+    """The vectorised IDCT against dcraw's loops written out in float32 numpy scalars:
+    the same sums in the same order, no fused multiply-add, so equal bit for bit."""
+    rng = np.random.default_rng(3)
+    basis = dng_lossy._BASIS
+    for trial in range(20):
+        w0 = np.zeros(64, np.float32)
+        nz = rng.choice(64, size=rng.integers(1, 64), replace=False)
+        w0[nz] = (rng.integers(-2047, 2048, nz.size) * rng.integers(1, 40, nz.size)
+                  ).astype(np.float32)
+        out = np.empty(64, np.float32)
+        _run_idct(w0, basis.ravel(), out)
+        a = w0.reshape(8, 8)
+        w1 = np.zeros((8, 8), np.float32)
+        for i in range(8):
+            for j in range(8):
+                for c in range(8):
+                    w1[i, j] = np.float32(w1[i, j] + np.float32(a[i, c] * basis[c, j]))
+        w2 = np.zeros((8, 8), np.float32)
+        for i in range(8):
+            for j in range(8):
+                for c in range(8):
+                    w2[i, j] = np.float32(w2[i, j] + np.float32(w1[c, j] * basis[c, i]))
+        assert np.array_equal(out.reshape(8, 8).view(np.uint32), w2.view(np.uint32)), trial
+
+
+def test_basis_is_dcraws_cosines():
+    """cs[(2x + 1) u] = cos(((2x + 1) u mod 32) pi / 16) / 2, rounded to float32."""
+    for u in range(8):
+        for x in range(8):
+            k = (2 * x + 1) * u
+            assert dng_lossy._BASIS[u, x] == np.float32(np.cos((k % 32) * np.pi / 16) / 2)
