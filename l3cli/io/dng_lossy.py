@@ -54,6 +54,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from l3cli import buffers
 from l3cli.startup import lean_cache
 
 __all__ = ["LossyTiles", "decode", "libraw_metadata", "probe"]
@@ -147,6 +148,33 @@ def _huffman_table(counts: bytes, values: bytes) -> np.ndarray:
             table[h:stop] = length << 8 | values[k]
             h, k = stop, k + 1
     return table
+
+
+#: Bits looked at by the AC decoder's one-step table (:func:`_fast_ac`).
+FAST_BITS = 10
+
+
+def _fast_ac(ac: np.ndarray) -> np.ndarray:
+    """One lookup per AC coefficient whose code and value bits fit in :data:`FAST_BITS`.
+
+    For each ``FAST_BITS``-bit prefix: ``coef << 16 | run << 8 | bits used``,
+    from the Huffman table ``ac`` (:func:`_huffman_table`) and the sign
+    extension of T.81 F.2.2.1; 0 where the prefix holds no whole
+    (code, value) pair, or an end-of-block or run-of-16 code (the full path
+    decodes those).
+    """
+    longest = int(ac[0])
+    prefix = np.arange(1 << FAST_BITS, dtype=np.int64)
+    idx = (prefix << (longest - FAST_BITS) if longest >= FAST_BITS
+           else prefix >> (FAST_BITS - longest))
+    entry = ac[1 + idx].astype(np.int64)
+    code_len, size, run = entry >> 8, entry & 15, (entry >> 4) & 15
+    total = code_len + size
+    ok = (code_len > 0) & (code_len <= longest) & (size > 0) & (total <= FAST_BITS)
+    bits = (prefix >> np.maximum(FAST_BITS - total, 0)) & ((1 << size) - 1)
+    top = (1 << size) - 1
+    coef = np.where(bits <= top >> 1, bits - top, bits)
+    return np.where(ok, (coef << 16) | (run << 8) | total, 0).astype(np.int64)
 
 
 def _tile_header(data: bytes | memoryview, start: int, count: int
@@ -289,7 +317,7 @@ def _extend(v, length):  # pragma: no cover - numba
 
 @lean_cache
 @nb.njit(cache=True, nogil=True)
-def _decode_tile(buf, pos, end, quant, dc, ac, lines, samples, tile_width, trow, tcol,
+def _decode_tile(buf, pos, end, quant, dc, ac, fast, lines, samples, tile_width, trow, tcol,
                  curve, out, zigzag, basis, sqrt1_2):  # pragma: no cover - numba
     """Decode one tile's scan into ``out``: 0 when done, -1 if the data ran out."""
     raw_height, raw_width = out.shape
@@ -326,6 +354,15 @@ def _decode_tile(buf, pos, end, quant, dc, ac, lines, samples, tile_width, trow,
             while k < 64:
                 if nbits < 32:
                     pos, acc, nbits, stopped = _fill(buf, pos, end, acc, nbits, stopped)
+                f = np.int64(fast[_peek(acc, nbits, FAST_BITS)])
+                if f != 0:  # code and value within the next FAST_BITS bits
+                    nbits -= f & 0xFF
+                    k += (f >> 8) & 15
+                    if nbits < 0 or k > 63:
+                        return -1
+                    w0[zigzag[k]] = np.float32((f >> 16) * quant[k])
+                    k += 1
+                    continue
                 entry = np.int64(ac[1 + _peek(acc, nbits, ac_bits)])
                 nbits -= entry >> 8
                 if nbits < 0:
@@ -367,7 +404,8 @@ def decode(data: bytes | memoryview, tiles: LossyTiles) -> np.ndarray | None:
     ends early: the caller then lets LibRaw decode the file.
     """
     buf = np.frombuffer(data, dtype=np.uint8)
-    out = np.zeros((tiles.raw_height, tiles.raw_width), dtype=np.uint16)
+    # every pixel is written: the tiles cover the raw and the blocks their tiles (checked)
+    out = buffers.empty((tiles.raw_height, tiles.raw_width), np.uint16)
     trow = tcol = 0
     for offset, count in zip(tiles.offsets, tiles.counts, strict=True):
         if trow >= tiles.raw_height:
@@ -386,7 +424,7 @@ def decode(data: bytes | memoryview, tiles: LossyTiles) -> np.ndarray | None:
             return None
         if lines % 8 or samples % 8:
             return None
-        if _decode_tile(buf, scan, offset + count, quant, dc, ac, lines, samples,
+        if _decode_tile(buf, scan, offset + count, quant, dc, ac, _fast_ac(ac), lines, samples,
                         tiles.tile_width, trow, tcol, tiles.curve, out, _ZIGZAG, _BASIS.ravel(),
                         _SQRT1_2) != 0:
             return None

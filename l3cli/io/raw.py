@@ -369,9 +369,10 @@ def _visible_pattern(pattern: np.ndarray, top: int, left: int) -> np.ndarray:
     return pattern[np.ix_((top + np.arange(ph)) % ph, (left + np.arange(pw)) % pw)]
 
 
-def _lossy_dng(path: Path) -> tuple[Any, np.ndarray] | None:
+def _lossy_dng(path: Path) -> tuple[Any, np.ndarray, np.ndarray] | None:
     """A lossy-JPEG DNG decoded by :mod:`l3cli.io.dng_lossy` (LibRaw's values, faster):
-    (LibRaw's handle, for the metadata; the visible mosaic), or None for any other file."""
+    (LibRaw's handle, for the metadata; the visible mosaic; the whole decoded
+    array), or None for any other file."""
     from l3cli.io import dng_lossy
 
     try:
@@ -393,7 +394,7 @@ def _lossy_dng(path: Path) -> tuple[Any, np.ndarray] | None:
         rp.close()
         return None
     return rp, mosaic[sz.top_margin:sz.top_margin + sz.height,
-                      sz.left_margin:sz.left_margin + sz.width]
+                      sz.left_margin:sz.left_margin + sz.width], mosaic
 
 
 def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
@@ -405,7 +406,7 @@ def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
     with fd2.captured(str(path)) as said:
         try:
             if fast is not None:
-                rp, vis = fast
+                rp, vis, _ = fast
             else:
                 rp = rawpy.imread(str(path))
                 vis = rp.raw_image_visible  # unpacks the raw data
@@ -449,8 +450,12 @@ def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
         }
         if vis.size == 0:
             raise InputError(f"{path}: the raw image is empty")
-        # normalised straight from LibRaw's buffer (no integer copy), before it is freed
-        return _raw_image(path, vis, cfa, black, white, meta)
+        # normalised straight from the decoder's buffer (no integer copy), before it is freed
+        raw = _raw_image(path, vis, cfa, black, white, meta)
+    if fast is not None:
+        del vis
+        buffers.release(fast[2])  # dng_lossy's array, for the next file's decode
+    return raw
 
 
 def read_raw(path: str | os.PathLike, *, libraw_only: bool = False) -> RawImage:
