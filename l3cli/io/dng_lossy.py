@@ -329,6 +329,7 @@ def _decode_tile(buf, pos, end, quant, dc, ac, fast, lines, samples, tile_width,
     vpred = np.int64(16384)  # dcraw's DC predictor: 8 x the 12-bit level shift 2048
     w0 = np.zeros(64, dtype=np.float32)
     w2 = np.zeros(64, dtype=np.float32)
+    codes = np.zeros(64, dtype=np.int64)
     for jrow in range(0, lines - 7, 8):
         for jcol in range(0, samples - 7, 8):
             w0[:] = 0
@@ -348,6 +349,8 @@ def _decode_tile(buf, pos, end, quant, dc, ac, fast, lines, samples, tile_width,
             if nbits < 0:
                 return -1
             vpred += diff * quant[0]
+            if vpred < -(1 << 30) or vpred > 1 << 30:
+                return -1  # dcraw's int would near overflow: LibRaw's own path
             w0[0] = np.float32(vpred)
             # ---- AC: (run, length) codes, each followed by `length` bits
             k = 1
@@ -384,16 +387,25 @@ def _decode_tile(buf, pos, end, quant, dc, ac, fast, lines, samples, tile_width,
             for c in range(8):
                 w0[8 * c] *= sqrt1_2
             _idct(w0, basis, w2)
+            # dcraw's CLIP((int)(v + 0.5)): the double sum truncated, clipped to 0..65535
+            inside = True
+            for q in range(64):
+                d = np.float64(w2[q]) + 0.5
+                inside &= (d > -2147483649.0) & (d < 2147483648.0)  # an int, as in C
+                codes[q] = min(max(np.int64(d), 0), 65535)
+            if not inside:
+                return -1  # C's conversion would be undefined: LibRaw's own path
             y0 = trow + jcol // tile_width + jrow * 2
             x0 = tcol + jcol % tile_width
-            for r in range(8):
-                y = y0 + 2 * r
-                if y < raw_height:
+            if y0 + 14 < raw_height and x0 + 7 < raw_width:
+                for r in range(8):
                     for j in range(8):
-                        v = np.int64(np.float64(w2[8 * r + j]) + 0.5)
-                        v = min(max(v, 0), 65535)
-                        if x0 + j < raw_width:
-                            out[y, x0 + j] = curve[v]
+                        out[y0 + 2 * r, x0 + j] = curve[codes[8 * r + j]]
+            else:  # a block over the raw's right or bottom edge
+                for r in range(8):
+                    for j in range(8):
+                        if y0 + 2 * r < raw_height and x0 + j < raw_width:
+                            out[y0 + 2 * r, x0 + j] = curve[codes[8 * r + j]]
     return 0
 
 
