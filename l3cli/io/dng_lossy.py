@@ -46,6 +46,7 @@ from __future__ import annotations
 import io
 import logging
 import math
+import os
 from dataclasses import dataclass
 
 import numba as nb
@@ -97,12 +98,13 @@ class LossyTiles:
     curve: np.ndarray  # uint16[65536]: LibRaw's linearisation curve
 
 
-def probe(data: bytes | memoryview) -> LossyTiles | None:
-    """The lossy tile layout of a DNG held in ``data``, or None if it has another one."""
+def probe(source: str | os.PathLike | bytes) -> LossyTiles | None:
+    """The lossy tile layout of a DNG (a path, or the file's bytes), or None if it has
+    another one (only the file's tags are read)."""
     import tifffile
 
     try:
-        with tifffile.TiffFile(io.BytesIO(data)) as tf:
+        with tifffile.TiffFile(io.BytesIO(source) if isinstance(source, bytes) else source) as tf:
             if not tf.is_dng:
                 return None
             pages = [p for p in tf.pages] + [s for p in tf.pages for s in (p.pages or [])]

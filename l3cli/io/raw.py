@@ -375,12 +375,14 @@ def _lossy_dng(path: Path) -> tuple[Any, np.ndarray, np.ndarray] | None:
     array), or None for any other file."""
     from l3cli.io import dng_lossy
 
+    tiles = dng_lossy.probe(path)  # the tags only: most DNGs are not lossy
+    if tiles is None:
+        return None
     try:
         data = path.read_bytes()
     except OSError:
         return None  # LibRaw's own read reports it
-    tiles = dng_lossy.probe(data)
-    mosaic = None if tiles is None else dng_lossy.decode(data, tiles)
+    mosaic = dng_lossy.decode(data, tiles)
     if mosaic is None:
         return None
     try:
