@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import logging
+import subprocess
+import sys
+
 import numba
 import numpy as np
 import pytest
@@ -45,10 +49,13 @@ def test_decode_is_libraw_bit_for_bit(bmd):
         assert not np.array_equal(rp.raw_image, ref)  # LibRaw decoded nothing
 
 
-def test_read_raw_same_either_way(bmd):
+def test_read_raw_same_either_way(bmd, caplog):
     """read_raw: the fast decoder and LibRaw's give the same mosaic and metadata."""
     path, _ = bmd
-    fast, slow = read_raw(path), read_raw(path, libraw_only=True)
+    with caplog.at_level(logging.DEBUG, logger="l3cli.io.raw"):
+        fast = read_raw(path)
+    assert "decoded by l3cli.io.dng_lossy" in caplog.text
+    slow = read_raw(path, libraw_only=True)
     assert np.array_equal(fast.mosaic, slow.mosaic)
     assert fast.cfa.spec == slow.cfa.spec
     assert np.array_equal(fast.black_level, slow.black_level)
@@ -74,6 +81,17 @@ def test_stream_ending_early_falls_back_to_libraw(bmd, tmp_path):
             read_raw(bad, libraw_only=libraw_only)
         messages.append(str(err.value))
     assert messages[0] == messages[1]
+
+
+def test_no_numba_import_for_a_quick_look(bmd):
+    """A process without numba (l3 info) reads the DNG with LibRaw: importing numba and
+    loading the decoder would cost more than it saves on a file or two."""
+    path, _ = bmd
+    code = ("import sys; from l3cli.io.raw import read_raw; r = read_raw(sys.argv[1]); "
+            "print(r.shape, 'numba' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out[-1] == "False"
 
 
 def test_other_layouts_are_not_taken(tmp_path):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -384,6 +385,7 @@ def _lossy_dng(path: Path) -> tuple[Any, np.ndarray, np.ndarray] | None:
         return None  # LibRaw's own read reports it
     mosaic = dng_lossy.decode(data, tiles)
     if mosaic is None:
+        log.debug("%s: lossy JPEG tiles this decoder does not take: LibRaw decodes them", path)
         return None
     try:
         with fd2.captured(str(path)):
@@ -395,6 +397,7 @@ def _lossy_dng(path: Path) -> tuple[Any, np.ndarray, np.ndarray] | None:
     if (sz.raw_height, sz.raw_width) != mosaic.shape:
         rp.close()
         return None
+    log.debug("%s: lossy JPEG tiles decoded by l3cli.io.dng_lossy", path)
     return rp, mosaic[sz.top_margin:sz.top_margin + sz.height,
                       sz.left_margin:sz.left_margin + sz.width], mosaic
 
@@ -404,7 +407,10 @@ def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
 
     rp = None
     failure: Exception | None = None
-    fast = _lossy_dng(path) if path.suffix.lower() == ".dng" and not libraw_only else None
+    # dng_lossy runs on numba: worth it where numba is loaded anyway (render, train), not
+    # for a quick look at a file or two (l3 info: ~0.2 s to import numba and the kernel)
+    fast = (_lossy_dng(path) if path.suffix.lower() == ".dng" and not libraw_only
+            and "numba" in sys.modules else None)
     with fd2.captured(str(path)) as said:
         try:
             if fast is not None:
@@ -469,9 +475,10 @@ def read_raw(path: str | os.PathLike, *, libraw_only: bool = False) -> RawImage:
         A raw file LibRaw opens, a headerless ``.raw`` with ``.raw.toml``
         sidecar, or a ``.tif``/``.png`` mosaic with a ``.toml`` sidecar.
     libraw_only
-        Let LibRaw decode lossy-JPEG DNGs too, instead of
-        :mod:`l3cli.io.dng_lossy` (the same values; that decoder is faster
-        but needs numba, which a caller may not have imported yet).
+        Let LibRaw decode lossy-JPEG DNGs too. Otherwise, in a process that
+        has imported numba, :mod:`l3cli.io.dng_lossy` decodes them (the same
+        values, in a third of the time; it runs on numba, which a caller
+        may be still importing in another thread).
 
     Returns
     -------
