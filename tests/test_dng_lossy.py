@@ -170,3 +170,39 @@ def test_basis_is_dcraws_cosines():
         for x in range(8):
             k = (2 * x + 1) * u
             assert dng_lossy._BASIS[u, x] == np.float32(np.cos((k % 32) * np.pi / 16) / 2)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_corrupted_files_read_as_libraw_reads_them(bmd, tmp_path, seed):
+    """Damaged copies (bytes changed in a tile's header or scan, a cut file): read_raw
+    either gives exactly what LibRaw alone gives or the same one-line error; never a
+    crash, never other values (where l3's decoder is unsure it hands over to LibRaw)."""
+    path, data = bmd
+    tiles = dng_lossy.probe(data)
+    rng = np.random.default_rng(seed)
+    bad = bytearray(data)
+    kind = seed % 4
+    t = int(rng.integers(len(tiles.offsets)))
+    if kind == 0:  # a few bytes of one tile's entropy-coded data
+        for _ in range(3):
+            at = tiles.offsets[t] + 700 + int(rng.integers(tiles.counts[t] - 700))
+            bad[at] = int(rng.integers(256))
+    elif kind == 1:  # one byte of one tile's JPEG header (tables, frame, scan)
+        bad[tiles.offsets[t] + int(rng.integers(2, 660))] ^= 1 << int(rng.integers(8))
+    elif kind == 2:  # a 0xFF (a marker, or a stuffed byte) in the data
+        bad[tiles.offsets[t] + 700 + int(rng.integers(tiles.counts[t] - 700))] = 0xFF
+    else:  # the file cut inside its last tiles
+        bad = bad[:tiles.offsets[-1] + int(rng.integers(tiles.counts[-1]))]
+    p = tmp_path / "bad.dng"
+    p.write_bytes(bytes(bad))
+    results = []
+    for libraw_only in (False, True):
+        try:
+            results.append(read_raw(p, libraw_only=libraw_only).mosaic)
+        except InputError as exc:
+            results.append(str(exc))
+    if isinstance(results[1], str):
+        assert results[0] == results[1]
+    else:
+        assert not isinstance(results[0], str)
+        assert np.array_equal(results[0], results[1])
