@@ -68,6 +68,7 @@ _CFA = 32803
 _LINEARIZATION_TABLE = 50712
 _OPCODE_LISTS = (51008, 51009, 51022)
 _MASKED_AREAS = 50830  # LibRaw measures black there, in the pixels it is not given here
+_MAX_PIXELS = 1 << 29  # larger raws (or tags claiming so) are left to LibRaw's own limits
 
 #: JPEG zig-zag order: position in the 8x8 block (row-major) of the i-th coefficient.
 _ZIGZAG = np.array([
@@ -115,6 +116,7 @@ def probe(source: str | os.PathLike | bytes) -> LossyTiles | None:
             p = raws[0]
             if (p.compression != _COMPRESSION_JPEG or not p.is_tiled
                     or p.samplesperpixel != 1 or p.imagedepth != 1
+                    or not 0 < p.imagelength * p.imagewidth <= _MAX_PIXELS
                     or any(code in p.tags for code in (*_OPCODE_LISTS, _MASKED_AREAS))):
                 return None
             curve = np.arange(65536, dtype=np.uint16)
