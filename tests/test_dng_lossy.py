@@ -52,7 +52,7 @@ def test_decode_is_libraw_bit_for_bit(bmd):
 def test_read_raw_same_either_way(bmd, caplog):
     """read_raw: the fast decoder and LibRaw's give the same mosaic and metadata."""
     path, _ = bmd
-    with caplog.at_level(logging.DEBUG, logger="l3cli.io.raw"):
+    with caplog.at_level(logging.DEBUG, logger="l3cli.io.dng_lossy"):
         fast = read_raw(path)
     assert "decoded by l3cli.io.dng_lossy" in caplog.text
     slow = read_raw(path, libraw_only=True)

@@ -370,38 +370,6 @@ def _visible_pattern(pattern: np.ndarray, top: int, left: int) -> np.ndarray:
     return pattern[np.ix_((top + np.arange(ph)) % ph, (left + np.arange(pw)) % pw)]
 
 
-def _lossy_dng(path: Path) -> tuple[Any, np.ndarray, np.ndarray] | None:
-    """A lossy-JPEG DNG decoded by :mod:`l3cli.io.dng_lossy` (LibRaw's values, faster):
-    (LibRaw's handle, for the metadata; the visible mosaic; the whole decoded
-    array), or None for any other file."""
-    from l3cli.io import dng_lossy
-
-    tiles = dng_lossy.probe(path)  # the tags only: most DNGs are not lossy
-    if tiles is None:
-        return None
-    try:
-        data = path.read_bytes()
-    except OSError:
-        return None  # LibRaw's own read reports it
-    mosaic = dng_lossy.decode(data, tiles)
-    if mosaic is None:
-        log.debug("%s: lossy JPEG tiles this decoder does not take: LibRaw decodes them", path)
-        return None
-    try:
-        with fd2.captured(str(path)):
-            rp = dng_lossy.libraw_metadata(data, tiles)
-    except Exception as exc:  # noqa: BLE001 - LibRaw's own path reports it
-        log.debug("%s: lossy DNG metadata: %s", path, exc)
-        return None
-    sz = rp.sizes
-    if (sz.raw_height, sz.raw_width) != mosaic.shape:
-        rp.close()
-        return None
-    log.debug("%s: lossy JPEG tiles decoded by l3cli.io.dng_lossy", path)
-    return rp, mosaic[sz.top_margin:sz.top_margin + sz.height,
-                      sz.left_margin:sz.left_margin + sz.width], mosaic
-
-
 def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
     import rawpy
 
@@ -409,8 +377,11 @@ def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
     failure: Exception | None = None
     # dng_lossy runs on numba: worth it where numba is loaded anyway (render, train), not
     # for a quick look at a file or two (l3 info: ~0.2 s to import numba and the kernel)
-    fast = (_lossy_dng(path) if path.suffix.lower() == ".dng" and not libraw_only
-            and "numba" in sys.modules else None)
+    fast = None
+    if path.suffix.lower() == ".dng" and not libraw_only and "numba" in sys.modules:
+        from l3cli.io import dng_lossy
+
+        fast = dng_lossy.read(path)
     with fd2.captured(str(path)) as said:
         try:
             if fast is not None:
