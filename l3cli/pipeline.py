@@ -156,7 +156,9 @@ class Prefetch:
 
     ``l3 render`` starts it before importing the render code (numba: most of
     a second of Python work that holds the GIL), so the first files decode
-    (LibRaw releases the GIL) on the core that start-up leaves idle. The
+    (LibRaw releases the GIL) on the core that start-up leaves idle. It
+    always decodes with LibRaw (``read_raw(..., libraw_only=True)``): l3's
+    own decoder of lossy DNGs runs on numba, which is still importing. The
     files are decoded one after another, at most ``count`` of them (the
     pipeline's :data:`IN_FLIGHT`, so memory stays bounded). :meth:`take`
     hands a result (or raises its error) to the pipeline job of that file.
