@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import logging
 import subprocess
 import sys
@@ -206,3 +207,17 @@ def test_corrupted_files_read_as_libraw_reads_them(bmd, tmp_path, seed):
     else:
         assert not isinstance(results[0], str)
         assert np.array_equal(results[0], results[1])
+
+
+def test_dng_1_0_is_left_to_libraw(bmd):
+    """In a DNG 1.0 file dcraw reads a 16-bit DC difference where later versions code
+    -32768: not a stream this decoder takes."""
+    import tifffile
+
+    _, data = bmd
+    with tifffile.TiffFile(io.BytesIO(data)) as tf:
+        at = tf.pages[0].tags[50706].valueoffset
+    old = bytearray(data)
+    old[at:at + 4] = bytes([1, 0, 0, 0])
+    assert dng_lossy.probe(data) is not None
+    assert dng_lossy.probe(bytes(old)) is None

@@ -47,7 +47,7 @@ import io
 import logging
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +71,7 @@ _CFA = 32803
 _LINEARIZATION_TABLE = 50712
 _OPCODE_LISTS = (51008, 51009, 51022)
 _MASKED_AREAS = 50830  # LibRaw measures black there, in the pixels it is not given here
+_DNG_VERSION = 50706
 _MAX_PIXELS = 1 << 29  # larger raws (or tags claiming so) are left to LibRaw's own limits
 
 #: JPEG zig-zag order: position in the 8x8 block (row-major) of the i-th coefficient.
@@ -111,6 +112,9 @@ def probe(source: str | os.PathLike | bytes) -> LossyTiles | None:
         with tifffile.TiffFile(io.BytesIO(source) if isinstance(source, bytes) else source) as tf:
             if not tf.is_dng:
                 return None
+            version = tuple(tf.pages[0].tags.valueof(_DNG_VERSION, b"\0\0\0\0"))
+            if version < (1, 1, 0, 0):
+                return None  # DNG 1.0: dcraw reads a 16-bit DC difference, not -32768
             pages = [p for p in tf.pages] + [s for p in tf.pages for s in (p.pages or [])]
             raws = [p for p in pages
                     if p.photometric == _CFA and not (p.subfiletype & 1)]
@@ -223,12 +227,16 @@ def _tile_header(data: bytes | memoryview, start: int, count: int
         elif tag == 0xC1:  # SOF1: extended sequential DCT, Huffman
             if seg < 6 or body[5] != 1:
                 return None
-            sof = (body[1] << 8 | body[2], body[3] << 8 | body[4])
+            sof = (body[1] << 8 | body[2], body[3] << 8 | body[4], body[0])
         elif tag == 0xDA:  # SOS: the entropy-coded data follows
             if quant is None or dc is None or ac is None or sof is None:
                 return None
+            n = 1 + 2 * body[0] + 3 if seg else 0
+            # LibRaw's ljpeg_start gives up unless 1 <= precision - point transform <= 16
+            if seg < n or not 1 <= sof[2] - (body[n - 1] & 15) <= 16 or not sof[0] or not sof[1]:
+                return None
             return pos, quant, dc, ac, sof[0], sof[1]
-        elif tag in (0xDD, 0xC0, 0xC2, 0xC3) or 0xC5 <= tag <= 0xCF:
+        elif tag in (0x00, 0xDD, 0xC0, 0xC2, 0xC3) or 0xC5 <= tag <= 0xCF:
             return None  # restart intervals or another coding process: LibRaw's own path
     return None
 
@@ -441,7 +449,7 @@ def decode(data: bytes | memoryview, tiles: LossyTiles) -> np.ndarray | None:
         # LibRaw's 0xc1 branch puts JPEG row r's halves on sensor rows 2r and 2r + 1
         if samples != 2 * tiles.tile_width or 2 * lines != tiles.tile_height:
             return None
-        if lines % 8 or samples % 8:
+        if lines % 8 or tiles.tile_width % 8:  # whole blocks in each half row
             return None
         if _decode_tile(buf, scan, offset + count, quant, dc, ac, _fast_ac(ac), lines, samples,
                         tiles.tile_width, trow, tcol, tiles.curve, out, _ZIGZAG, _BASIS.ravel(),
@@ -479,6 +487,21 @@ def libraw_metadata(data: bytes | memoryview, tiles: LossyTiles):
     return rp
 
 
+def _matches_this_libraw() -> bool:
+    """Whether this decoder's values are the installed LibRaw's (checked by the tests).
+
+    LibRaw 0.22 scales by ``float(M_SQRT1_2)``; dcraw and older LibRaw by the
+    double constant (650 of the test frame's 9 M values differ), and LibRaw
+    built for arm64 may fuse multiply-adds. Elsewhere LibRaw decodes.
+    """
+    import platform
+
+    import rawpy
+
+    return (platform.machine().lower() in ("x86_64", "amd64")
+            and tuple(rawpy.libraw_version) >= (0, 22))
+
+
 def read(path: str | os.PathLike) -> tuple[Any, np.ndarray, np.ndarray] | None:
     """A lossy-JPEG DNG decoded here, with LibRaw's metadata; None for any other file.
 
@@ -489,6 +512,8 @@ def read(path: str | os.PathLike) -> tuple[Any, np.ndarray, np.ndarray] | None:
     file as usual (:func:`l3cli.io.raw.read_raw`), and reports any damage.
     """
     path = Path(path)
+    if not _matches_this_libraw():
+        return None
     tiles = probe(path)  # the tags only: most DNGs are not lossy
     if tiles is None:
         return None
@@ -496,19 +521,27 @@ def read(path: str | os.PathLike) -> tuple[Any, np.ndarray, np.ndarray] | None:
         data = path.read_bytes()
     except OSError:
         return None  # LibRaw's own read reports it
-    mosaic = decode(data, tiles)
-    if mosaic is None:
-        log.debug("%s: lossy JPEG tiles this decoder does not take: LibRaw decodes them", path)
-        return None
     try:
-        with fd2.captured(str(path)):
+        with fd2.captured(str(path)) as said:
             rp = libraw_metadata(data, tiles)
     except Exception as exc:  # noqa: BLE001 - LibRaw's own path reports it
         log.debug("%s: lossy DNG metadata: %s", path, exc)
         return None
-    sz = rp.sizes
-    if (sz.raw_height, sz.raw_width) != mosaic.shape:
+    for line in said:
+        log.debug("LibRaw: %s", line)
+    try:
+        curve = np.asarray(rp.tone_curve, dtype=np.uint16)  # LibRaw's own linearisation
+        sz = rp.sizes
+        mosaic = None
+        if curve.shape == (65536,) and (sz.raw_height, sz.raw_width) == (
+                tiles.raw_height, tiles.raw_width):
+            mosaic = decode(data, replace(tiles, curve=curve))
+    except Exception as exc:  # noqa: BLE001 - anything unexpected: LibRaw decodes it
+        log.debug("%s: lossy DNG decode: %s", path, exc)
+        mosaic = None
+    if mosaic is None:
         rp.close()
+        log.debug("%s: lossy JPEG tiles this decoder does not take: LibRaw decodes them", path)
         return None
     log.debug("%s: lossy JPEG tiles decoded by l3cli.io.dng_lossy", path)
     return rp, mosaic[sz.top_margin:sz.top_margin + sz.height,
