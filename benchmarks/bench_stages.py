@@ -89,7 +89,7 @@ def main() -> None:
     raw = read_raw(a.dng)
     m = raw.mosaic
     h, w = m.shape
-    rows = [("decode (LibRaw, normalise)", cpu_best(lambda: read_raw(a.dng), a.repeat), "")]
+    rows = [("decode (read_raw: LibRaw, or l3 for lossy DNGs; normalise)", cpu_best(lambda: read_raw(a.dng), a.repeat), "")]
     tmp = Path(tempfile.mkdtemp(prefix="l3stages-"))
     layouts = {"pairs (patch 7, linear sRGB)": (7, 36, 3, "linear-srgb"),
                "simulate (patch 5, XYZ)": (5, 24, 2, "xyz")}

@@ -4,7 +4,7 @@ Blackmagic cameras (and CinemaDNG recorders) write each frame as a DNG whose
 CFA tiles are 12-bit *lossy* JPEG (extended sequential DCT, marker SOF1): a
 folder of such frames is a video clip. LibRaw decodes them with dcraw's
 reference code (``lossless_dng_load_raw``, ``case 0xc1``, and
-``ljpeg_idct``): a bit-by-bit Huffman reader and a direct 8x8 float32 IDCT
+``ljpeg_idct``): a Huffman reader refilled a byte per call and a direct 8x8 float32 IDCT
 of 1024 multiply-adds per block, about 0.12 s per 9-MP frame on one core,
 a third of ``l3 render``'s CPU per file.
 
@@ -13,7 +13,8 @@ in a third of the time (0.042 s of CPU per 9-MP frame, measured):
 
 * the Huffman codes are read through dcraw's lookup table from a 64-bit bit
   buffer refilled a byte at a time (the same byte unstuffing, the same
-  zeros past the end), the sign extension without a branch;
+  hand-over to LibRaw where a code would need bits past the end), the sign
+  extension without a branch;
 * the IDCT (:func:`_idct`) performs exactly dcraw's float32 operations, in
   its order and with no fused multiply-add, 8 lanes at a time: each lane
   is one of dcraw's sums;
@@ -314,7 +315,7 @@ def _fill(buf, pos, end, acc, nbits, stopped):  # pragma: no cover - numba
 
 @nb.njit(inline="always")
 def _peek(acc, nbits, n):  # pragma: no cover - numba
-    """The next ``n`` bits (zeros past the end of the data, as dcraw reads them)."""
+    """The next ``n`` bits (zeros past the end of the data: looked at, never consumed)."""
     if n == 0:
         return np.int64(0)
     mask = np.uint64((1 << n) - 1)
