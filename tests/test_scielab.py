@@ -22,10 +22,34 @@ from l3cli.metrics.scielab import (
 
 WHITE = np.array(SRGB_WHITE_XYZ)
 
-#: ISETCam's xyz2opp for the 10-degree observer, as METRICS.md prints it.
+#: ISETCam's xyz2opp for the 10-degree observer, as METRICS.md prints it
+#: (ISETCam ``colorTransformMatrix('xyz2opp', 10)``, rows: luminance, red-green, blue-yellow).
 XYZ10_TO_OPPONENT = np.array(
     [[288.5613, 659.7617, -130.5654], [-464.8864, 326.2702, 62.4200], [79.8787, -554.7976, 481.4746]]
 ) / 1000
+#: The same for the 2-degree observer (``colorTransformMatrix('xyz2opp', 2)``).
+XYZ2_TO_OPPONENT = np.array(
+    [[278.7336, 721.8031, -106.5520], [-448.7736, 289.8056, 77.1569], [85.9513, -589.9859, 501.1089]]
+) / 1000
+#: Poirson & Wandell's LMS -> opponent and ISETCam's ``xyz2hpe`` (normalised for D65).
+LMS_TO_OPP = np.array([[0.9900, -0.1060, -0.0940], [-0.6690, 0.7420, -0.0270], [-0.2120, -0.3540, 0.9110]])
+XYZ_TO_HPE = np.array([[0.4002, 0.7076, -0.0808], [-0.2263, 1.1653, 0.0457], [0.0, 0.0, 0.9182]])
+
+#: The published filter parameters, per channel [HWHM (deg), weight, HWHM, weight, ...]:
+#: ISETCam ``scGaussianParameters`` ('distribution': the Zhang-Wandell distribution as
+#: Johnson & Fairchild re-publish it, weights summing to 1; 'original': Zhang & Wandell 1996).
+PUBLISHED_FILTERS = {
+    "distribution": (
+        [0.05, 1.00327, 0.225, 0.114416, 7.0, -0.117686],
+        [0.0685, 0.616725, 0.826, 0.383275],
+        [0.0920, 0.567885, 0.6451, 0.432115],
+    ),
+    "original": (
+        [0.0283, 0.921, 0.133, 0.105, 4.336, -0.1080],
+        [0.0392, 0.531, 0.494, 0.33],
+        [0.0536, 0.488, 0.386, 0.371],
+    ),
+}
 
 
 def plain_cielab_de(xyz_a, xyz_b):
@@ -55,12 +79,77 @@ def test_samples_per_degree_rejects_bad_values(bad):
 @pytest.mark.parametrize("version", sorted(SCIELAB_FILTER_PARAMETERS))
 @pytest.mark.parametrize("spd", [23, 66, 100])
 def test_filters_have_unit_sum_and_odd_support(version, spd):
-    for k in scielab_filters(spd, version=version):
+    for k, parts in zip(scielab_filters(spd, version=version), scielab_filter_1d(spd, version=version)):
         assert k.shape == (filter_support(spd),) * 2
         assert k.shape[0] % 2 == 1
         np.testing.assert_allclose(k.sum(), 1.0, atol=1e-12)
-        # symmetric about the centre
+        # the sum is 1 before any final normalisation too: each Gaussian sums to 1
+        # on the support and the weights (divided by their sum) add up to 1
+        np.testing.assert_allclose([g.sum() for _, g in parts], 1.0, atol=1e-12)
+        np.testing.assert_allclose(sum(w for w, _ in parts), 1.0, atol=1e-12)
+        np.testing.assert_allclose(sum(w * np.outer(g, g) for w, g in parts).sum(), 1.0, atol=1e-12)
+        # symmetric about the centre, and peaked there
         np.testing.assert_allclose(k, k[::-1, ::-1], atol=1e-15)
+        c = k.shape[0] // 2
+        assert k[c, c] == k.max()
+
+
+def test_distribution_weights_sum_to_one_as_published():
+    # Johnson & Fairchild's table (ISETCam 'distribution'): the weights of each
+    # channel sum to 1, so the filters keep the mean without renormalising;
+    # the 1996 paper's do not (0.918, 0.861, 0.859) and are divided by their sum.
+    for channel in PUBLISHED_FILTERS["distribution"]:
+        assert sum(channel[1::2]) == pytest.approx(1.0, abs=1e-12)
+    assert [round(sum(c[1::2]), 6) for c in PUBLISHED_FILTERS["original"]] == [0.918, 0.861, 0.859]
+
+
+@pytest.mark.parametrize("version", ["distribution", "original"])
+def test_filter_parameters_are_the_published_ones(version):
+    got = [[v for pair in channel for v in pair] for channel in SCIELAB_FILTER_PARAMETERS[version]]
+    assert got == [list(c) for c in PUBLISHED_FILTERS[version]]
+
+
+@pytest.mark.parametrize("version", ["distribution", "original"])
+@pytest.mark.parametrize("spd", [23, 66])
+def test_filters_equal_isetcams_construction(version, spd):
+    # ISETCam scPrepareFilters / sumGauss / gauss2 from the published numbers:
+    # each 2-D Gaussian (sd = HWHM * spd / sqrt(2 ln 2)) normalised to unit sum,
+    # weighted, summed, the sum normalised to 1.
+    n = spd if spd % 2 else spd - 1
+    x = np.arange(1, n + 1) - math.floor(n / 2 + 0.5)
+    xx, yy = np.meshgrid(x, x)
+    for k, channel in zip(scielab_filters(spd, version=version), PUBLISHED_FILTERS[version]):
+        want = np.zeros((n, n))
+        for hwhm, w in zip(channel[0::2], channel[1::2]):
+            sd = hwhm * spd / math.sqrt(2 * math.log(2))
+            g = np.exp(-0.5 * (xx**2 + yy**2) / sd**2)
+            want += w * g / g.sum()
+        np.testing.assert_allclose(k, want / want.sum(), rtol=1e-10, atol=1e-15)
+
+
+def test_opponent_matrices_are_isetcams():
+    from l3cli.metrics.scielab import LMS_TO_OPPONENT, XYZ_TO_LMS_HPE, xyz_to_opponent_matrix
+
+    np.testing.assert_array_equal(xyz_to_opponent_matrix("xyz10"), XYZ10_TO_OPPONENT)
+    np.testing.assert_array_equal(xyz_to_opponent_matrix("xyz2"), XYZ2_TO_OPPONENT)
+    np.testing.assert_array_equal(LMS_TO_OPPONENT, LMS_TO_OPP)
+    np.testing.assert_array_equal(XYZ_TO_LMS_HPE, XYZ_TO_HPE)
+    np.testing.assert_allclose(xyz_to_opponent_matrix("hpe"), LMS_TO_OPP @ XYZ_TO_HPE, rtol=1e-15)
+
+
+@pytest.mark.parametrize("opponent", ["xyz10", "xyz2"])
+def test_opponent_channels_behave(opponent):
+    # signs a flipped matrix element would change: the sRGB primaries (XYZ x 100)
+    # are red < 0 < green on the red-green channel (ISETCam's sign convention) and
+    # blue > 0 > red, green on the blue-yellow one; white's luminance is near Y.
+    from l3cli.metrics.scielab import xyz_to_opponent_matrix
+
+    m = xyz_to_opponent_matrix(opponent)
+    red, green, blue = (m @ np.array(v) for v in ([41.24, 21.26, 1.93], [35.76, 71.52, 11.92],
+                                                  [18.05, 7.22, 95.05]))
+    assert red[1] < -10 and green[1] > 5
+    assert blue[2] > 40 and red[2] < -5 and green[2] < -30
+    assert 75 < (m @ WHITE)[0] < 90 and red[0] > 25 and green[0] > 55
 
 
 def test_gaussian_half_width_is_at_half_maximum():
@@ -225,9 +314,9 @@ def _independent_scielab(ref_xyz, test_xyz, spd, version, opponent="xyz10", edge
     x = np.arange(1, n + 1) - math.floor(n / 2 + 0.5)
     xx, yy = np.meshgrid(x, x)
     kernels = []
-    for channel in SCIELAB_FILTER_PARAMETERS[version]:
+    for channel in PUBLISHED_FILTERS[version]:
         k = np.zeros((n, n))
-        for hwhm_deg, weight in channel:
+        for hwhm_deg, weight in zip(channel[0::2], channel[1::2]):
             sd = hwhm_deg * spd / math.sqrt(2 * math.log(2))
             g = np.exp(-0.5 * (xx**2 + yy**2) / sd**2)
             k += weight * g / g.sum()
