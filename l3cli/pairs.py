@@ -86,6 +86,7 @@ __all__ = [
     "Pair",
     "LoadedPair",
     "is_pairs_dir",
+    "is_raw_file",
     "is_simulation_dir",
     "manifest_path",
     "read_simulation_manifest",
@@ -182,7 +183,15 @@ class LoadedPair:
     pair: Pair
 
 
-def _is_raw(path: Path) -> bool:
+def is_raw_file(path: str | os.PathLike) -> bool:
+    """True for a raw file: a raw suffix, or an image with a raw sidecar (``X.tif`` + ``X.tif.toml``).
+
+    Examples
+    --------
+    >>> is_raw_file("a.dng"), is_raw_file("no_sidecar_here.png")
+    (True, False)
+    """
+    path = Path(path)
     suffix = path.suffix.lower()
     if suffix in RAW_SUFFIXES:
         return True
@@ -195,7 +204,7 @@ def is_pairs_dir(path: str | os.PathLike) -> bool:
     p = Path(path)
     if not p.is_dir() or is_simulation_dir(p):
         return False
-    return any(f.is_file() and _is_raw(f) for f in p.iterdir())
+    return any(f.is_file() and is_raw_file(f) for f in p.iterdir())
 
 
 def _render_for(raw: Path) -> Path:
@@ -245,7 +254,7 @@ def _simulation_pairs(folder: Path) -> list[Pair]:
 def _rendered_pairs(p: Path, seen: dict[str, Path], scaled: bool) -> list[Pair]:
     """The (raw, render) pairs of a pairs directory, or of one raw file."""
     if p.is_dir():
-        raws = sorted(f for f in p.iterdir() if f.is_file() and _is_raw(f))
+        raws = sorted(f for f in p.iterdir() if f.is_file() and is_raw_file(f))
         if not raws:
             allowed = ", ".join(sorted(RAW_SUFFIXES))
             raise InputError(
@@ -254,7 +263,7 @@ def _rendered_pairs(p: Path, seen: dict[str, Path], scaled: bool) -> list[Pair]:
                 "the same stem)"
             )
         renders = {f for f in p.iterdir() if f.is_file() and f.suffix.lower() in RENDER_SUFFIXES}
-    elif _is_raw(p):
+    elif is_raw_file(p):
         raws, renders = [p], set()
     else:
         raise InputError(f"{p}: not a simulate folder, a pairs folder or a raw file")

@@ -95,7 +95,7 @@ def preview_pairs(inputs: Iterable[str | os.PathLike], workdir: str | os.PathLik
         preview.
     """
     from l3cli.io.raw import sidecar_path
-    from l3cli.pairs import Pair, _is_raw
+    from l3cli.pairs import Pair, is_raw_file
 
     work = Path(workdir)
     pairs = []
@@ -103,7 +103,7 @@ def preview_pairs(inputs: Iterable[str | os.PathLike], workdir: str | os.PathLik
         folder = Path(inp)
         if not folder.is_dir():
             raise InputError(f"{folder}: no such folder")
-        raws = sorted(f for f in folder.iterdir() if f.is_file() and _is_raw(f))
+        raws = sorted(f for f in folder.iterdir() if f.is_file() and is_raw_file(f))
         if not raws:
             raise InputError(f"{folder}: no raw files for --embedded-preview")
         for raw in raws:

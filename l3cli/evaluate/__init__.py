@@ -41,14 +41,27 @@ The reference decides the white point used for CIELAB and S-CIELAB:
 * another linear reference: D65 with Y = 1 (l3's linear convention: a display
   white has Y = 1).
 
-A display-encoded render compared with a linear reference is taken as relative
-to the reference's white (its XYZ is scaled by white Y / 100); a linear render
-compared with a display-encoded reference is taken on l3's linear scale (display
-white Y = 1, so its XYZ is scaled by 100). XYZ is clipped to
-[0, white] before the S-CIELAB filtering, as ISETCam does.
+One white scale for every format: a display code value of 1 is linear Y = 1,
+the rule ``l3 render`` encodes with. So a display-encoded render compared with a
+linear reference is decoded to XYZ on l3's linear scale (its XYZ on the 100 scale
+divided by 100), and a linear render compared with a display-encoded reference
+is multiplied by 100. EXR, 16-bit TIFF, PNG and JPEG renders of one table then
+score alike against a ``simulate`` folder, up to the quantisation of the format
+(``tests/test_evaluate_truth.py`` states and tests the bounds). XYZ is clipped
+to [0, white] before the S-CIELAB filtering, as ISETCam does.
 
-PSNR is computed on the encoded values (data range 1) when both images are
-display-encoded, and on linear XYZ with the white's Y as data range otherwise.
+PSNR is computed in the reference's domain, whatever the render's format: sRGB
+code values (data range 1) against a display-encoded reference, the render
+encoded as ``l3 render`` encodes it; linear XYZ with the white's Y as data range
+against a linear reference. The JSON names it (``psnr_domain``), the table's
+column header too.
+
+A reference folder is searched for rendered images only: a TIFF or PNG with a
+raw sidecar (``X.tif.toml``) is a raw mosaic and never a reference, and two
+images of one stem (``X.png``, ``X.jpg``) are refused as ambiguous. A reference
+whose structure hardly correlates with the render's (band-pass correlation of
+luminance below :data:`~l3cli.evaluate.metrics.MIN_CORRESPONDENCE`) is reported
+with a warning: probably another shot or another file.
 
 ``align`` registers each reference on its render first (:func:`align_reference`):
 a camera JPEG or raw-converter output is often a crop of the raw's area (and

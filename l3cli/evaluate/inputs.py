@@ -16,6 +16,7 @@ import numpy as np
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import (
     RENDER_SUFFIXES,
+    is_raw_file,
     is_simulation_dir,
     read_simulation_manifest,
 )
@@ -57,19 +58,38 @@ class EvalItem:
 
 
 def _images_in(folder: Path) -> list[Path]:
+    """Rendered images in a folder: image suffixes, not hidden, not raws.
+
+    A TIFF or PNG with a raw sidecar (``X.tif`` + ``X.tif.toml``) is a raw
+    mosaic (``l3 simulate`` writes such files for CFAs DNG cannot describe), never
+    a rendering.
+    """
     return sorted(
         p for p in folder.iterdir()
         if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
+        and not is_raw_file(p)
     )
 
 
-def _render_for(folder: Path, stem: str) -> Path | None:
-    for suf in IMAGE_SUFFIXES:
-        for cand in (folder / f"{stem}{suf}", folder / f"{stem}{suf.upper()}"):
-            if cand.is_file():
-                return cand
-    return None
+def _by_stem(folder: Path) -> dict[str, Path]:
+    """The rendered images of a folder by stem; a stem with two images is refused."""
+    found: dict[str, list[Path]] = {}
+    for p in _images_in(folder):
+        found.setdefault(p.stem, []).append(p)
+    for stem, paths in found.items():
+        if len(paths) > 1:
+            names = ", ".join(p.name for p in paths)
+            raise InputError(
+                f"{folder}: several images of stem {stem!r} ({names}); give the reference file "
+                "itself, or keep one image per stem"
+            )
+    return {stem: paths[0] for stem, paths in found.items()}
 
+
+def _render_for(images: list[Path], stem: str) -> Path | None:
+    """The render of ``stem`` among a folder's images, by :data:`IMAGE_SUFFIXES` preference."""
+    found = {p.suffix.lower(): p for p in images if p.stem == stem}
+    return next((found[s] for s in IMAGE_SUFFIXES if s in found), None)
 
 
 def find_items(
@@ -109,13 +129,15 @@ def find_items(
         ref_dir = references[0]
         if is_simulation_dir(ref_dir):
             return _simulation_items(rendered, ref_dir)
-        ref_images = {p.stem: p for p in _images_in(ref_dir)}
+        ref_images = _by_stem(ref_dir)
         renders = _expand_renders(rendered)
         items = []
         for r in renders:
             ref = ref_images.get(r.stem)
             if ref is None:
-                raise InputError(f"{r}: no reference image {r.stem}.* in {ref_dir}")
+                raws = [p.name for p in ref_dir.glob(f"{r.stem}.*") if is_raw_file(p)]
+                why = f" ({', '.join(raws)} is a raw, not a rendering)" if raws else ""
+                raise InputError(f"{r}: no reference image {r.stem}.* in {ref_dir}{why}")
             items.append(EvalItem(r.stem, r, ref))
         return items
 
@@ -154,8 +176,9 @@ def _simulation_items(rendered: list[Path], sim_dir: Path) -> list[EvalItem]:
     items = []
     if len(rendered) == 1 and rendered[0].is_dir():
         folder = rendered[0]
+        images = _images_in(folder)
         for stem, cap in captures.items():
-            r = _render_for(folder, stem)
+            r = _render_for(images, stem)
             if r is None:
                 log.info("%s: no render of capture %s; skipped", folder, stem)
                 continue

@@ -61,6 +61,7 @@ class ImageReport:
     rendered_xyz: np.ndarray | None = field(default=None, repr=False)
     reference_xyz: np.ndarray | None = field(default=None, repr=False)
     white_xyz: np.ndarray | None = None
+    psnr_domain: str | None = None
     chart_boxes: list | None = None
     edge_roi: tuple | None = None
 
@@ -190,6 +191,46 @@ def align_reference(
     return (a.dy, a.dx, h, w), _inverse_flip(a.flip)
 
 
+#: Band-pass correlation of render and reference luminance below which the
+#: reference is reported as probably not of the same shot (a renders of the same
+#: scene, even noisy ones, score well above 0.5; unrelated images near 0).
+MIN_CORRESPONDENCE = 0.3
+
+#: The domain PSNR is computed in, by the reference's encoding (JSON ``psnr_domain``).
+PSNR_DOMAINS = {"srgb": "srgb-encoded", "linear": "linear-xyz"}
+
+
+def _check_correspondence(rend: np.ndarray, ref: np.ndarray, item: EvalItem) -> float | None:
+    """Warn when the reference does not look like the render (another shot or file)."""
+    from l3cli.align.common import match_score
+
+    if rend.shape != ref.shape:
+        return None
+    score = match_score(rend[..., 1], ref[..., 1])
+    if score < MIN_CORRESPONDENCE:
+        log.warning(
+            "%s: reference %s hardly resembles it (structure correlation %.2f < %g); is it the "
+            "reference of the same shot?", item.rendered, item.reference, score, MIN_CORRESPONDENCE)
+    return score
+
+
+def _psnr(rend: np.ndarray, ref: np.ndarray, rend_codes: np.ndarray | None, ref_values: np.ndarray,
+          ref_space: str, white: np.ndarray, exclude_border: int) -> float:
+    """PSNR in the reference's domain, whatever the render's format.
+
+    A display-encoded reference: both images as sRGB code values (data range 1),
+    the render's own codes (``rend_codes``) or its XYZ encoded as l3 encodes it; a
+    linear reference: linear XYZ with the white's Y as data range.
+    """
+    if ref_space == "srgb":
+        from l3cli.colourspace import convert
+
+        enc = rend_codes if rend_codes is not None else np.clip(np.asarray(convert((rend / 100.0).astype(np.float32), "xyz", "srgb"),
+                                 dtype=np.float64), 0.0, 1.0)
+        return psnr(_crop(ref_values, exclude_border), _crop(enc, exclude_border), data_range=1.0)
+    return psnr(_crop(ref, exclude_border), _crop(rend, exclude_border), data_range=float(white[1]))
+
+
 def evaluate_item(item: EvalItem, options: EvalOptions | None = None) -> ImageReport:
     """Compute every applicable metric for one pair.
 
@@ -224,9 +265,10 @@ def evaluate_item(item: EvalItem, options: EvalOptions | None = None) -> ImageRe
         )
     white = white_point_for(ref, ref_space, item.capture)
     if rend_space == "srgb" and ref_space != "srgb":
-        rend = rend * (white[1] / 100.0)
+        rend = rend / 100.0  # one white scale: a display white is Y = 1 on l3's linear scale
     elif ref_space == "srgb" and rend_space != "srgb":
-        rend = rend * 100.0  # linear l3 images: a display white has Y = 1
+        rend = rend * 100.0  # the same rule the other way: linear Y = 1 is the display white
+    _check_correspondence(rend, ref, item)
 
     values: dict[str, float | None] = {}
     sc = scielab(
@@ -235,14 +277,11 @@ def evaluate_item(item: EvalItem, options: EvalOptions | None = None) -> ImageRe
         opponent=o.opponent,
     )
     values.update(sc.summary())
+    values["psnr_db"] = _psnr(rend, ref, rend_values if rend_space == "srgb" else None, ref_values,
+                              ref_space, white, exclude_border)
 
-    if rend_space == "srgb" and ref_space == "srgb":
-        p = psnr(_crop(ref_values, exclude_border), _crop(rend_values, exclude_border), data_range=1.0)
-    else:
-        p = psnr(_crop(ref, exclude_border), _crop(rend, exclude_border), data_range=float(white[1]))
-    values["psnr_db"] = p
-
-    report = ImageReport(item.name, values, scielab=sc, white_xyz=white)
+    report = ImageReport(item.name, values, scielab=sc, white_xyz=white,
+                         psnr_domain=PSNR_DOMAINS["srgb" if ref_space == "srgb" else "linear"])
 
     # Macbeth chart
     chart = _chart_from_capture(item.capture)

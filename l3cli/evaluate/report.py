@@ -45,6 +45,8 @@ def report_dict(
         for k, v in r.values.items():
             if k not in d:
                 d[k] = _json_value(v)
+        if r.psnr_domain is not None:
+            d["psnr_domain"] = r.psnr_domain
         if r.macbeth is not None:
             d["macbeth_patches"] = {
                 "de_ab": [round(float(v), 4) for v in r.macbeth.delta_e_ab],
@@ -97,6 +99,11 @@ def format_table(reports: Sequence[ImageReport], summary: dict[str, float]) -> s
             return "inf" if v > 0 else "-"
         return spec.format(v)
 
+    domains = {r.psnr_domain for r in reports if r.psnr_domain}
+    if len(domains) == 1:  # say which values PSNR compares
+        label = {"srgb-encoded": "PSNR dB (sRGB codes)", "linear-xyz": "PSNR dB (linear XYZ)"}
+        present = [(label.get(next(iter(domains)), c[0]), *c[1:]) if c[1] == "psnr_db" else c
+                   for c in present]
     rows = [["image"] + [c[0] for c in present]]
     for r in reports:
         rows.append([r.name] + [fmt(r.values, k, s) for _, k, s in present])
