@@ -1,0 +1,162 @@
+"""The classification rule as ONNX nodes: padding, patch statistics, class index.
+
+The graph computes what the tile kernel (:mod:`l3cli.classify.kernel`)
+computes, in the same float32 operations in the same order, so every pixel
+gets the same class bit for bit: per channel, the mask of the channel times
+the padded mosaic, its square, their S-tap horizontal sums added left to
+right, then the S-row vertical sums top to bottom (rows without the channel
+add zeros, which changes no sum), the channel mean and variance, the
+response level and the relative contrast. That is why the box sums are
+chains of ``Add`` over shifted ``Slice`` views and not ``Conv`` nodes: a
+convolution sums in the runtime's own order, and a last-bit difference in a
+level or contrast moves pixels near a cut point into the neighbouring class.
+Sums of 0/1 indicators (saturated pixels per patch) are exact in any order and
+use ``MaxPool`` and ``Conv``.
+
+Bins: the level bin is the number of level cuts at or below the level
+(a branch-free binary search over the float32 cuts with ``Gather``, which
+equals the kernel's bucket lookup), the contrast bin the number of the
+level's contrast thresholds at or below the contrast.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from onnx import TensorProto
+
+from l3cli.classify import ClassDefinition
+from l3cli.classify.features import orientation_centres
+from l3cli.classify.layout import kernel_tables
+from l3cli.export.graph import Graph
+
+__all__ = ["Classes", "classify_nodes"]
+
+F32, I64 = TensorProto.FLOAT, TensorProto.INT64
+
+
+class Classes(NamedTuple):
+    """Names of the classification's results in the graph."""
+
+    #: float32 (N, 1, H + 2r, W + 2r): the padded mosaic (what the kernels weight).
+    padded: str
+    #: int64 (N, 1, H, W): the flat class index of every pixel.
+    index: str
+
+
+def _search(g: Graph, value: str, cuts: np.ndarray) -> str:
+    """int64: how many of the increasing float32 ``cuts`` are <= ``value`` (same shape)."""
+    n = int(cuts.size)
+    steps = 1 << (n.bit_length() - 1)  # 2 * steps - 1 >= n: every count is reachable
+    padded = np.full(2 * steps, np.inf, dtype=np.float32)  # +inf: never <= a level
+    padded[:n] = cuts
+    table = g.const(padded, hint="cuts")
+    count = None
+    step = steps
+    while step >= 1:
+        idx = g.const(step - 1, np.int64) if count is None else g.op(
+            "Add", count, g.const(step - 1, np.int64))
+        hit = g.op("LessOrEqual", g.op("Gather", table, idx, axis=0), value)
+        inc = g.op("Mul", g.cast(hit, I64), g.const(step, np.int64))
+        count = inc if count is None else g.op("Add", count, inc)
+        step //= 2
+    return count
+
+
+def _orientation(g: Graph, d: ClassDefinition, padded: str) -> str:
+    """int64 (N, 1, H, W) orientation bin (0 = isotropic), as the tile kernel finds it."""
+    t = kernel_tables(d)
+    ph, pw = d.cfa.period
+    s = d.patch
+    # quads of padded rows k - ph and k, columns xx and xx + pw
+    top = g.window(padded, 0, ph + 1, 2)  # row k - ph
+    bot = g.window(padded, ph, ph + 1, 2)  # row k
+    a, b = g.window(top, 0, pw + 1, 3), g.window(top, pw, pw + 1, 3)
+    c, e = g.window(bot, 0, pw + 1, 3), g.window(bot, pw, pw + 1, 3)
+    gx = g.op("Add", g.op("Sub", b, a), g.op("Sub", e, c))
+    gy = g.op("Add", g.op("Sub", c, a), g.op("Sub", e, b))
+    sums = []
+    for prod in (g.op("Mul", gx, gx), g.op("Mul", gy, gy), g.op("Mul", gx, gy)):
+        hs = g.chain_sum(prod, s - pw, 3)  # width W + 2r - pw - (s - pw - 1) = W
+        # padded quad row k (>= ph) is index k - ph here; rows dy = ph .. S-1 of the patch
+        sums.append(g.chain_sum(hs, s - ph, 2))
+    jxx, jyy, jxy = sums
+    u = g.op("Sub", jxx, jyy)
+    v = g.op("Mul", g.const(np.float32(2.0)), jxy)
+    tt = g.op("Add", jxx, jyy)
+    coh = g.op("Sub", g.op("Add", g.op("Mul", u, u), g.op("Mul", v, v)),
+               g.op("Mul", g.const(t.coh2), g.op("Mul", tt, tt)))
+    oc, os_ = orientation_centres(d.orientation_bins)
+    best = g.op("Add", g.op("Mul", u, g.const(oc[0])), g.op("Mul", v, g.const(os_[0])))
+    bin_ = g.const(1, np.int64)  # bin 1 (angle 0) until a later centre is nearer
+    for j in range(1, oc.size):
+        pr = g.op("Add", g.op("Mul", u, g.const(oc[j])), g.op("Mul", v, g.const(os_[j])))
+        take = g.op("Greater", pr, best)
+        best = g.op("Where", take, pr, best)
+        bin_ = g.op("Where", take, g.const(j + 1, np.int64), bin_)
+    return g.op("Where", g.op("Greater", coh, g.const(np.float32(0.0))), bin_,
+                g.const(0, np.int64))
+
+
+def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
+    """Add the classification of (N, 1, H, W) float32 ``mosaic`` to ``g``.
+
+    Context features are not built here (the caller refuses them).
+    """
+    t = kernel_tables(d)
+    s, r = d.patch, d.patch // 2
+    ph, pw = d.cfa.period
+    nch = d.cfa.n_channels
+    padded = g.pad_mirror(mosaic, r, (ph, pw))
+    # padded-image channel of every pixel: the pattern shifted by r (phase kept)
+    shifted = np.roll(t.idx_pattern, (r % ph, r % pw), axis=(0, 1))
+    positions = np.arange(ph * pw).reshape(ph, pw)
+    f32 = np.float32
+    lev = spr = None
+    saturated = g.op("GreaterOrEqual", padded, g.const(t.sat_thr))
+    sat = None
+    for c in range(nch):
+        mask = g.periodic((shifted == c).astype(f32), padded)
+        u = g.op("Mul", padded, mask)
+        q = g.op("Mul", u, padded)
+        va = g.chain_sum(g.chain_sum(u, s, 3), s, 2)
+        vq = g.chain_sum(g.chain_sum(q, s, 3), s, 2)
+        ci = g.periodic(t.cnt_inv[positions, c], mosaic)
+        wc = g.periodic(t.wc[positions, c], mosaic)
+        m = g.op("Mul", va, ci)
+        var = g.op("Sub", g.op("Mul", vq, ci), g.op("Mul", m, m))
+        dl = g.op("Mul", m, wc)
+        ds = g.op("Mul", g.op("Sqrt", g.op("Max", var, g.const(f32(0.0)))), wc)
+        lev = dl if lev is None else g.op("Add", lev, dl)
+        spr = ds if spr is None else g.op("Add", spr, ds)
+        # saturation bit of channel c: any saturated channel-c pixel in the patch
+        hit = g.op("Mul", g.cast(saturated, F32), mask)
+        anyc = g.op("MaxPool", hit, kernel_shape=[s, s])
+        bit = g.op("Mul", g.cast(anyc, I64), g.const(1 << c, np.int64))
+        sat = bit if sat is None else g.op("Add", sat, bit)
+    contrast = g.op("Div", spr, g.op("Add", g.op("Max", lev, g.const(f32(0.0))),
+                                     g.const(t.eps)))
+    lbin = _search(g, lev, d.level_cuts.astype(f32))
+    ncc = d.n_contrast - 1
+    cbin = None
+    for j in range(ncc):
+        th = g.op("Gather", g.const(t.ccuts[:, j].copy()), lbin, axis=0)
+        hit = g.cast(g.op("GreaterOrEqual", contrast, th), I64)
+        cbin = hit if cbin is None else g.op("Add", cbin, hit)
+    group = g.periodic(d.position_group[positions], mosaic, dtype=np.int64)
+    idx = g.op("Add", g.op("Mul", group, g.const(d.n_saturation, np.int64)), sat)
+    idx = g.op("Add", g.op("Mul", idx, g.const(d.n_levels, np.int64)), lbin)
+    idx = g.op("Mul", idx, g.const(d.n_contrast, np.int64))
+    if cbin is not None:
+        idx = g.op("Add", idx, cbin)
+    n_ext = d.n_orientation * d.n_context * d.n_highlight
+    if n_ext > 1:
+        ext = _orientation(g, d, padded) if d.orientation_bins else g.const(0, np.int64)
+        if d.highlight_bins:
+            ones = g.const(np.ones((1, 1, s, s), f32))
+            count = g.op("Conv", g.cast(saturated, F32), ones)  # 0/1 sums: exact
+            hl = g.cast(g.op("GreaterOrEqual", count, g.const(t.hl_cnt)), I64)
+            ext = g.op("Add", g.op("Mul", ext, g.const(d.n_highlight, np.int64)), hl)
+        idx = g.op("Add", g.op("Mul", idx, g.const(n_ext, np.int64)), ext)
+    return Classes(padded, idx)
