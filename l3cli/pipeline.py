@@ -4,7 +4,7 @@ A folder is a pipeline, not a loop. Each file goes through
 
 1. decode (LibRaw through rawpy: C code, the GIL released),
 2. render (the numba tile kernel, parallel over every core) and, for
-   TIFF/PNG/JPEG, display-encode (:func:`l3cli.render.render_display`: rows
+   TIFF/PNG/JPEG, display-encode (:func:`l3cli.kernelset.render_display`: rows
    are encoded inside the kernel as they are rendered), straight into
    8/16-bit integers: no full-size float image is held;
 3. write (OpenImageIO's encoders, the GIL released), atomically,
@@ -236,9 +236,10 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
     Run beside the first file's decode, this moves numba's first-call cost
     (target set-up, cache loading: a few tenths of a second) off the
     critical path of a one-file render. The tile kernel is one compiled
-    function for float (EXR) and display (TIFF/PNG/JPEG) outputs.
+    function for float (EXR) and display (TIFF/PNG/JPEG) outputs, with or
+    without a kernel set's post matrix.
     """
-    from l3cli.render import render_display, render_mosaic
+    from l3cli.kernelset import render_display, render_mosaic
 
     preload_scipy_blas()
     s = max(table.patch, *table.cfa.period) * 2
@@ -253,12 +254,13 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
 
 
 def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
-    """Render straight to display integers (:func:`l3cli.render.render_display`).
+    """Render straight to display integers (:func:`l3cli.kernelset.render_display`).
 
-    Rows are display-encoded inside the tile kernel as they are rendered
-    (under the render lock); no full-size float image is held.
+    ``table`` is a table or a raw's :class:`~l3cli.kernelset.KernelSet`. Rows
+    are display-encoded inside the tile kernel as they are rendered (under
+    the render lock); no full-size float image is held.
     """
-    from l3cli.render import render_display
+    from l3cli.kernelset import render_display
 
     return render_display(table, mosaic, bits, render_lock=_RENDER_LOCK)
 
@@ -272,14 +274,18 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
 
     The one implementation of a file's render, used by the pipeline's threads
     and by :func:`l3cli.render.render_file` (dask tasks, library callers).
-    Display outputs are rendered straight to integers; tables with per-raw
-    gains or condition bins take the whole-image path. ``turn`` is held
-    around the render stage (the pipeline's :meth:`RenderTurns.turn`).
+    Every table takes the same path: the raw's kernel set
+    (:func:`l3cli.kernelset.prepare_kernels`: condition bins, white-balance
+    gains and adaptation) is prepared once, the decoded mosaic is prepared in
+    place (:meth:`~l3cli.kernelset.KernelSet.prepare_mosaic`), and the fused
+    tile kernel renders it, straight to integers for display outputs.
+    ``turn`` is held around the render stage (the pipeline's
+    :meth:`RenderTurns.turn`).
     """
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
-    from l3cli.render import check_fits, render_mosaic, render_raw
+    from l3cli.kernelset import check_fits, prepare_kernels, render_mosaic
 
     fmt = format_of(out_path)
     t0 = time.perf_counter()
@@ -288,25 +294,22 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
         raw = read_raw(raw_path)
     check_fits(table, raw, table_name=table_name)
     shot = exif_attributes(raw.metadata.get("shot", {}))
+    kernels = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
+    mosaic = kernels.prepare_mosaic(raw.mosaic, inplace=True)  # the decode is ours
     t1 = time.perf_counter()
     with turn if turn is not None else contextlib.nullcontext():
-        if (table.white_balance is not None or table.conditions is not None
-                or white_balance is not None):
-            # per-raw gains, adaptation or kernels: the whole-image path (which also
-            # refuses gains for a table trained without white balance)
+        if fmt == "exr":
             with _RENDER_LOCK:
-                img = render_raw(table, raw, table_name=table_name,
-                                 white_balance=white_balance)
-        elif fmt == "exr":
-            with _RENDER_LOCK:
-                img = render_mosaic(table, raw.mosaic)
+                img = render_mosaic(kernels, mosaic)
         else:
-            img = _render_display(table, raw.mosaic, 16 if fmt == "tiff" else 8)
+            img = _render_display(kernels, mosaic, 16 if fmt == "tiff" else 8)
     t2 = time.perf_counter()
-    mosaic = raw.mosaic
+    decoded = raw.mosaic
     del raw
-    buffers.release(mosaic)  # the next file's decode reuses its pages
-    del mosaic
+    buffers.release(decoded)  # the next file's decode reuses its pages
+    if mosaic is not decoded:
+        buffers.release(mosaic)
+    del mosaic, decoded
     out = write_image(out_path, img, space=table.output_space,
                       attributes={"l3:table": str(table_name)}, metadata=shot, **options)
     buffers.release(img)

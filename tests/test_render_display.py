@@ -130,7 +130,7 @@ def test_16_bit_fused_path_and_the_banded_lab_path(monkeypatch):
     """16 bits are encoded inside the kernel (whole image and a row range); ``lab`` tables
     take the banded two-step path (float bands, then colour-science's conversion). Both
     give render-then-encode's integers."""
-    from l3cli import render
+    from l3cli import kernelset
 
     t = _table("RGGB", 5, 3, "xyz", seed=6)
     m = _mosaic(41, 600, seed=7)
@@ -139,7 +139,7 @@ def test_16_bit_fused_path_and_the_banded_lab_path(monkeypatch):
     np.testing.assert_array_equal(render_display(t, m, 16, rows=(5, 38)), want[5:38])
     lab = _table("RGGB", 5, 3, "lab", seed=6)
     want = display_encode(render_mosaic(lab, m), "lab", 16)
-    monkeypatch.setattr(render, "DISPLAY_BAND_PIXELS", 600 * 4)  # 4-row bands, a ragged last
+    monkeypatch.setattr(kernelset, "DISPLAY_BAND_PIXELS", 600 * 4)  # 4-row bands, a ragged last
     np.testing.assert_array_equal(render_display(lab, m, 16), want)
     np.testing.assert_array_equal(render_display(lab, m, 16, rows=(5, 38)), want[5:38])
 
