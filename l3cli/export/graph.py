@@ -47,7 +47,7 @@ class Graph:
             if key in self._consts:
                 return self._consts[key]
         name = self._name(hint)
-        self.initializers.append(self._numpy_helper.from_array(np.ascontiguousarray(arr), name))
+        self.initializers.append(self._numpy_helper.from_array(np.array(arr, order="C"), name))
         if key is not None:
             self._consts[key] = name
         return name
