@@ -87,6 +87,7 @@ __all__ = [
     "LoadedPair",
     "is_pairs_dir",
     "is_raw_file",
+    "raw_files",
     "is_simulation_dir",
     "manifest_path",
     "read_simulation_manifest",
@@ -249,6 +250,42 @@ def _simulation_pairs(folder: Path) -> list[Pair]:
         pairs.append(Pair(cap["stem"], folder / cap["raw"], folder / cap["target"], space,
                           metadata=facts))
     return pairs
+
+
+def raw_files(paths: Iterable[str | os.PathLike]) -> tuple[list[Path], bool]:
+    """The raw files named by ``paths``: files as given, folders expanded.
+
+    A ``simulate`` folder gives its captures' raws (manifest order), any other
+    folder its raw files (:func:`is_raw_file`, sorted by name).
+
+    Returns
+    -------
+    raws, any_folder
+        The raw paths, and whether a folder was among ``paths`` (its outputs
+        then go to a folder, however many raws it holds).
+
+    Raises
+    ------
+    InputError
+        A folder without raws.
+    """
+    out: list[Path] = []
+    any_folder = False
+    for p in map(Path, paths):
+        if not p.is_dir():
+            out.append(p)
+            continue
+        any_folder = True
+        if is_simulation_dir(p):
+            found = [pair.raw for pair in _simulation_pairs(p)]
+        else:
+            found = sorted(f for f in p.iterdir() if f.is_file() and is_raw_file(f))
+        if not found:
+            allowed = ", ".join(sorted(RAW_SUFFIXES))
+            raise InputError(f"{p}: no raw files in the folder ({allowed}, or an image with a "
+                             "raw .toml sidecar)")
+        out.extend(found)
+    return out, any_folder
 
 
 def _rendered_pairs(p: Path, seen: dict[str, Path], scaled: bool) -> list[Pair]:

@@ -148,7 +148,7 @@ def sim_renders(tmp_path_factory):
     assert r.exit_code == 0, r.output
     raws = sorted(str(p) for p in (base / "test").glob("*.dng"))
     assert raws
-    out = {}
+    out = {"_base": str(base)}
     for fmt in ("exr", *FORMAT_BOUNDS):
         r = run.invoke(cli, ["render", str(table), *raws, "-o", str(base / fmt), "--format", fmt])
         assert r.exit_code == 0, r.output
@@ -161,6 +161,7 @@ def sim_renders(tmp_path_factory):
 
 @pytest.mark.parametrize("fmt", sorted(FORMAT_BOUNDS))
 def test_every_format_scores_on_one_white_scale(sim_renders, fmt):
+    assert sim_renders[fmt]
     exr = sim_renders["exr"]
     for name, d in sim_renders[fmt].items():
         assert d["scielab_mean"] == pytest.approx(exr[name]["scielab_mean"], abs=FORMAT_BOUNDS[fmt]), name
@@ -181,3 +182,20 @@ def test_display_white_is_linear_y_one(tmp_path):
     cap = {"white_xyz": [1.04, 1.1, 1.2]}  # the manifest's white on the target scale
     rep = evaluate_item(EvalItem("r", tmp_path / "r.tif", tmp_path / "ref.exr", cap, {}, "xyz"))
     assert rep.values["scielab_mean"] < 0.02
+
+
+def test_render_takes_a_simulate_folder(runner, sim_renders, tmp_path):
+    """`l3 render TABLE SIM_DIR` renders the captures of the folder into a folder."""
+    base = Path(sim_renders["_base"])
+    out = tmp_path / "out"
+    res = runner.invoke(cli, ["render", str(base / "t.npz"), str(base / "test"), "-o", str(out),
+                              "--format", "tiff"])
+    assert res.exit_code == 0, res.output
+    got = sorted(p.name for p in out.iterdir())
+    assert got == sorted(f"{n}.tif" for n in sim_renders["exr"])
+    from l3cli.io.image import read_image
+
+    for p in out.iterdir():  # the same pixels as rendering the files by name
+        np.testing.assert_array_equal(read_image(p)[0], read_image(base / "tiff" / p.name)[0])
+    res = runner.invoke(cli, ["render", str(base / "t.npz"), str(tmp_path), "-o", str(tmp_path / "o2")])
+    assert res.exit_code == 1 and "no raw files in the folder" in res.output

@@ -90,7 +90,7 @@ def _stem(p: Path) -> str:
 
 def plan_outputs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike,
                  fmt: str | None, *, protect: Iterable[str | os.PathLike] = (),
-                 option: str = "-o") -> OutputPlan:
+                 option: str = "-o", folder: bool = False) -> OutputPlan:
     """Plan one output per input: a file for one input, else a folder named after the stems.
 
     Parameters
@@ -105,6 +105,8 @@ def plan_outputs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike,
         Further inputs (tables, training folders) no output may overwrite.
     option
         The option's name for messages.
+    folder
+        An output folder even for one input (the inputs came from a folder).
 
     Raises
     ------
@@ -118,7 +120,7 @@ def plan_outputs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike,
     ins = [Path(p) for p in inputs]
     out = Path(output)
     plan = OutputPlan()
-    if len(ins) == 1 and not out.is_dir():
+    if len(ins) == 1 and not out.is_dir() and not folder:
         suffix = out.suffix.lower()
         if suffix == "":
             out = out.with_suffix(FORMATS[fmt or "exr"])

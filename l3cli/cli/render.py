@@ -16,7 +16,7 @@ from l3cli.cli.options import (
 
 @click.command(short_help="Render raw files with a transform table.")
 @click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
-@click.argument("raws", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("raws", nargs=-1, required=True, type=click.Path())
 @output_opt
 @format_opt(help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
                  "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
@@ -37,8 +37,10 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
            workers: int | None, scheduler: str | None) -> None:
     """Render RAW files with TABLE.npz into OUT (-o).
 
-    OUT is a file for one input, a folder for several (created if missing;
-    outputs are named after the inputs' stems). Each output has the raw's
+    A RAW may be a folder: a simulate folder gives its captures' raws, any
+    other folder its raw files. OUT is a file for one raw file, a folder for
+    several or for a folder (created if missing; outputs are named after the
+    inputs' stems). Each output has the raw's
     full size, pixel-aligned with it. With --workers or --scheduler the files
     are rendered by dask.distributed workers, each reading its raw and writing
     its output itself (docs/distributed.md).
@@ -46,8 +48,11 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
     import contextlib
 
     from l3cli import buffers
+    from l3cli.pairs import raw_files
     from l3cli.pipeline import IN_FLIGHT, Prefetch
 
+    paths, from_folder = raw_files(raws)
+    raws = tuple(str(p) for p in paths)
     with contextlib.ExitStack() as stack:
         # the prefetched decodes' mosaics come from the pipeline's buffer pool
         stack.enter_context(buffers.recycling(2 * (IN_FLIGHT + 1)))
@@ -56,12 +61,12 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
         prefetch = (stack.enter_context(Prefetch(raws, count=IN_FLIGHT))
                     if raws and workers is None and scheduler is None else None)
         _render(table_path, raws, output, fmt, compression, half, quality, white_balance,
-                workers, scheduler, prefetch)
+                workers, scheduler, prefetch, from_folder)
 
 
 def _render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
             compression: str | None, half: bool, quality: int, white_balance: str | None,
-            workers: int | None, scheduler: str | None, prefetch) -> None:
+            workers: int | None, scheduler: str | None, prefetch, from_folder: bool) -> None:
     from pathlib import Path
 
     from l3cli.cli.paths import plan_outputs
@@ -69,7 +74,7 @@ def _render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None
 
     table = table_for_task(table_path)  # a bad table fails before anything is created
     gains = white_balance
-    plan = plan_outputs(raws, output, fmt, protect=[table_path])
+    plan = plan_outputs(raws, output, fmt, protect=[table_path], folder=from_folder)
     options = _write_options(plan.targets[0][1], compression, half, quality)
     check_white_balance(table, list(raws), gains, table_name=Path(table_path).name)
     with plan.writing():
