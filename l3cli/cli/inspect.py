@@ -39,13 +39,19 @@ def _levels(ctx, param, value):
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def inspect(table_path: str, plots: str | None, compare: str | None, levels: list[int] | None,
             classes: str, as_json: bool) -> None:
-    """Print a readable summary of TABLE.npz.
+    """Print a readable summary of TABLE.npz (or of a PIPELINE.onnx from `l3 export`).
 
     Class layout, levels with their cut points, samples and λ, empty classes,
     classes filled by `l3 smooth`, output space and provenance. With --plots,
     draw the kernels as weight images per position group and output channel,
     and the coefficients against the level (before/after with --compare).
     """
+    if Path(table_path).suffix.lower() == ".onnx":  # a model `l3 export` wrote
+        from l3cli.export.metadata import format_model_summary, model_summary
+
+        info = model_summary(table_path)
+        click.echo(json.dumps(info, indent=2) if as_json else format_model_summary(info))
+        return
     from l3cli.cli.paths import plan_folder
     from l3cli.inspect import class_rows, format_summary, table_summary
     from l3cli.table import load_table
