@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import sys
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
@@ -138,6 +139,119 @@ def check_scheduler(address: str, timeout: float | None = None) -> None:
                             f"{str(reply)[:60]!r})")
 
 
+def _children() -> set[int]:
+    """Process ids of this process's live descendants."""
+    import psutil
+
+    try:
+        return {p.pid for p in psutil.Process().children(recursive=True)}
+    except psutil.Error:  # pragma: no cover - /proc unreadable
+        return set()
+
+
+@contextlib.contextmanager
+def _terminal_signals_held() -> Iterator[None]:
+    """Hold SIGINT and SIGHUP back from this thread while a local cluster starts.
+
+    The threads dask starts meanwhile inherit the mask, and so do the worker
+    processes they spawn: a Ctrl-C or a hang-up sent to the whole process group
+    reaches only l3, which closes the cluster (l3cli.startup.handle_signals),
+    instead of every worker printing its own KeyboardInterrupt. A signal sent
+    meanwhile is delivered when the start is over. SIGTERM stays as it is
+    (the nannies end their workers with it).
+    """
+    import signal
+    import threading
+
+    held = {signal.SIGINT, getattr(signal, "SIGHUP", signal.SIGINT)}
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    # multiprocessing's resource tracker (started here, with the mask, if not yet
+    # running) unblocks SIGINT in the thread that starts it: block again after
+    resource_tracker.ensure_running()
+    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _close_half_made(before: set) -> None:
+    """Close local clusters made since ``before`` whose start was cut short (their
+    object never reached l3), and keep dask's exit hook from closing them again
+    (with an assertion's traceback)."""
+    from distributed.deploy.spec import SpecCluster
+
+    for c in list(SpecCluster._instances):
+        if c in before:
+            continue
+        if getattr(c, "status", None) is not None and c.status.name not in ("closed",):
+            with contextlib.suppress(Exception):
+                c.close(timeout=5)
+        SpecCluster._instances.discard(c)
+
+
+def _end_children(before: set[int], timeout: float = 5.0) -> list[int]:
+    """End the descendants started since ``before`` (a local cluster's nannies and
+    workers) that are still alive: SIGTERM, then SIGKILL after ``timeout`` s.
+
+    multiprocessing's resource tracker is left to end itself when this process
+    exits (it then releases what the workers left). Returns the ids ended.
+    """
+    import psutil
+
+    procs = []
+    try:
+        kids = psutil.Process().children(recursive=True)
+    except psutil.Error:  # pragma: no cover
+        return []
+    for p in kids:
+        if p.pid in before:
+            continue
+        try:
+            if "resource_tracker" in " ".join(p.cmdline()):
+                continue
+            p.terminate()
+            procs.append(p)
+        except psutil.Error:
+            continue
+    if procs:
+        log.debug("dask: ending %d leftover processes", len(procs))
+        for p in _wait_ended(procs, timeout):
+            with contextlib.suppress(psutil.Error):
+                p.kill()
+        _wait_ended(procs, timeout)
+    return [p.pid for p in procs]
+
+
+def _wait_ended(procs: list, timeout: float) -> list:
+    """Wait up to ``timeout`` s for ``procs`` to end; return those still running.
+
+    Ended children are left as zombies for their owner (multiprocessing)
+    to reap: reaping them here would take their exit status from it.
+    """
+    import time
+
+    import psutil
+
+    def running(p) -> bool:
+        try:
+            return p.status() != psutil.STATUS_ZOMBIE
+        except psutil.Error:
+            return False
+
+    deadline = time.monotonic() + timeout
+    alive = [p for p in procs if running(p)]
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.05)
+        alive = [p for p in alive if running(p)]
+    return alive
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
     """A dask.distributed client for a job, or ``None`` to run in process.
@@ -183,6 +297,10 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     # only with --debug / -vv
     worker_logs = logging.DEBUG if root <= logging.DEBUG else logging.CRITICAL
     cluster = None
+    before = _children()
+    from distributed.deploy.spec import SpecCluster
+
+    clusters_before = set(SpecCluster._instances)
     try:
         if scheduler is not None:
             check_scheduler(scheduler)
@@ -194,7 +312,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             n = int(workers)  # type: ignore[arg-type]
             threads = max(1, _cpu_count() // n)
             try:
-                with dask.config.set({_TRIM: None}):
+                with dask.config.set({_TRIM: None}), _terminal_signals_held():
                     cluster = LocalCluster(
                         n_workers=n, threads_per_worker=1, processes=True,
                         dashboard_address=":0", silence_logs=worker_logs,
@@ -208,18 +326,29 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             log.info("dask: %s", client)
             yield client
     finally:
-        if cluster is not None:
-            # closing is l3's own decision: a busy worker that the nanny must
-            # kill to close ("still alive after 4 s") is not news for the user
-            if root > logging.DEBUG:
-                dlog.setLevel(logging.ERROR)
-            cluster.close()
+        if isinstance(sys.exc_info()[1], KeyboardInterrupt) and root > logging.DEBUG:
+            # interrupted: the process is ending; dask's reports of the workers it
+            # loses on the way (and of a start cut short) are not news either
+            for name in ("distributed", "asyncio"):
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+            old_level = logging.CRITICAL + 1
+        try:
+            if cluster is not None:
+                # closing is l3's own decision: a busy worker that the nanny must
+                # kill to close ("still alive after 4 s") is not news for the user
+                if root > logging.DEBUG:
+                    dlog.setLevel(logging.ERROR)
+                cluster.close()
+        finally:
+            if workers is not None and scheduler is None:
+                _close_half_made(clusters_before)  # a start cut short (a signal)
+                _end_children(before)  # whatever the close (or a half-made cluster) left
             for k, v in saved_env.items():
                 if v is None:
                     os.environ.pop(k, None)
                 else:
                     os.environ[k] = v
-        dlog.setLevel(old_level)
+            dlog.setLevel(old_level)
 
 
 def map_reduce(

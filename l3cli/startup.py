@@ -25,6 +25,14 @@ here are not l3's own work, and each has one switch in this module:
   runtime library); a cache miss compiles as before, and numba's compiler
   refreshes the target itself. Other numba functions in the process are
   left alone.
+
+Signals have one policy here too (:func:`handle_signals`): SIGINT, SIGTERM
+and SIGHUP each raise :class:`Interrupted` (a ``KeyboardInterrupt``) in the
+main thread, so every run unwinds the way Ctrl-C always did: temporaries
+removed (:mod:`l3cli.io.atomic`), folders l3 created and left empty removed
+(:class:`l3cli.cli.paths.OutputPlan`), a local dask cluster closed
+(:func:`l3cli.parallel.dask_client`), and the previous output untouched. The
+command then exits ``128 + n`` (:func:`interrupt_status`).
 """
 
 from __future__ import annotations
@@ -33,18 +41,75 @@ import atexit
 import gc
 import logging
 import os
+import signal
 import sys
 import threading
+import time
 from typing import Any, NoReturn
 
-__all__ = ["arm_exit_now", "exit_now", "lean_cache", "pause_gc", "resume_gc",
-           "single_threaded_blas"]
+__all__ = ["Interrupted", "arm_exit_now", "exit_now", "handle_signals", "interrupt_status",
+           "lean_cache", "pause_gc", "resume_gc", "single_threaded_blas"]
 
 log = logging.getLogger(__name__)
 
 _gc_lock = threading.Lock()
 _gc_paused = False
 _exit_now_armed = False
+
+#: The signals that end a run cleanly (:func:`handle_signals`).
+SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+#: Seconds after the first signal during which repeats are ignored (the run is
+#: cleaning up); a repeat after that ends the process at once.
+REPEAT_GRACE_S = 10.0
+_first_signal: list = []  # [time, signum] of the first
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT, SIGTERM or SIGHUP arrived: the run unwinds as for Ctrl-C.
+
+    A ``KeyboardInterrupt``, so every cleanup that handles Ctrl-C handles
+    the other signals alike. ``signum`` is the signal's number.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = int(signum)
+
+
+def _on_signal(signum: int, frame: Any) -> None:
+    if _first_signal:  # already unwinding: let the cleanup finish
+        if time.monotonic() - _first_signal[0] < REPEAT_GRACE_S:
+            return
+        signal.signal(signum, signal.SIG_DFL)  # asked again, long after: end now
+        os.kill(os.getpid(), signum)
+        return
+    _first_signal.extend((time.monotonic(), int(signum)))
+    raise Interrupted(signum)
+
+
+def handle_signals() -> None:
+    """Make SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (main thread only).
+
+    A signal that the process inherited as ignored (``nohup``) stays ignored.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in SIGNALS:
+        if sig != signal.SIGINT and signal.getsignal(sig) == signal.SIG_IGN:
+            continue
+        signal.signal(sig, _on_signal)
+
+
+def signal_received() -> int | None:
+    """The first signal :func:`handle_signals` caught in this process, or None."""
+    return _first_signal[1] if _first_signal else None
+
+
+def interrupt_status(exc: BaseException | None = None) -> int:
+    """The exit status of an interrupted run: ``128 + n`` (n from ``exc``, else the
+    first signal caught, else SIGINT's 2)."""
+    signum = getattr(exc, "signum", None) or signal_received() or signal.SIGINT
+    return 128 + int(signum)
 
 
 def single_threaded_blas() -> bool:

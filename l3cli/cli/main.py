@@ -106,9 +106,9 @@ class _LazyGroup(click.Group):
                     "traceback and please report it)") from exc
             where = f"{exc.filename}: " if exc.filename else ""
             raise click.ClickException(f"{where}{exc.strerror or exc}") from exc
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (startup.handle_signals)
             click.echo("Aborted.", err=True)
-            sys.exit(130)
+            sys.exit(startup.interrupt_status(exc))
         except (click.ClickException, click.exceptions.Exit, click.Abort):
             raise
         except Exception as exc:
@@ -153,11 +153,19 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
 
 def main() -> None:  # pragma: no cover - console entry point
     """Console entry point of ``l3``: the group, then a quick exit for the lean
-    commands (:func:`l3cli.startup.exit_now`)."""
+    commands (:func:`l3cli.startup.exit_now`). SIGINT, SIGTERM and SIGHUP end
+    a run alike (:func:`l3cli.startup.handle_signals`): cleaned up, exit 128+n."""
+    startup.handle_signals()
     try:
-        cli()
+        try:
+            cli()
+        except KeyboardInterrupt as exc:  # outside a command (click's own parsing)
+            click.echo("Aborted.", err=True)
+            raise SystemExit(startup.interrupt_status(exc)) from None
     except SystemExit as exc:
-        startup.exit_now(exc.code)
+        # a signal caught anywhere (click turns one during its parsing into exit 1)
+        code = startup.interrupt_status() if startup.signal_received() else exc.code
+        startup.exit_now(code)
 
 
 if __name__ == "__main__":  # pragma: no cover

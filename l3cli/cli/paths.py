@@ -42,7 +42,12 @@ class OutputPlan:
 
     @contextlib.contextmanager
     def writing(self) -> Iterator[OutputPlan]:
-        """Create the output folders; on failure remove those created here if left empty."""
+        """Create the output folders; on failure remove those created here if left empty.
+
+        When the run is interrupted (``KeyboardInterrupt``: Ctrl-C, SIGTERM,
+        SIGHUP) the outputs written into a folder created here are removed
+        first, so the folder goes too.
+        """
         from l3cli.errors import OutputError
 
         created: list[Path] = []
@@ -56,7 +61,15 @@ class OutputPlan:
                                       f"({exc.strerror or exc})") from exc
                 created.extend(missing)  # deepest first
             yield self
-        except BaseException:
+        except BaseException as exc:
+            if isinstance(exc, KeyboardInterrupt) and created:
+                # interrupted (l3cli.startup.handle_signals): a folder made by this
+                # run goes with what the run wrote into it; after an error the
+                # complete outputs stay
+                for _, out in self.targets:
+                    if any(f in out.parents for f in created):
+                        with contextlib.suppress(OSError):
+                            out.unlink()
             for p in created:
                 with contextlib.suppress(OSError):
                     p.rmdir()  # only when empty
