@@ -64,6 +64,13 @@ def white_balance_opt(help: str):
                         callback=_gains, help=help)
 
 
+def silenced(ctx: click.Context | None = None) -> bool:
+    """True only under ``-q``: a command's one-line summary is printed otherwise,
+    on a terminal or not (logs and CI see it too); progress bars follow :func:`quiet`."""
+    ctx = ctx or click.get_current_context(silent=True)
+    return bool(ctx and ctx.find_root().obj and ctx.find_root().obj.get("quiet"))
+
+
 def quiet(ctx: click.Context | None = None) -> bool:
     """True when progress output should be hidden (-q, or stderr not a TTY)."""
     import sys

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from l3cli.cli.options import quiet, scheduler_opt, seed_opt, workers_opt
+from l3cli.cli.options import quiet, scheduler_opt, seed_opt, silenced, workers_opt
 
 
 def _size(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[int, int] | None:
@@ -92,5 +92,5 @@ def simulate(camera: str, output: str, scenes: tuple[str, ...], illuminant: str 
                               show_progress=show,
                               protect=[camera, *(s for s in scenes if Path(s).is_file())])
     logging.getLogger(__name__).info("wrote %d captures to %s", len(manifest["captures"]), output)
-    if show:
+    if not silenced():
         click.echo(f"{output}: {len(manifest['captures'])} captures", err=True)

@@ -8,6 +8,7 @@ from l3cli import defaults
 from l3cli.cli.options import (
     output_opt,
     quiet,
+    silenced,
     scheduler_opt,
     seed_opt,
     white_balance_opt,
@@ -15,6 +16,14 @@ from l3cli.cli.options import (
 )
 
 _P, _S = defaults.PAIRS_LAYOUT, defaults.SIMULATION_LAYOUT
+
+
+def _default(key: str, simulate: object | None = None) -> str:
+    """``[default: V]`` when both input kinds share it, else both named."""
+    p, s = _P[key], _S[key] if simulate is None else simulate
+    if p == s:
+        return f"[default: {p}]"
+    return f"[default: {p} for pairs folders, {s} for simulate folders]"
 
 
 class _Threshold(click.ParamType):
@@ -60,15 +69,14 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 
 
 @click.command(short_help="Learn a transform table from simulate or pairs folders.")
-@click.argument("inputs", nargs=-1, required=True, type=click.Path(file_okay=False))
+@click.argument("inputs", nargs=-1, required=True, type=click.Path())
 @output_opt
 @click.option("--patch", type=int, default=None, callback=_odd,
               help="Patch size (odd): the kernel sees PATCH x PATCH raw pixels "
-                   f"[default: {_P['patch']} for pairs folders, {_S['patch']} for simulate folders].")
+                   f"{_default('patch')}.")
 @click.option("--levels", type=click.IntRange(min=2), default=None,
               help="Number of response-level bins "
-                   f"[default: {_P['levels']} for pairs folders, {_S['levels']} for simulate "
-                   "folders].")
+                   f"{_default('levels')}.")
 @click.option("--spacing", type=click.Choice(["log", "linear"]), default=defaults.LEVEL_SPACING,
               show_default=True, help="Spacing of the level cut points.")
 @click.option("--level-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
@@ -76,13 +84,11 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
                    "(just above its noise floor to near saturation).")
 @click.option("--contrast-bins", type=click.IntRange(min=1), default=None,
               help="Contrast bins per level (2 = flat / textured) "
-                   f"[default: {_P['contrast_bins']} for pairs folders, "
-                   f"{_S['contrast_bins']} for simulate folders].")
+                   f"{_default('contrast_bins')}.")
 @click.option("--contrast-threshold", type=_Threshold(), default=None,
               help="Relative-contrast threshold (bin k starts at k x T), or 'quantile': "
                    "thresholds at the per-level quantiles of the data "
-                   f"[default: {_P['contrast_threshold']} for pairs folders, quantile for "
-                   "simulate folders].")
+                   f"{_default('contrast_threshold', 'quantile')}.")
 @click.option("--saturation", type=float, default=defaults.SATURATION, show_default=True,
               help="Normalised value at or above which a pixel counts as saturated.")
 @click.option("--merge-positions/--no-merge-positions", default=defaults.MERGE_POSITIONS,
@@ -162,12 +168,10 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Also train every pair mirrored and rotated, raw and render together "
                    "(d4: all 8 of the square's symmetries; flips: the 4 mirrors), re-phased "
                    "to the CFA; costs no extra pass over the pixels. Assumes the pipeline "
-                   f"has no preferred direction [default: {_P['augment']} for pairs folders, "
-                   f"{_S['augment']} else].")
+                   f"has no preferred direction {_default('augment')}.")
 @click.option("--sample-weight", type=click.Choice(["none", "luminance"]), default=None,
               help="Weight each training pixel by its target's luminance in the fit "
-                   f"[default: {_P['sample_weight']} for pairs folders, "
-                   f"{_S['sample_weight']} else].")
+                   f"{_default('sample_weight')}.")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -269,7 +273,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     save_table(output, table)
     n_tr = int((~table.empty).sum())
     logging.getLogger(__name__).info("wrote %s", output)
-    if show:
+    if not silenced():
         click.echo(f"{output}: {n_tr} of {table.empty.size} classes trained from "
                    f"{len(pairs)} captures ({int(table.counts.sum())} samples)", err=True)
 

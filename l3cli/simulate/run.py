@@ -73,6 +73,41 @@ def dng_colour_matrix(model: CameraModel) -> tuple[np.ndarray, np.ndarray] | Non
     return mat, photons @ model.qe[:, order]
 
 
+#: A channel whose response to a white under the scene light is below this
+#: fraction of the strongest channel's is warned about (an RGB-NIR camera that
+#: kept a Bayer camera's IR-cut filter: its NIR channel gets ~1 %).
+WEAK_CHANNEL = 0.05
+
+
+def channel_responses(model: CameraModel, illuminant: str) -> np.ndarray:
+    """Relative response of each CFA channel to a perfect white under ``illuminant``.
+
+    Photo-electrons per channel (irradiance x wavelength x effective QE, the IR-cut
+    filter included), divided by the strongest channel's: the strongest is 1.
+    """
+    wl = model.wavelengths
+    resp = (illuminant_irradiance(illuminant, 1.0, wl) * wl) @ model.qe
+    top = float(np.max(resp))
+    return resp / top if top > 0 else resp
+
+
+def warn_weak_channels(model: CameraModel, illuminant: str) -> list[str]:
+    """Warn about channels that hardly respond (:data:`WEAK_CHANNEL`); their names."""
+    cam = model.camera
+    rel = channel_responses(model, illuminant)
+    best = model.channels[int(np.argmax(rel))]
+    weak = []
+    for name, r in zip(model.channels, rel, strict=True):
+        if r < WEAK_CHANNEL:
+            weak.append(name)
+            log.warning(
+                "%s: channel %s responds at %.1f %% of channel %s under %s: check its QE curve "
+                "(cfa.qe), the IR-cut filter (cfa.ir_cut = %r) and the spectrum (%g-%g nm)",
+                cam.file or cam.name, name, 100 * r, best, illuminant, cam.cfa.ir_cut,
+                cam.spectrum.start_nm, cam.spectrum.stop_nm)
+    return weak
+
+
 def _covers(name: str, wl: np.ndarray) -> bool:
     try:
         spectral.load_illuminant(name, wl)
@@ -249,6 +284,7 @@ def run_simulation(
         raise ConfigError(f"--exposure must be in (0, 3600] seconds, got {exposure_s:g}")
     model = prepare_camera(camera)
     illuminant_irradiance(ill, 1.0, model.wavelengths)  # unknown / range errors now
+    warn_weak_channels(model, ill)
     parent = out_dir.parent if str(out_dir.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"{out_dir}: parent folder {parent} does not exist")
