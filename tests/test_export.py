@@ -1,0 +1,343 @@
+"""``l3 export``: the ONNX graph renders as ``l3 render`` does.
+
+Every check runs the exported model in ONNX Runtime (CPU) and compares it
+with l3's own render of the same raw (:func:`l3cli.render.render_raw`, or the
+display integers :func:`l3cli.io.encode.display_encode` makes of it): within
+1e-5 for float output, one code value for display output. The classes are
+compared directly too (they must be identical: one pixel in another class
+would differ by far more than 1e-5 with these kernels).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+onnx = pytest.importorskip("onnx")
+ort = pytest.importorskip("onnxruntime")
+
+from click.testing import CliRunner  # noqa: E402
+
+from l3cli.cfa import CFA  # noqa: E402
+from l3cli.classify import ClassDefinition, classify, mirror_indices  # noqa: E402
+from l3cli.cli.main import cli  # noqa: E402
+from l3cli.conditions import Conditioned  # noqa: E402
+from l3cli.export import build_model  # noqa: E402
+from l3cli.io.encode import display_encode  # noqa: E402
+from l3cli.io.raw import RawImage, read_raw  # noqa: E402
+from l3cli.render import render_raw  # noqa: E402
+from l3cli.table import TransformTable, load_table, save_table  # noqa: E402
+from l3cli.whitebalance import WhiteBalanceModel  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+FRAMES = REPO / "examples" / "infinite_isp" / "frames"
+HOLDOUT = REPO / "examples" / "infinite_isp" / "holdout"
+GAINS = [1.9, 1.0, 1.4]
+
+
+def _session(model):
+    return ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+
+
+def _run(sess, mosaic, gains=None, condition=None):
+    """The model's output for one (H, W) mosaic, as (H, W, C)."""
+    feeds = {"mosaic": np.asarray(mosaic, np.float32)[None, None]}
+    names = {i.name for i in sess.get_inputs()}
+    if "wb_gains" in names:
+        feeds["wb_gains"] = np.asarray([gains], np.float32)
+    if "condition" in names:
+        feeds["condition"] = np.array([condition if condition is not None else 0.0])
+    return sess.run(None, feeds)[0][0].transpose(1, 2, 0)
+
+
+def _table(spec="RGGB", patch=5, space="linear-srgb", n_out=3, *, tone=False, wb=False,
+           cond=False, seed=0, **features) -> TransformTable:
+    """A table with random kernels (outputs over about [-0.3, 1.3]) and the given features."""
+    features.setdefault("contrast_cuts", [0.1, 0.3])
+    d = ClassDefinition.build(spec, patch=patch, level_cuts=np.geomspace(0.01, 0.6, 7),
+                              **features)
+    rng = np.random.default_rng(seed)
+    nc, q = d.n_classes, d.n_coeffs
+    k = (0.15 * rng.normal(size=(nc, q, n_out))).astype(np.float32)
+    k[:, -1, :] += np.float32(0.4)
+    t = TransformTable(definition=d, kernels=k, counts=np.full(nc, 100),
+                       lambdas=np.full((nc, n_out), 1e-3), empty=np.zeros(nc, bool),
+                       source_class=np.arange(nc), output_space=space,
+                       provenance={"inputs": ["synthetic"], "seed": seed})
+    if tone:
+        x = np.linspace(0, 1, 64)
+        lut = np.stack([x ** 1.8, x ** 2.2, x ** 2.0][:n_out], axis=1).astype(np.float32)
+        t.tone_lut = (lut, np.array([[-0.1, 0.0, 0.05][:n_out], [1.2, 1.1, 1.0][:n_out]],
+                                    np.float32))
+    if wb:
+        coef = np.concatenate([np.eye(3).reshape(1, 9), 0.1 * rng.normal(size=(2, 9))])
+        t.white_balance = WhiteBalanceModel(space, [0.3, -0.1], coef, [GAINS]).as_dict()
+    if cond:
+        bins = k[None] + (0.05 * rng.normal(size=(3, *k.shape))).astype(np.float32)
+        counts = np.ones((3, nc), np.int64)
+        counts[1, ::3] = 0  # the pooled kernels there
+        t.conditions = Conditioned("iso", [100.0, 400.0, 1600.0], bins, counts)
+    return t
+
+
+def _mosaic(h, w, seed):
+    """A gradient over every level with noise from faint to strong, clipped pixels and
+    negative ones, and flat rows."""
+    rng = np.random.default_rng(seed)
+    level = np.geomspace(0.003, 1.2, w)[None, :]
+    noise = np.geomspace(0.005, 0.6, h)[:, None] * rng.normal(size=(h, w))
+    m = (level * (1.0 + noise)).astype(np.float32) - np.float32(0.004)
+    m[h // 3:h // 3 + 2, :] = 0.2  # flat rows: contrast near 0
+    return m
+
+
+def _raw(mosaic, spec, *, gains=None, iso=None):
+    meta = {}
+    if gains is not None:
+        meta["white_balance"] = list(gains)
+    if iso is not None:
+        meta["shot"] = {"iso": iso}
+    cfa = CFA.from_spec(spec)
+    return RawImage(mosaic, cfa, np.zeros(cfa.n_positions), 1.0, None, meta)
+
+
+def _check(table, mosaic, *, gains=None, iso=None, bits=(8,)):
+    """ONNX Runtime's float and display outputs against l3's render of the same raw."""
+    want = render_raw(table, _raw(mosaic, table.cfa.spec, gains=gains, iso=iso))
+    got = _run(_session(build_model(table)), mosaic, gains, iso)
+    assert got.shape == want.shape and got.dtype == np.float32
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    if table.n_out == 3 and table.output_space == "lab":
+        return
+    for b in bits:
+        disp = _run(_session(build_model(table, output="display", bits=b)), mosaic, gains, iso)
+        ref = display_encode(want, table.output_space, b)
+        assert disp.dtype == ref.dtype
+        assert np.abs(disp.astype(np.int64) - ref.astype(np.int64)).max() <= 1
+
+
+FEATURES = {  # name: table keywords
+    "plain": dict(space="xyz"),
+    "patch7-contrast3": dict(patch=7),
+    "1-contrast-bin": dict(contrast_cuts=None),
+    "no-merge": dict(merge_positions=False),
+    "4x4-cfa": dict(spec="RGBW/GWRB/BRWG/WBGR", space="xyz"),
+    "3x2-cfa": dict(spec="RGB/GBR", patch=3),
+    "orientation": dict(orientation_bins=4),
+    "orientation-highlight": dict(patch=7, orientation_bins=8, highlight_bins=2),
+    "tone-curve": dict(tone=True, patch=7),
+    "white-balance": dict(wb=True),
+    "white-balance-tone-xyz": dict(wb=True, tone=True, space="xyz", spec="GRBG"),
+    "srgb": dict(space="srgb"),
+    "1-output": dict(n_out=1, space="linear-srgb"),
+    "4-outputs": dict(n_out=4, space="xyz"),
+}
+
+
+@pytest.mark.parametrize("name", list(FEATURES))
+def test_export_matches_render(name):
+    kw = FEATURES[name]
+    t = _table(**kw)
+    gains = GAINS if kw.get("wb") else None
+    ph, pw = t.cfa.period
+    # odd sizes (not multiples of the period), and the smallest l3 renders
+    smallest = (max(ph, t.patch), max(pw, t.patch))
+    for (h, w), seed in (((37, 45), 1), (smallest, 2)):
+        _check(t, _mosaic(h, w, seed), gains=gains, bits=(8, 16) if name == "plain" else (8,))
+
+
+def test_condition_bins_match_render():
+    t = _table(cond=True)
+    m = _mosaic(29, 34, 3)
+    for iso in (50.0, 100.0, 250.0, 400.0, 5000.0, None):  # clamped, on a bin, between, unknown
+        _check(t, m, iso=iso)
+
+
+@pytest.mark.parametrize("spec, patch, features", [
+    ("RGGB", 5, {}), ("GRBG", 7, {"contrast_cuts": [0.1, 0.3]}),
+    ("RGBW/GWRB/BRWG/WBGR", 5, {}), ("RGB/GBR", 3, {}),
+    ("RGGB", 7, {"orientation_bins": 8, "highlight_bins": 2}),
+])
+def test_classes_are_the_tile_kernels(spec, patch, features):
+    """The graph's class index equals :func:`l3cli.classify.classify` at every pixel."""
+    from onnx import TensorProto
+
+    from l3cli.export.classify import classify_nodes
+    from l3cli.export.graph import Graph
+
+    features.setdefault("contrast_cuts", 0.2)
+    d = ClassDefinition.build(spec, patch=patch, level_cuts=np.geomspace(0.01, 0.5, 9),
+                              **features)
+    g = Graph()
+    x = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
+    g.add_output(classify_nodes(g, d, x).index, "cls", TensorProto.INT64, ["N", 1, "H", "W"])
+    sess = _session(g.model(doc="", metadata={}))
+    for h, w in ((37, 53), (64, 129)):
+        m = _mosaic(h, w, h)
+        want = classify(m, d)
+        got = sess.run(None, {"mosaic": m[None, None]})[0][0, 0]
+        np.testing.assert_array_equal(got, want)
+        _, sat, lev, tex = d.class_tuple(want)
+        assert len(np.unique(sat)) > 1 and len(np.unique(lev)) > 3 and len(np.unique(tex)) > 1
+
+
+def test_mirror_indices_in_the_graph():
+    from onnx import TensorProto
+
+    from l3cli.export.graph import Graph
+
+    for r, p in ((3, 2), (2, 2), (3, 4), (1, 3), (4, 3)):
+        g = Graph()
+        n = g.add_input("n", TensorProto.INT64, [])
+        g.add_output(g.mirror_indices(n, r, p), "o", TensorProto.INT64, ["k"])
+        sess = _session(g.model(doc="", metadata={}))
+        for size in range(max(p, r + 1), 24):
+            got = sess.run(None, {"n": np.array(size, np.int64)})[0]
+            np.testing.assert_array_equal(got, mirror_indices(size, r, p))
+
+
+def test_batch_of_two_with_their_own_gains():
+    t = _table(wb=True)
+    sess = _session(build_model(t))
+    m = np.stack([_mosaic(20, 22, 5), _mosaic(20, 22, 6)])[:, None]
+    gains = np.array([GAINS, [1.5, 1.0, 2.1]], np.float32)
+    out = sess.run(None, {"mosaic": m, "wb_gains": gains})[0]
+    for i in range(2):
+        want = render_raw(t, _raw(m[i, 0], t.cfa.spec, gains=gains[i].astype(np.float64)))
+        np.testing.assert_allclose(out[i].transpose(1, 2, 0), want, rtol=0, atol=1e-5)
+
+
+def test_real_raw_with_a_synthetic_table(data_dir):
+    """A real 14-bit Bayer raw (bundled test data), whole frame and an odd crop."""
+    raw = read_raw(data_dir / "DSC_1339_768x512_rggb_14bit.raw")
+    t = _table(spec=raw.cfa.spec, patch=7, tone=True)
+    _check(t, raw.mosaic[:203, :301])
+
+
+# ----------------------------------------------------------------- CLI, refusals
+def _save(tmp_path, table, name="t.npz"):
+    return str(save_table(tmp_path / name, table))
+
+
+@pytest.mark.parametrize("table_kw, options, words", [
+    (dict(context_block=8, context_cuts=[0.1]), [], ["context bins"]),
+    (dict(space="srgb", wb=True), [], ["white-balance adaptation", "srgb"]),
+    (dict(space="lab"), ["--display"], ["display output of a lab table"]),
+])
+def test_refused_features_give_one_line(tmp_path, table_kw, options, words):
+    table = _save(tmp_path, _table(**table_kw))
+    res = CliRunner().invoke(cli, ["export", table, "-o", str(tmp_path / "p.onnx"), *options])
+    assert res.exit_code == 1, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("Error:"), lines
+    assert all(w in lines[0] for w in words), lines[0]
+    assert not (tmp_path / "p.onnx").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.npz"]
+
+
+def test_cli_export_and_inspect(tmp_path):
+    table = _save(tmp_path, _table(tone=True, wb=True))
+    out = tmp_path / "p.onnx"
+    res = CliRunner().invoke(cli, ["export", table, "-o", str(out), "--display"])
+    assert res.exit_code == 0, res.output
+    model = onnx.load(str(out))
+    onnx.checker.check_model(model)
+    assert {o.domain for o in model.opset_import} <= {"", "ai.onnx"}  # standard ops only
+    assert {i.name for i in model.graph.input} == {"mosaic", "wb_gains"}
+    res = CliRunner().invoke(cli, ["inspect", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "CFA RG/GB" in res.output and "wb_gains" in res.output and "tone curve" in res.output
+    res = CliRunner().invoke(cli, ["inspect", "--json", str(out)])
+    info = json.loads(res.output)
+    assert info["output"] == "display" and info["bits"] == "8"
+    assert info["provenance"] == {"inputs": ["synthetic"], "seed": 0}
+    assert info["table"] == "t.npz" and len(info["table_sha256"]) == 64
+    assert info["graph_outputs"]["image"] == "uint8 (N, 3, H, W)"
+
+
+def test_inspect_refuses_a_model_l3_did_not_write(tmp_path):
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])
+    g = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g", [x],
+                          [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])])
+    onnx.save(helper.make_model(g), str(tmp_path / "other.onnx"))
+    (tmp_path / "junk.onnx").write_bytes(b"not a model at all")
+    for name, word in (("other.onnx", "not an l3 pipeline"), ("junk.onnx", "not an ONNX")):
+        res = CliRunner().invoke(cli, ["inspect", str(tmp_path / name)])
+        assert res.exit_code == 1, res.output
+        assert word in res.output and len(res.output.strip().splitlines()) == 1
+
+
+# ------------------------------------------------------ tables that l3 train makes
+def test_default_table_from_simulate_folder(tmp_path):
+    r = CliRunner()
+    sim = tmp_path / "sim"
+    res = r.invoke(cli, ["simulate", str(REPO / "sample_configs" / "bayer.toml"), "-o", str(sim),
+                         "--scene", "macbeth", "--scene", "natural", "--lux", "200",
+                         "--size", "96x64", "--seed", "2"])
+    assert res.exit_code == 0, res.output
+    res = r.invoke(cli, ["train", str(sim), "-o", str(tmp_path / "t.npz")])  # defaults
+    assert res.exit_code == 0, res.output
+    t = load_table(tmp_path / "t.npz")
+    for raw_path in sorted(sim.glob("*.dng"))[:2]:
+        raw = read_raw(raw_path)
+        _check(t, raw.mosaic[:-3, :-1])  # bottom/right crop: phase kept, odd size
+
+
+@pytest.fixture(scope="module")
+def default_pairs_table(tmp_path_factory):
+    """``l3 train`` with every default on the bundled Infinite-ISP pairs (patch 7, tone curve)."""
+    out = tmp_path_factory.mktemp("pairs") / "default.npz"
+    res = CliRunner().invoke(cli, ["train", str(FRAMES), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    return out
+
+
+@pytest.mark.slow
+def test_default_pairs_table_renders_holdout_frames(default_pairs_table):
+    t = load_table(default_pairs_table)
+    assert t.tone_lut is not None and t.patch == 7
+    for path in sorted(HOLDOUT.glob("*.tif")):
+        raw = read_raw(path)
+        _check(t, raw.mosaic[:301, :203])
+
+
+_FRESH = r"""
+import sys, numpy as np, onnxruntime as ort
+s = ort.InferenceSession(sys.argv[1], providers=["CPUExecutionProvider"])
+for i, path in enumerate(sys.argv[2:]):
+    m = np.load(path)
+    out = s.run(None, {"mosaic": m[None, None]})[0]
+    np.save(path.replace(".npy", ".out.npy"), out)
+bad = sorted(m for m in sys.modules if m.split(".")[0] in ("l3cli", "numba", "onnx", "scipy"))
+assert not bad, bad
+"""
+
+
+@pytest.mark.slow
+def test_default_model_runs_in_a_fresh_process(default_pairs_table, tmp_path):
+    """numpy and onnxruntime only: python -I (no PYTHONPATH, no user site), no l3 import."""
+    model = tmp_path / "pipeline.onnx"
+    res = CliRunner().invoke(cli, ["export", str(default_pairs_table), "-o", str(model),
+                                   "--display"])
+    assert res.exit_code == 0, res.output
+    raws, inputs = [], []
+    for path in sorted(HOLDOUT.glob("*.tif")):
+        raws.append(read_raw(path))
+        inputs.append(tmp_path / f"{path.stem}.npy")
+        np.save(inputs[-1], raws[-1].mosaic)
+    proc = subprocess.run([sys.executable, "-I", "-c", _FRESH, str(model), *map(str, inputs)],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    t = load_table(default_pairs_table)
+    for raw, path in zip(raws, inputs, strict=True):
+        got = np.load(str(path).replace(".npy", ".out.npy"))[0].transpose(1, 2, 0)
+        want = display_encode(render_raw(t, raw), t.output_space, 8)
+        assert got.shape == want.shape == (*raw.mosaic.shape, 3)
+        assert np.abs(got.astype(np.int64) - want.astype(np.int64)).max() <= 1
