@@ -14,23 +14,89 @@ References
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 
 from l3cli.errors import ConfigError
+from l3cli.figures import group_name
 from l3cli.table import TransformTable
 
 __all__ = ["table_summary", "format_summary", "saturation_name", "class_rows", "compress_ranges",
-           "CLASS_LISTS"]
+           "filled_classes", "plain_value", "plain_lines", "CLASS_LISTS"]
 
 
 def saturation_name(bits: int, channels: tuple[str, ...]) -> str:
     """``"-"`` for no saturated channel, else the channel names joined by ``+``."""
     names = [c for i, c in enumerate(channels) if bits >> i & 1]
     return "+".join(names) if names else "-"
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def plain_value(v: Any) -> str:
+    """One line of plain text for a provenance value (no JSON brackets).
+
+    Numbers to 4 significant digits; a long list of numbers as its count and
+    range (``"41 values from 1e-09 to 10, log-spaced (x1.78 each)"``), a table
+    of numbers as its shape and range, a long list of names as its first six
+    and the count.
+
+    Examples
+    --------
+    >>> plain_value([1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5])
+    '9 values from 0.001 to 1e+05, log-spaced (x10 each)'
+    >>> plain_value([[0.1, 0.2], [0.3, 1.0]])
+    '2 x 2 numbers from 0.1 to 1'
+    >>> plain_value({"used": True, "space": "srgb"})
+    'used yes, space srgb'
+    """
+    if v is None:
+        return "none"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {plain_value(x)}" for k, x in v.items()) or "none"
+    if isinstance(v, (list, tuple)):
+        if not v:
+            return "none"
+        if all(_is_number(x) for x in v):
+            if len(v) <= 8:
+                return ", ".join(plain_value(x) for x in v)
+            a = np.asarray(v, dtype=np.float64)
+            text = f"{a.size} values from {a[0]:.4g} to {a[-1]:.4g}"
+            if np.all(a > 0):
+                r = a[1:] / a[:-1]
+                if np.allclose(r, r[0], rtol=1e-6) and r[0] != 1:
+                    text += f", log-spaced (x{r[0]:.3g} each)"
+            return text
+        if all(isinstance(x, (list, tuple)) and x and all(_is_number(y) for y in x) for x in v) \
+                and len({len(x) for x in v}) == 1:
+            a = np.asarray(v, dtype=np.float64)
+            return f"{a.shape[0]} x {a.shape[1]} numbers from {a.min():.4g} to {a.max():.4g}"
+        parts = [plain_value(x) for x in v[:6]]
+        sep = "; " if any(isinstance(x, (dict, list, tuple)) for x in v) else ", "
+        return sep.join(parts) + (f"{sep}... ({len(v)} in all)" if len(v) > 6 else "")
+    return str(v)
+
+
+def plain_lines(key: str, v: Any, indent: int = 1) -> list[str]:
+    """``key: value`` lines of :func:`plain_value`, a nested dict as an indented block."""
+    pad = "  " * indent
+    if isinstance(v, dict) and v and (len(v) > 3 or any(isinstance(x, (dict, list))
+                                                         for x in v.values())):
+        out = [f"{pad}{key}:"]
+        for k, x in v.items():
+            out += plain_lines(str(k), x, indent + 1)
+        return out
+    return [f"{pad}{key}: {plain_value(v)}"]
 
 
 def compress_ranges(indices: Iterable[int]) -> str:
@@ -50,7 +116,8 @@ def compress_ranges(indices: Iterable[int]) -> str:
     return ", ".join(parts)
 
 
-def _filled(table: TransformTable) -> dict[int, str]:
+def filled_classes(table: TransformTable) -> dict[int, str]:
+    """``{class index: prior}`` of the classes ``l3 smooth`` filled."""
     rec = table.provenance.get("smoothing") or {}
     out: dict[int, str] = {}
     for prior, idx in (rec.get("filled_by") or {}).items():
@@ -66,7 +133,7 @@ def class_rows(table: TransformTable) -> list[dict[str, Any]]:
     d = table.definition
     g, s, lev, tex = (np.asarray(a) for a in d.class_tuple(np.arange(d.n_classes)))
     con, ori, ctx, hl = (np.asarray(a) for a in d.texture_tuple(tex))
-    filled = _filled(table)
+    filled = filled_classes(table)
     members = {gg: np.flatnonzero(d.position_group == gg).tolist() for gg in range(d.n_groups)}
     rows = []
     for i in range(d.n_classes):
@@ -117,7 +184,7 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
     ng, ns, nl, nc = d.shape
     counts = table.counts.reshape(ng, ns, nl, nc)
     trained = (~table.empty).reshape(ng, ns, nl, nc)
-    filled = _filled(table)
+    filled = filled_classes(table)
     cuts = d.level_cuts
     levels = []
     for lv in range(nl):
@@ -150,6 +217,7 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "patch": d.patch,
         "layout": {
             "groups": [np.flatnonzero(d.position_group == gg).tolist() for gg in range(ng)],
+            "group_names": [group_name(d, gg) for gg in range(ng)],
             "saturation_patterns": ns, "levels": nl, "contrast_bins": d.n_contrast,
             **({"orientation_bins": d.n_orientation, "context_bins": d.n_context,
                 "highlight_bins": d.n_highlight, "texture_bins": nc}
@@ -221,7 +289,8 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
            f"{lay['contrast_bins']} contrast bins"
            + (f" x {lay['orientation_bins']} orientation x {lay['context_bins']} context x "
               f"{lay['highlight_bins']} highlight bins" if "texture_bins" in lay else ""),
-           "position groups: " + "; ".join(f"{i}: {g}" for i, g in enumerate(lay["groups"])),
+           "position groups (CFA colour at row, column of the repeat): "
+           + "; ".join(f"{i}: {g}" for i, g in enumerate(lay.get("group_names", lay["groups"]))),
            f"saturation threshold {lay['saturation_threshold']:g} ({lay['saturation_rule']}), "
            f"contrast rule {lay['contrast_rule']}",
            f"classes trained {s['classes']['trained']}, filled by smoothing "
@@ -261,14 +330,15 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
     out.append("")
     out.append("empty classes (by saturated channels):" if s["empty"] else "empty classes: none")
     for sat, idx in s["empty"].items():
-        out.append(f"  {sat}: {len(idx)} [{compress_ranges(idx)}]")
+        out.append(f"  {'none saturated' if sat == '-' else sat}: {len(idx)} "
+                   f"[{compress_ranges(idx)}]")
     if s["smoothing"]:
         sm = s["smoothing"]
         out.append("")
         out.append(f"smoothing: priors {', '.join(sm.get('priors', [])) or 'none'}")
         for prior in ("symmetry", "spline", "uniformity"):
             if prior in sm:
-                out.append(f"  {prior}: {json.dumps(sm[prior], sort_keys=True, default=str)}")
+                out += plain_lines(prior, sm[prior])
         if s["filled"]:
             out.append("filled classes (by prior):")
             for prior, idx in s["filled"].items():
@@ -309,9 +379,5 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
         out.append("")
         out.append("provenance:")
         for k in sorted(prov):
-            v = prov[k]
-            text = json.dumps(v, sort_keys=True, default=str)
-            if isinstance(v, list) and len(v) > 6:
-                text = json.dumps(v[:6], default=str)[:-1] + f", ... ({len(v)} in all)]"
-            out.append(f"  {k}: {text}")
+            out += plain_lines(k, prov[k])
     return "\n".join(out)

@@ -21,21 +21,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from l3cli.figures import pyplot
 from l3cli.io.atomic import atomic_path, check_writable_dir
 
 if TYPE_CHECKING:
     from l3cli.evaluate.metrics import ImageReport
 
 __all__ = ["plot_report", "xyz_to_display"]
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _safe(name: str) -> str:
@@ -60,8 +52,32 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def plot_report(report: ImageReport, out_dir: str | os.PathLike) -> list[Path]:
+#: Words for the S-CIELAB filter sets (``--filters``).
+FILTER_WORDS = {"distribution": "ISETCam's filters", "original": "the 1997 paper's filters"}
+
+
+def scielab_title(samples_per_deg: float, dpi: float | None = None,
+                  distance_m: float | None = None) -> str:
+    """``"S-CIELAB ΔE*ab per pixel (96 dpi at 1.0 m: 66 samples/degree)"``."""
+    view = f"{samples_per_deg:g} samples/degree"
+    if dpi is not None and distance_m is not None:
+        view = f"{dpi:g} dpi at {distance_m:g} m: {view}"
+    return f"S-CIELAB ΔE*ab per pixel ({view})"
+
+
+def plot_report(report: ImageReport, out_dir: str | os.PathLike, *, dpi: float | None = None,
+                distance_m: float | None = None) -> list[Path]:
     """Write the figures of one :class:`l3cli.evaluate.ImageReport` into ``out_dir``.
+
+    Parameters
+    ----------
+    report
+        The image's report.
+    out_dir
+        Existing, writable folder.
+    dpi, distance_m
+        The display S-CIELAB was computed for (``--dpi``, ``--distance``),
+        named in the figure's title with the samples per degree they give.
 
     Returns
     -------
@@ -69,46 +85,58 @@ def plot_report(report: ImageReport, out_dir: str | os.PathLike) -> list[Path]:
         The PNG files written (``NAME_scielab.png``, ``NAME_mtf.png``,
         ``NAME_macbeth.png``, ``NAME_crops.png`` where applicable).
     """
-    plt = _pyplot()
+    plt = pyplot()
     out_dir = check_writable_dir(out_dir)
     name = _safe(report.name)
     written: list[Path] = []
 
     if report.scielab is not None:
         de = report.scielab.delta_e_ab
-        fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.3, 1]})
+        fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12, 4.6), layout="constrained",
+                                       gridspec_kw={"width_ratios": [1.3, 1]})
         vmax = max(float(np.percentile(de, 99.5)), 1e-6)
         im = ax0.imshow(de, cmap="inferno", vmin=0, vmax=vmax, interpolation="nearest")
-        fig.colorbar(im, ax=ax0, label="S-CIELAB ΔE*ab")
-        ax0.set_title(f"{report.name}: S-CIELAB ΔE*ab map")
+        fig.colorbar(im, ax=ax0, label="ΔE*ab (colour scale tops out at the 99.5th percentile)")
+        ax0.set_title(f"{report.name}: S-CIELAB ΔE*ab map (brighter: larger difference)",
+                      fontsize=10)
         ax0.set_axis_off()
-        ax1.hist(de.ravel(), bins=100, range=(0, max(vmax, float(de.max()))), color="0.3")
+        top = max(float(np.percentile(de, 99.9)), 1e-6)  # a long tail would squash the bars
+        above = int(np.count_nonzero(de > top))
+        ax1.hist(de.ravel(), bins=100, range=(0, top), color="0.3")
         ax1.axvline(report.scielab.mean, color="C3", label=f"mean {report.scielab.mean:.2f}")
-        ax1.axvline(report.scielab.p90, color="C0", ls="--", label=f"p90 {report.scielab.p90:.2f}")
-        ax1.set_xlabel("ΔE*ab")
+        ax1.axvline(report.scielab.p90, color="C0", ls="--",
+                    label=f"90th percentile {report.scielab.p90:.2f}")
+        if above:
+            ax1.plot([], [], " ", label=f"{above} pixels ({100.0 * above / de.size:.2g} %) "
+                                        f"above {top:.3g} not shown")
+        ax1.set_xlim(0, top)
+        ax1.set_xlabel("S-CIELAB ΔE*ab")
         ax1.set_ylabel("pixels")
-        ax1.legend()
-        ax1.set_title(f"{report.scielab.samples_per_deg} samples/deg, {report.scielab.version}")
+        ax1.legend(fontsize=8)
+        ax1.set_title(scielab_title(report.scielab.samples_per_deg, dpi, distance_m)
+                      + f"\n{FILTER_WORDS.get(report.scielab.version, report.scielab.version)}",
+                      fontsize=10)
         written.append(_save(fig, out_dir / f"{name}_scielab.png"))
         plt.close(fig)
 
     if report.mtf is not None:
         m = report.mtf
-        fig, ax = plt.subplots(figsize=(6, 4))
+        fig, ax = plt.subplots(figsize=(6.4, 4.2), layout="constrained")
         ax.plot(m.frequencies, m.mtf, color="k", label="MTF")
         ax.axhline(0.5, color="0.6", lw=0.8)
         ax.axvline(m.mtf50_cy_per_px, color="C3", ls="--")
-        label = f"MTF50 = {m.mtf50_cy_per_px:.4f} cy/px"
+        label = f"MTF50 = {m.mtf50_cy_per_px:.4f} cycles/pixel"
         if m.mtf50_cy_per_mm is not None:
-            label += f" = {m.mtf50_cy_per_mm:.1f} cy/mm"
+            label += f" = {m.mtf50_cy_per_mm:.1f} cycles/mm"
         ax.plot([m.mtf50_cy_per_px], [0.5], "o", color="C3", label=label)
-        ax.axvline(0.5, color="0.8", lw=0.8, ls=":")
+        ax.axvline(0.5, color="0.6", lw=0.8, ls=":", label="Nyquist frequency (0.5 cycles/pixel)")
         ax.set_xlim(0, 1)
         ax.set_ylim(0, max(1.05, float(np.max(m.mtf[m.frequencies <= 1])) * 1.05))
-        ax.set_xlabel("frequency (cycles/pixel)")
-        ax.set_ylabel("MTF")
-        ax.set_title(f"{report.name}: slanted edge ({m.angle_deg:.1f}°)")
-        ax.legend()
+        ax.set_xlabel("spatial frequency (cycles/pixel)")
+        ax.set_ylabel("MTF (contrast transferred)")
+        ax.set_title(f"{report.name}: sharpness, ISO 12233 slanted edge at {m.angle_deg:.1f}°",
+                     fontsize=10)
+        ax.legend(fontsize=8)
         written.append(_save(fig, out_dir / f"{name}_mtf.png"))
         plt.close(fig)
 
@@ -137,8 +165,9 @@ def plot_report(report: ImageReport, out_dir: str | os.PathLike) -> list[Path]:
             ax.text(c * cell + cell - 3, r * cell + cell - 4, f"{mb.delta_e_ab[i]:.1f}",
                     ha="right", va="bottom", fontsize=7, color="w" if mb.ideal_lab[i, 0] < 55 else "k")
         ax.set_axis_off()
-        ax.set_title(f"{report.name}: Macbeth (upper-left reference, lower-right rendered), "
-                     f"mean ΔE*ab {mb.mean_ab:.2f}", fontsize=9)
+        ax.set_title(f"{report.name}: ColorChecker patches, mean ΔE*ab {mb.mean_ab:.2f}\n"
+                     "upper-left triangle: reference, lower-right: rendered, number: ΔE*ab",
+                     fontsize=9)
         written.append(_save(fig, out_dir / f"{name}_macbeth.png"))
         plt.close(fig)
 
@@ -152,7 +181,7 @@ def plot_report(report: ImageReport, out_dir: str | os.PathLike) -> list[Path]:
             ax.imshow(xyz_to_display(xyz[y0:y0 + s, x0:x0 + s], report.white_xyz), interpolation="nearest")
             ax.set_title(f"{title} (x {x0}-{x0 + s}, y {y0}-{y0 + s})")
             ax.set_axis_off()
-        fig.suptitle(report.name)
+        fig.suptitle(f"{report.name}: centre crops as display sRGB")
         written.append(_save(fig, out_dir / f"{name}_crops.png"))
         plt.close(fig)
     return written
