@@ -9,6 +9,7 @@ from l3cli.cli.options import (
     output_opt,
     quiet,
     scheduler_opt,
+    silenced,
     white_balance_opt,
     workers_opt,
 )
@@ -81,6 +82,10 @@ def _render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None
         render_files(table_path, [(str(r), o) for r, o in plan.targets], workers=workers,
                      scheduler=scheduler, show_progress=not quiet(), options=options,
                      white_balance=gains, prefetch=prefetch)
+    if not silenced():
+        n = len(plan.targets)
+        where = plan.targets[0][1] if n == 1 and not from_folder else Path(output)
+        click.echo(f"{where}: rendered {n} raw{'s' if n > 1 else ''}", err=True)
 
 
 def _write_options(out, compression: str | None, half: bool, quality: int) -> dict:
