@@ -269,6 +269,8 @@ def prepare_kernels(table: TransformTable, raw: RawImage | None = None, *,
     gmap = _gain_map(raw.cfa, gains)
     model = WhiteBalanceModel.from_dict(table.white_balance)
     matrix = model.matrix(gains)
+    if np.array_equal(matrix, np.eye(3)):  # one training white: no adaptation (exactly)
+        return dataclasses.replace(KernelSet.plain(table, kernels), mosaic_gains=gmap)
     post = linear_adaptation(matrix, table.output_space, model.space)
     adapt = None if post is not None else (matrix, model.space)
     curve = tone_curve_arrays(table)

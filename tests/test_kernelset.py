@@ -223,3 +223,14 @@ def test_file_render_of_a_white_balancing_curve_table(tmp_path, suffix):
         old = display_encode(want, t.output_space, 16).astype(np.int64)
         new = np.round(got.astype(np.float64) * 65535).astype(np.int64)
         assert np.abs(new - old).max() <= 1
+
+
+def test_one_training_white_means_no_adaptation_step(tmp_path):
+    """A table trained on one white holds the identity adaptation: the kernel set keeps the
+    gains and drops the matrix (the old path multiplied by exactly the identity)."""
+    t = _table(_definition(), curve=True)
+    model = WhiteBalanceModel("linear-srgb", [], [np.eye(3).ravel()], [[2.0, 1.0, 1.5]])
+    t.white_balance = model.as_dict()
+    _, raw = _raw(tmp_path)
+    ks = _check(t, raw)
+    assert ks.post is None and ks.adapt is None and ks.mosaic_gains is not None
