@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.l3-installed
 SHARED ?= ../shared/data
 DEMO   ?= demo_out
 
-.PHONY: setup demo test test-fast fuzz bench lint clean
+.PHONY: setup demo test test-fast fuzz bench bench-check lint clean
 
 setup: $(STAMP)
 
@@ -39,6 +39,12 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/run_all.py --out docs/performance.md
+	$(PY) benchmarks/check_kernel_cost.py
+
+# The default-trained table's render kernel within 30 % of the plain table's (a ratio
+# measured in one process; exits non-zero when it is not).
+bench-check: $(STAMP)
+	$(PY) benchmarks/check_kernel_cost.py
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache .ruff_cache build *.egg-info

@@ -1,0 +1,403 @@
+"""The product, not a stand-in: tables `l3 train` makes with no options, rendered file to file.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_product.py [--dng PATH] [--copies 8] [--repeat 3]
+        [--features-repeat 3] [--cache DIR] [--retrain]
+
+Tables (trained once and kept in ``--cache``, keyed by their inputs and l3's version):
+
+* ``synthetic 5x5``: ``bench_files.py``'s table (the plain one every ratio below is
+  relative to: patch 5, no white balance, no tone curve);
+* ``frames (l3 train defaults)``: ``l3 train examples/infinite_isp/frames`` (the
+  bundled Infinite-ISP frames; no white balance in their metadata: tone curve, patch 7);
+* ``Blackmagic pair (l3 train defaults)``: ``l3 train PAIRS`` on the Blackmagic DNG of
+  the shared data and LibRaw's AHD render of it (rawpy ``postprocess``, as-shot white
+  balance, 16-bit TIFF), as a user makes a pair: as-shot white balance + per-shot
+  adaptation, tone curve, patch 7. Needs ``--dng`` (default the shared data set's);
+  skipped with a note without it.
+
+Three tables are printed:
+
+1. **Per-feature cost** relative to the plain 5x5 table: tables of the plain layout
+   with one feature each (white-balance adaptation, tone curve, both, patch 7 and 9,
+   ``--by iso`` bins, orientation, context, highlight bins) and the trained ones.
+   *Kernel alone*: one process, the render stage of one 9-MP raw (the per-raw kernel
+   set, the gains on the mosaic, the fused render + 8-bit display encoding), best of
+   ``--features-repeat`` interleaved rounds. *Whole process*: ``l3 render`` of the
+   ``--copies`` lossy DNGs to JPEG, best of ``--features-repeat``.
+2. **Against LibRaw**: the trained tables → JPEG q95 4:4:4 and 16-bit TIFF, the
+   ``--copies`` lossy DNGs (9 MP) and as many uncompressed 12-MP DNGs (the
+   Blackmagic mosaic, tiled to 4000x3000 and written by ``l3cli.io.raw.write_raw``
+   with its as-shot white, as ``l3 simulate`` writes DNGs), whole processes against
+   one Python process of rawpy (LibRaw AHD) + OpenImageIO with the same encoder
+   settings (``bench_files.peer``), interleaved, best of ``--repeat``; and the
+   *floor* (LibRaw's decode + the write alone, ``bench_files.floor``), which says
+   where LibRaw is the bottleneck.
+3. **One 9-MP DNG → JPEG**, whole process, each trained table.
+
+Without the shared DNG a synthetic 9-MP DNG (with an as-shot white) stands in for the
+per-feature table and tables 2 and 3 are skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(HERE))
+
+from bench_files import DEFAULT_DNG, _fresh, _l3_cmd, _run, photo_table  # noqa: E402
+
+FRAMES = REPO / "examples" / "infinite_isp" / "frames"
+DEFAULT_CACHE = Path(tempfile.gettempdir()) / "l3-bench-cache"
+PLAIN = "plain 5x5 (synthetic)"
+
+
+# ------------------------------------------------------------------ tables
+def _key(*paths: Path) -> str:
+    import l3cli
+
+    h = hashlib.sha1(str(getattr(l3cli, "__version__", "")).encode())
+    for p in paths:
+        for f in sorted(p.rglob("*")) if p.is_dir() else [p]:
+            if f.is_file():
+                st = f.stat()
+                h.update(f"{f.name}:{st.st_size}:{st.st_mtime_ns}".encode())
+    return h.hexdigest()[:12]
+
+
+def trained_table(name: str, pairs: Path, cache: Path, retrain: bool = False) -> Path:
+    """``l3 train PAIRS -o TABLE`` with no options, once per input (kept in ``cache``)."""
+    cache.mkdir(parents=True, exist_ok=True)
+    out = cache / f"{name}-{_key(pairs)}.npz"
+    if out.exists() and not retrain:
+        return out
+    t0 = time.perf_counter()
+    subprocess.run([*_l3_cmd(), "-q", "train", str(pairs), "-o", str(out)], cwd=REPO,
+                   check=True)
+    print(f"(trained {name}: `l3 train {pairs}` in {time.perf_counter() - t0:.0f} s)",
+          flush=True)
+    return out
+
+
+def blackmagic_pair(dng: Path, cache: Path) -> Path:
+    """A pairs folder: the DNG and LibRaw's AHD render of it (as-shot white, 16-bit TIFF)."""
+    import OpenImageIO as oiio
+    import rawpy
+
+    folder = cache / f"pair-{_key(dng)}"
+    tif = folder / (dng.stem + ".tif")
+    if tif.exists():
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(dng, folder / dng.name)
+    with rawpy.imread(str(dng)) as raw:
+        rgb = raw.postprocess(demosaic_algorithm=rawpy.DemosaicAlgorithm.AHD,
+                              use_camera_wb=True, output_bps=16)
+    spec = oiio.ImageSpec(rgb.shape[1], rgb.shape[0], 3, "uint16")
+    part = folder / ".part.tif"
+    o = oiio.ImageOutput.create(str(part))
+    o.open(str(part), spec)
+    o.write_image(rgb)
+    o.close()
+    os.replace(part, tif)
+    return folder
+
+
+def _wb_record(space: str = "xyz") -> dict:
+    """An adaptation model of the kind training fits (one feature: log b/r)."""
+    from l3cli.whitebalance import WhiteBalanceModel
+
+    c0 = np.array([[1.05, 0.04, -0.02], [0.03, 0.97, 0.01], [-0.01, 0.05, 1.1]])
+    c1 = np.array([[0.1, 0.0, 0.02], [0.0, 0.0, 0.0], [0.01, 0.0, -0.12]])
+    return WhiteBalanceModel(space, [0.2], [c0.ravel(), c1.ravel()],
+                             [[2.0, 1.0, 1.5], [1.6, 1.0, 2.1]]).as_dict()
+
+
+def _curve(space: str = "xyz"):
+    from l3cli.tonecurve import ToneCurve
+
+    x = np.linspace(0, 1, 33)[:, None]
+    return ToneCurve(np.hstack([x ** 2.0, x ** 2.2, x ** 1.9]), space="srgb").lut(space)
+
+
+def _relayout(base, **features):
+    """``base`` (the plain table) with a changed class definition; kernels as the plain ones."""
+    import dataclasses
+
+    from l3cli.classify import ClassDefinition
+
+    d0 = base.definition
+    patch = features.pop("patch", d0.patch)
+    d = ClassDefinition.build(d0.cfa, patch=patch, level_cuts=d0.level_cuts,
+                              contrast_cuts=d0.contrast_cuts, **features)
+    nc, q = d.n_classes, d.n_coeffs
+    k = np.zeros((nc, q, base.n_out), np.float32)
+    c = patch // 2
+    k[:, c * patch + c, :] = 1.0  # the centre pixel: speed does not depend on the values
+    k[:, :, :] += np.float32(0.001)
+    return dataclasses.replace(base, definition=d, kernels=k, counts=np.full(nc, 1000),
+                               lambdas=np.zeros((nc, base.n_out)), empty=np.zeros(nc, bool),
+                               source_class=np.arange(nc))
+
+
+def feature_tables() -> dict:
+    """The plain 5x5 table and tables of its layout with one feature each."""
+    import dataclasses
+
+    from l3cli.conditions import Conditioned
+
+    base = photo_table()
+    nc = base.definition.n_classes
+    tables = {PLAIN: base,
+              "+ white balance (adaptation folded)": dataclasses.replace(
+                  base, white_balance=_wb_record()),
+              "+ tone curve": dataclasses.replace(base, tone_lut=_curve()),
+              "+ white balance + tone curve": dataclasses.replace(
+                  base, white_balance=_wb_record(), tone_lut=_curve()),
+              "+ --by iso (2 bins)": dataclasses.replace(base, conditions=Conditioned(
+                  "iso", np.array([100.0, 1600.0]),
+                  np.stack([base.kernels, base.kernels * np.float32(1.1)]),
+                  np.full((2, nc), 1000))),
+              "patch 7": _relayout(base, patch=7),
+              "patch 9": _relayout(base, patch=9),
+              "+ orientation 4": _relayout(base, orientation_bins=4),
+              "+ context (64 px, 3 bins)": _relayout(
+                  base, context_block=64, context_cuts=np.array([0.8, 1.25]),
+                  context_rule="ratio"),
+              "+ highlight bins 2": _relayout(base, highlight_bins=2)}
+    return tables
+
+
+# ------------------------------------------------------------------ inputs
+def synthetic_dng(path: Path, w: int = 4128, h: int = 2176) -> Path:
+    from bench_render import synthetic_mosaic
+
+    from l3cli.io.raw import write_raw
+
+    m = np.round(synthetic_mosaic(h, w) * 4095).astype(np.uint16)
+    return write_raw(path, m, "RGGB", white_level=4095, as_shot_neutral=np.array([0.5, 1, 0.7]),
+                     shot={"iso": 400})
+
+
+def uncompressed_dng(dng: Path, path: Path, w: int = 4000, h: int = 3000) -> Path:
+    """The DNG's mosaic tiled to ``w`` x ``h`` (CFA phase kept), written uncompressed by
+    l3 (as ``l3 simulate`` writes DNGs), with the DNG's black, white and as-shot white."""
+    import rawpy
+
+    from l3cli.io.raw import write_raw
+
+    with rawpy.imread(str(dng)) as raw:
+        m = raw.raw_image_visible.copy()
+        black = float(np.mean(raw.black_level_per_channel))
+        white = float(raw.white_level)
+        wb = np.asarray(raw.camera_whitebalance[:3], np.float64)
+        cam = np.asarray(raw.rgb_xyz_matrix[:3], np.float64)
+        spec = "".join("RGBG"[c] for c in raw.raw_pattern.ravel())
+    reps = (-(-h // m.shape[0]), -(-w // m.shape[1]))
+    big = np.tile(m[: m.shape[0] // 2 * 2, : m.shape[1] // 2 * 2], reps)[:h, :w]
+    return write_raw(path, np.ascontiguousarray(big), spec, black_level=black,
+                     white_level=white, as_shot_neutral=wb[1] / wb,
+                     color_matrix=cam if np.any(cam) else None)
+
+
+# ------------------------------------------------------------------ timings
+def kernel_times(tables: dict, raw_path: Path, repeat: int) -> dict[str, float]:
+    """Seconds of the render stage per table (best of ``repeat`` interleaved rounds)."""
+    from l3cli import buffers
+    from l3cli.io.raw import read_raw
+    from l3cli.kernelset import prepare_kernels, render_display
+
+    raw = read_raw(raw_path)
+    src = raw.mosaic.copy()
+    best = {name: np.inf for name in tables}
+
+    def once(t):
+        np.copyto(raw.mosaic, src)  # the decode's mosaic, fresh (not timed)
+        t0 = time.perf_counter()
+        ks = prepare_kernels(t, raw)
+        m = ks.prepare_mosaic(raw.mosaic, inplace=True)
+        buffers.release(render_display(ks, m, 8))
+        return time.perf_counter() - t0
+
+    with buffers.recycling():
+        for t in tables.values():  # load the kernels (numba's cache) and the encoder tables
+            once(t)
+        for _ in range(repeat):
+            for name, t in tables.items():
+                best[name] = min(best[name], once(t))
+    return best
+
+
+def _kernel_child(table_dir: str, raw_path: str, repeat: int) -> None:
+    from l3cli.table import load_table
+
+    names = sorted(Path(table_dir).glob("*.npz"))
+    tables = {p.stem: load_table(p) for p in names}
+    for name, sec in kernel_times(tables, Path(raw_path), repeat).items():
+        print(f"{name}\t{sec:.4f}", flush=True)
+
+
+def _save_all(tables: dict, folder: Path) -> dict[str, Path]:
+    from l3cli.table import save_table
+
+    folder.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for i, (name, t) in enumerate(tables.items()):
+        files[name] = save_table(folder / f"t{i:02d}.npz", t) if not isinstance(t, Path) \
+            else Path(shutil.copyfile(t, folder / f"t{i:02d}.npz"))
+    return files
+
+
+def feature_table(tables: dict, files: list[str], raw: Path, tmp: Path,
+                  repeat: int) -> list[str]:
+    paths = _save_all(tables, tmp / "tables")
+    stem = {name: p.stem for name, p in paths.items()}
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--kernel-child",
+                           str(tmp / "tables"), str(raw), str(repeat)], cwd=REPO,
+                          capture_output=True, text=True, check=True)
+    sec = dict((ln.split("\t")[0], float(ln.split("\t")[1]))
+               for ln in proc.stdout.strip().splitlines())
+    whole = {name: np.inf for name in tables}
+    for _ in range(repeat):
+        for name, p in paths.items():
+            out = _fresh(tmp / "out")
+            dt, _, _ = _run([*_l3_cmd(), "-q", "render", str(p), *files, "-o", str(out),
+                             "--format", "jpg"])
+            whole[name] = min(whole[name], dt)
+    mp = _megapixels(raw)
+    k0, w0 = sec[stem[PLAIN]], whole[PLAIN]
+    lines = [f"Per-feature cost, relative to the plain 5x5 table. Kernel alone: the render "
+             f"stage of one {mp:.1f}-MP raw (`{raw.name}`: kernel set, mosaic gains, fused "
+             f"render + 8-bit encoding), one process, best of {repeat} interleaved rounds. "
+             f"Whole process: `l3 render` of {len(files)} files → JPEG, best of {repeat}.", "",
+             "| table | classes | kernel s | kernel ms/MP | kernel vs plain "
+             "| whole process s | whole vs plain |", "|---|---:|---:|---:|---:|---:|---:|"]
+    from l3cli.table import load_table
+
+    for name in tables:
+        nc = load_table(paths[name]).definition.n_classes
+        k = sec[stem[name]]
+        lines.append(f"| {name} | {nc} | {k:.3f} | {1e3 * k / mp:.1f} | {k / k0:.2f}x "
+                     f"| {whole[name]:.2f} | {whole[name] / w0:.2f}x |")
+    return lines
+
+
+def _megapixels(raw: Path) -> float:
+    from l3cli.io.raw import read_raw
+
+    return read_raw(raw).mosaic.size / 1e6
+
+
+def libraw_table(tables: dict[str, Path], kinds: dict[str, list[str]], tmp: Path,
+                 repeat: int) -> list[str]:
+    """Trained tables vs LibRaw AHD + OpenImageIO, whole processes, interleaved."""
+    me = [sys.executable, str(HERE / "bench_files.py")]
+    lines = [f"Trained tables against LibRaw AHD + OpenImageIO (one Python process, same "
+             f"encoder settings), whole processes, best of {repeat}, interleaved; floor = "
+             "LibRaw's decode + the write alone (`bench_files.floor`).", "",
+             "| raws | output | table | l3 render | LibRaw AHD | l3 vs AHD | floor "
+             "| AHD / floor |", "|---|---|---|---:|---:|---:|---:|---:|"]
+    print("\n".join(lines), flush=True)
+    for kind, files in kinds.items():
+        for fmt, label in (("jpg", "JPEG q95 4:4:4"), ("tiff", "TIFF 16-bit")):
+            best = {name: np.inf for name in tables} | {"AHD": np.inf, "floor": np.inf}
+            for _ in range(repeat):
+                for name, table in tables.items():
+                    out = _fresh(tmp / "out")
+                    dt, _, _ = _run([*_l3_cmd(), "-q", "render", str(table), *files, "-o",
+                                     str(out), "--format", fmt])
+                    best[name] = min(best[name], dt)
+                for alg in ("AHD", "floor"):
+                    out = _fresh(tmp / "out")
+                    dt, _, _ = _run([*me, "--peer", alg, fmt, str(out), *files])
+                    best[alg] = min(best[alg], dt)
+            for name in tables:
+                lines.append(f"| {kind} | {label} | {name} | {best[name]:.2f} s "
+                             f"| {best['AHD']:.2f} s | {best['AHD'] / best[name]:.2f}x "
+                             f"| {best['floor']:.2f} s | {best['AHD'] / best['floor']:.2f}x |")
+                print(lines[-1], flush=True)
+    return lines
+
+
+def one_file_table(tables: dict[str, Path], dng: str, tmp: Path, repeat: int) -> list[str]:
+    me = [sys.executable, str(HERE / "bench_files.py")]
+    lines = ["", f"One 9-MP DNG → JPEG, whole process, best of {repeat}:", "",
+             "| table | l3 render | LibRaw AHD |", "|---|---:|---:|"]
+    ahd = np.inf
+    best = {name: np.inf for name in tables}
+    for _ in range(repeat):
+        for name, table in tables.items():
+            out = _fresh(tmp / "one")
+            best[name] = min(best[name], _run([*_l3_cmd(), "-q", "render", str(table), dng,
+                                               "-o", str(out / "one.jpg")])[0])
+        out = _fresh(tmp / "one")
+        ahd = min(ahd, _run([*me, "--peer", "AHD", "jpg", str(out), dng])[0])
+    for name in tables:
+        lines.append(f"| {name} | {best[name]:.2f} s | {ahd:.2f} s |")
+    return lines
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dng", default=str(DEFAULT_DNG))
+    ap.add_argument("--copies", type=int, default=8)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--features-repeat", type=int, default=3)
+    ap.add_argument("--cache", default=str(DEFAULT_CACHE))
+    ap.add_argument("--retrain", action="store_true")
+    ap.add_argument("--kernel-child", nargs=3, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.kernel_child:
+        _kernel_child(a.kernel_child[0], a.kernel_child[1], int(a.kernel_child[2]))
+        return
+    print(f"load average before: {os.getloadavg()[0]:.1f} ({os.cpu_count()} cores)", flush=True)
+    cache = Path(a.cache)
+    dng = Path(a.dng)
+    trained = {"frames (l3 train defaults)": trained_table("frames", FRAMES, cache, a.retrain)}
+    if dng.exists():
+        pair = blackmagic_pair(dng, cache)
+        trained["Blackmagic pair (l3 train defaults)"] = trained_table(
+            "blackmagic", pair, cache, a.retrain)
+    tmp = Path(tempfile.mkdtemp(prefix="l3bench-product-"))
+    try:
+        src = _fresh(tmp / "lossy")
+        base = dng if dng.exists() else synthetic_dng(tmp / "synthetic.dng")
+        lossy = []
+        for i in range(a.copies):
+            lossy.append(str(shutil.copyfile(base, src / f"frame{i + 1:02d}.dng")))
+        tables = feature_tables() | trained
+        print("\n".join(feature_table(tables, lossy, Path(lossy[0]), tmp, a.features_repeat)),
+              flush=True)
+        if not dng.exists():
+            print(f"\n(skipped the LibRaw tables: {dng} is not here; it is in the shared data "
+                  "set — pass --dng PATH)", flush=True)
+            return
+        big = _fresh(tmp / "uncompressed")
+        first = uncompressed_dng(dng, big / "big01.dng")
+        unc = [str(first)] + [str(shutil.copyfile(first, big / f"big{i + 1:02d}.dng"))
+                              for i in range(1, a.copies)]
+        print("", flush=True)
+        libraw_table(trained, {f"{a.copies} x 9-MP lossy DNG": lossy,
+                                       f"{a.copies} x 12-MP uncompressed DNG": unc},
+                             tmp, a.repeat)
+        print("\n".join(one_file_table(trained, lossy[0], tmp, a.repeat)), flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
