@@ -73,6 +73,19 @@ SAMPLE_FRACTION = 1.0
 #: A class needs at least this many samples per coefficient to be trained.
 MIN_SAMPLES_FACTOR = 3.0
 
+# l3 train --multiscale (l3cli.multiscale: noise reduction beyond the patch)
+#: Fit the multi-scale stage after the table (off: docs/training.md, "Noise reduction
+#: beyond the patch").
+MULTISCALE = False
+#: Increasing Gaussian low-pass standard deviations of the stage's bands, pixels.
+MULTISCALE_SIGMAS = (2.0, 6.0)
+#: Coarse-level bins of the stage's classes (quantiles of the training renders).
+MULTISCALE_LEVELS = 8
+#: Band-energy bins per level of the stage's classes.
+MULTISCALE_ENERGY_BINS = 6
+#: Ridge shrinkage of each class's blend towards the identity (relative to its band power).
+MULTISCALE_RIDGE = 1e-3
+
 # l3 smooth
 #: Spline smoothing strength over response levels (λ of the Whittaker smoother).
 SPLINE_STRENGTH = 0.02

@@ -1,0 +1,359 @@
+"""Noise reduction beyond the patch: a learned multi-scale stage after the L3 kernels.
+
+An L3 kernel sees an S x S patch, so it can average noise over at most that
+many pixels; a camera's noise reduction reaches much further (its sky is
+smooth where a 7 x 7 kernel's is grainy). This stage works on the rendered
+image ``y`` (H, W, C), in the table's output space. Wide Gaussian low-passes
+``lp_j = G_{sigma_j} * y`` (``sigma_1 < ... < sigma_n``) split it into bands
+
+    ``b_0 = y - lp_1, b_1 = lp_1 - lp_2, ..., b_{n-1} = lp_{n-1} - lp_n``
+
+and the output is the coarsest low-pass plus a learned blend of the bands,
+
+    ``out = lp_n + sum_j A_{k,j} b_j``
+
+with one C x C matrix per band and *coarse class* ``k`` of the pixel. The
+classes come from the rendered image itself: bins of the coarse level (the
+channel mean of ``lp_n``) times bins of the local band energy
+(``sqrt(G_{sigma_1} * mean_c (y - lp_n)^2)``, cut at per-level quantiles of the
+training data). Flat noisy regions learn ``A ~ 0`` (take the low-pass), edges
+and texture ``A ~ I`` (keep the detail). ``A = I`` for every band gives
+``out = y`` exactly.
+
+The blend is fitted after the L3 table by per-class ridge regression of
+``target - lp_n`` on the bands (:func:`accumulate`, :func:`solve`;
+:mod:`l3cli.train.multiscale` renders the training raws). It is stored in
+the table as the optional ``multiscale_*`` keys (:meth:`Multiscale.to_arrays`,
+:meth:`Multiscale.from_arrays`) and applied to every render's float output
+(:func:`apply`), before a display output is encoded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from l3cli.errors import TableError
+
+__all__ = ["MULTISCALE_RULE", "Multiscale", "MultiscaleStats", "accumulate", "apply",
+           "apply_stage", "bands", "classes", "energy", "level", "lowpass", "place_cuts",
+           "solve"]
+
+#: The rule the stage's arrays follow (stored in the table; a reader refuses others).
+MULTISCALE_RULE = "gauss-bands-v1"
+#: Gaussian support in standard deviations (scipy's ``truncate``).
+TRUNCATE = 3.0
+
+
+def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
+    """Separable Gaussian low-pass of each channel of ``image`` (H, W, C), float32.
+
+    Borders are mirrored (``scipy.ndimage``'s ``"reflect"``), the support is
+    :data:`TRUNCATE` standard deviations.
+    """
+    from scipy.ndimage import gaussian_filter
+
+    img = np.asarray(image, dtype=np.float32)
+    return gaussian_filter(img, sigma=(float(sigma), float(sigma), 0.0), mode="reflect",
+                           truncate=TRUNCATE)
+
+
+def bands(y: np.ndarray, sigmas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The band stack of ``y`` and its coarsest low-pass.
+
+    Returns
+    -------
+    stack : numpy.ndarray
+        float32 (H, W, n_scales * C): ``b_0, ..., b_{n-1}`` one after another
+        along the last axis (channel ``c`` of band ``j`` at ``j * C + c``).
+    coarse : numpy.ndarray
+        float32 (H, W, C): ``lp_n``.
+    """
+    y = np.asarray(y, dtype=np.float32)
+    c = y.shape[2]
+    stack = np.empty(y.shape[:2] + (len(sigmas) * c,), dtype=np.float32)
+    finer = y
+    for j, s in enumerate(sigmas):
+        lp = lowpass(y, s)
+        np.subtract(finer, lp, out=stack[..., j * c:(j + 1) * c])
+        finer = lp
+    return stack, finer
+
+
+def level(coarse: np.ndarray) -> np.ndarray:
+    """The coarse level feature: the channel mean of the coarsest low-pass (float32 (H, W))."""
+    return np.asarray(coarse, dtype=np.float32).mean(axis=2, dtype=np.float32)
+
+
+def energy(y: np.ndarray, coarse: np.ndarray, sigma: float) -> np.ndarray:
+    """The local band energy: ``sqrt(G_sigma * mean_c (y - coarse)^2)`` (float32 (H, W))."""
+    d = np.asarray(y, dtype=np.float32) - coarse
+    e = np.einsum("hwc,hwc->hw", d, d, dtype=np.float32) / np.float32(d.shape[2])
+    e = lowpass(e[:, :, None], sigma)[:, :, 0]
+    return np.sqrt(np.maximum(e, 0.0, out=e), out=e)
+
+
+def classes(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
+            energy_cuts: np.ndarray) -> np.ndarray:
+    """Coarse class of each pixel: ``level_bin * n_energy + energy_bin`` (int32 (H, W)).
+
+    ``level_cuts`` (n_levels - 1,) increasing; ``energy_cuts``
+    (n_levels, n_energy - 1), increasing in each row. A value equal to a
+    cut falls in the bin above it.
+    """
+    lb = np.searchsorted(np.asarray(level_cuts, dtype=np.float32), lev, side="right")
+    cuts = np.asarray(energy_cuts, dtype=np.float32)
+    n_energy = cuts.shape[1] + 1
+    eb = np.zeros(lev.shape, dtype=np.int32)
+    for j in range(cuts.shape[1]):
+        eb += en >= cuts[lb, j]
+    return (lb.astype(np.int32) * n_energy + eb).astype(np.int32)
+
+
+def place_cuts(lev: np.ndarray, en: np.ndarray, n_levels: int,
+               n_energy: int) -> tuple[np.ndarray, np.ndarray]:
+    """Level cuts at quantiles of ``lev``, energy cuts at quantiles of ``en`` within each level.
+
+    Returns
+    -------
+    level_cuts, energy_cuts
+        float64 (n_levels - 1,) and (n_levels, n_energy - 1), strictly increasing
+        (ties, as in a constant image, are spread by a tiny step).
+    """
+    lev = np.asarray(lev, dtype=np.float64).ravel()
+    en = np.asarray(en, dtype=np.float64).ravel()
+    q = np.linspace(0, 1, n_levels + 1)[1:-1]
+    lcuts = _increasing(np.quantile(lev, q)) if n_levels > 1 else np.zeros(0)
+    lb = np.searchsorted(lcuts, lev, side="right")
+    qe = np.linspace(0, 1, n_energy + 1)[1:-1]
+    ecuts = np.zeros((n_levels, n_energy - 1))
+    for b in range(n_levels):
+        sel = en[lb == b]
+        ecuts[b] = _increasing(np.quantile(sel if sel.size else en, qe)) if n_energy > 1 else 0
+    return lcuts, ecuts
+
+
+def _increasing(cuts: np.ndarray) -> np.ndarray:
+    cuts = np.asarray(cuts, dtype=np.float64).copy()
+    for i in range(1, cuts.size):
+        if cuts[i] <= cuts[i - 1]:
+            cuts[i] = np.nextafter(cuts[i - 1], np.inf) + 1e-12 * max(1.0, abs(cuts[i - 1]))
+    return cuts
+
+
+@dataclass(eq=False)
+class Multiscale:
+    """A fitted multi-scale stage (see the module docstring).
+
+    Attributes
+    ----------
+    sigmas
+        float64 (n_scales,) increasing low-pass standard deviations, pixels.
+    level_cuts
+        float64 (n_levels - 1,) increasing cut points of the coarse level.
+    energy_cuts
+        float64 (n_levels, n_energy - 1) band-energy cut points per level.
+    blend
+        float32 (n_classes, n_scales * C, C): ``out_c = lp_c + sum_r blend[k, r, c] stack_r``
+        (``n_classes = n_levels * n_energy``).
+    counts
+        int64 (n_classes,) training pixels per class.
+    """
+
+    sigmas: np.ndarray
+    level_cuts: np.ndarray
+    energy_cuts: np.ndarray
+    blend: np.ndarray
+    counts: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.sigmas = np.asarray(self.sigmas, dtype=np.float64).reshape(-1)
+        self.level_cuts = np.asarray(self.level_cuts, dtype=np.float64).reshape(-1)
+        self.energy_cuts = np.asarray(self.energy_cuts, dtype=np.float64)
+        self.blend = np.ascontiguousarray(self.blend, dtype=np.float32)
+        self.counts = np.asarray(self.counts, dtype=np.int64)
+        problem = self._problem()
+        if problem:
+            raise TableError(f"inconsistent multiscale stage: {problem}")
+
+    def _problem(self) -> str | None:
+        s, lc, ec, a = self.sigmas, self.level_cuts, self.energy_cuts, self.blend
+        if s.size < 1 or not np.all(np.isfinite(s)) or np.any(s <= 0) or np.any(np.diff(s) <= 0):
+            return f"sigmas {s.tolist()} must be positive and increasing"
+        n_levels = lc.size + 1
+        if ec.ndim != 2 or ec.shape[0] != n_levels:
+            return f"energy_cuts have shape {ec.shape}, expected ({n_levels}, n_energy - 1)"
+        for name, cuts in (("level_cuts", lc[None, :]), ("energy_cuts", ec)):
+            if not np.all(np.isfinite(cuts)) or np.any(np.diff(cuts, axis=1) <= 0):
+                return f"{name} must be finite and increasing"
+        n_classes = n_levels * (ec.shape[1] + 1)
+        if a.ndim != 3 or a.shape[0] != n_classes or a.shape[2] < 1 \
+                or a.shape[1] != s.size * a.shape[2]:
+            return (f"blend has shape {a.shape}, expected ({n_classes}, "
+                    f"{s.size} * C, C)")
+        if not np.all(np.isfinite(a)):
+            return "blend holds NaN or Inf"
+        if self.counts.shape != (n_classes,) or np.any(self.counts < 0):
+            return f"counts have shape {self.counts.shape} or negative values"
+        return None
+
+    @property
+    def n_out(self) -> int:
+        """Channels of the image the stage applies to."""
+        return int(self.blend.shape[2])
+
+    @property
+    def n_classes(self) -> int:
+        """Number of coarse classes."""
+        return int(self.blend.shape[0])
+
+    @classmethod
+    def identity(cls, n_out: int, sigmas=(2.0,), level_cuts=(), energy_cuts=None) -> Multiscale:
+        """A stage that changes nothing (``A = I`` for every band and class)."""
+        lc = np.asarray(level_cuts, dtype=np.float64)
+        ec = np.zeros((lc.size + 1, 0)) if energy_cuts is None else np.asarray(energy_cuts)
+        nc = ec.shape[0] * (ec.shape[1] + 1)
+        eye = np.tile(np.eye(n_out, dtype=np.float32), (len(sigmas), 1))
+        return cls(np.asarray(sigmas), lc, ec, np.repeat(eye[None], nc, axis=0),
+                   np.zeros(nc, np.int64))
+
+    def features(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(stack, coarse, classes)`` of a rendered image (:func:`bands`, :func:`classes`)."""
+        stack, coarse = bands(y, self.sigmas)
+        cls = classes(level(coarse), energy(y, coarse, self.sigmas[0]), self.level_cuts,
+                      self.energy_cuts)
+        return stack, coarse, cls
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The table keys of the stage."""
+        return {"multiscale_rule": np.array(MULTISCALE_RULE),
+                "multiscale_sigmas": self.sigmas,
+                "multiscale_level_cuts": self.level_cuts,
+                "multiscale_energy_cuts": self.energy_cuts,
+                "multiscale_blend": self.blend,
+                "multiscale_counts": self.counts}
+
+    @classmethod
+    def from_arrays(cls, arrs: dict) -> Multiscale | None:
+        """The stage stored in a table's arrays (None when the table has none).
+
+        Raises
+        ------
+        TableError
+            Missing keys, another rule, wrong dtypes or inconsistent shapes.
+        """
+        keys = ("multiscale_rule", "multiscale_sigmas", "multiscale_level_cuts",
+                "multiscale_energy_cuts", "multiscale_blend", "multiscale_counts")
+        present = [k for k in keys if k in arrs]
+        if not present:
+            return None
+        if len(present) != len(keys):
+            missing = ", ".join(k for k in keys if k not in arrs)
+            raise TableError(f"damaged table, missing keys {missing}")
+        rule = arrs["multiscale_rule"]
+        if rule.dtype.kind != "U" or rule.ndim != 0 or str(rule) != MULTISCALE_RULE:
+            raise TableError(f"multiscale_rule {str(rule)!r} is not supported (this l3 "
+                             f"applies {MULTISCALE_RULE!r})")
+        for k in keys[1:5]:
+            if arrs[k].dtype.kind != "f":
+                raise TableError(f"key {k!r} has dtype {arrs[k].dtype}, expected floating point")
+        if arrs["multiscale_counts"].dtype.kind not in "iu":
+            raise TableError("key 'multiscale_counts' must hold integers")
+        return cls(arrs["multiscale_sigmas"], arrs["multiscale_level_cuts"],
+                   arrs["multiscale_energy_cuts"], arrs["multiscale_blend"],
+                   arrs["multiscale_counts"])
+
+
+def apply_stage(stage: Multiscale, y: np.ndarray) -> np.ndarray:
+    """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new array)."""
+    y = np.asarray(y, dtype=np.float32)
+    if y.ndim != 3 or y.shape[2] != stage.n_out:
+        raise ValueError(f"the multiscale stage takes (H, W, {stage.n_out}) images, "
+                         f"got {y.shape}")
+    stack, coarse, cls = stage.features(y)
+    return _blend(stack, coarse, cls, stage.blend)
+
+
+def _blend(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
+           blend: np.ndarray) -> np.ndarray:
+    from l3cli.multiscale_kernel import blend_rows
+
+    out = np.empty_like(coarse)
+    blend_rows(stack, coarse, cls, blend, out)
+    return out
+
+
+def apply(table, y: np.ndarray) -> np.ndarray:
+    """The table's multi-scale stage on its rendered float output ``y`` (``y`` itself without one)."""
+    stage = getattr(table, "multiscale", None)
+    return y if stage is None else apply_stage(stage, y)
+
+
+# --------------------------------------------------------------------- fitting
+@dataclass(eq=False)
+class MultiscaleStats:
+    """Per-class normal equations of the blend (they add across images).
+
+    ``xtx[k] = sum stack stackᵀ``, ``xty[k] = sum stack (target - coarse)ᵀ``
+    over the pixels of class ``k``.
+    """
+
+    xtx: np.ndarray  # float64 (n_classes, R, R), R = n_scales * C
+    xty: np.ndarray  # float64 (n_classes, R, C)
+    n: np.ndarray    # int64 (n_classes,)
+
+    @classmethod
+    def zeros(cls, n_classes: int, n_scales: int, n_out: int) -> MultiscaleStats:
+        r = n_scales * n_out
+        return cls(np.zeros((n_classes, r, r)), np.zeros((n_classes, r, n_out)),
+                   np.zeros(n_classes, np.int64))
+
+    def __add__(self, other: MultiscaleStats) -> MultiscaleStats:
+        return MultiscaleStats(self.xtx + other.xtx, self.xty + other.xty, self.n + other.n)
+
+
+def accumulate(stats: MultiscaleStats, stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
+               target: np.ndarray, mask: np.ndarray | None = None) -> MultiscaleStats:
+    """Add one image's pixels (``mask``: those that train; None = all) to ``stats``."""
+    r = stack.shape[2]
+    x = stack.reshape(-1, r).astype(np.float64)
+    t = (np.asarray(target, dtype=np.float64) - coarse).reshape(x.shape[0], -1)
+    k = cls.reshape(-1)
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool).reshape(-1)
+        x, t, k = x[m], t[m], k[m]
+    ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(t), axis=1)
+    x, t, k = x[ok], t[ok], k[ok]
+    order = np.argsort(k, kind="stable")
+    x, t, k = x[order], t[order], k[order]
+    bounds = np.searchsorted(k, np.arange(stats.n.size + 1))
+    for c in range(stats.n.size):
+        a, b = bounds[c], bounds[c + 1]
+        if b > a:
+            stats.xtx[c] += x[a:b].T @ x[a:b]
+            stats.xty[c] += x[a:b].T @ t[a:b]
+            stats.n[c] += b - a
+    return stats
+
+
+def solve(stats: MultiscaleStats, ridge: float, n_out: int) -> np.ndarray:
+    """The blend of each class: ridge regression shrunk towards ``A = I``.
+
+    ``A_k = argmin |t - X A|^2 + lam_k |A - I|^2`` with
+    ``lam_k = ridge * trace(XᵀX) / R``: a class with no data keeps the
+    identity (the L3 render unchanged).
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 (n_classes, R, C).
+    """
+    nc, r, _ = stats.xtx.shape
+    prior = np.tile(np.eye(n_out), (r // n_out, 1))
+    out = np.empty((nc, r, n_out), dtype=np.float64)
+    for k in range(nc):
+        g = stats.xtx[k]
+        lam = ridge * max(np.trace(g) / r, 1e-300)
+        out[k] = np.linalg.solve(g + lam * np.eye(r), stats.xty[k] + lam * prior)
+    return out.astype(np.float32)

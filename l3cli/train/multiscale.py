@@ -1,0 +1,114 @@
+"""Fit the multi-scale stage (:mod:`l3cli.multiscale`) of a trained table.
+
+After the L3 table is fitted, each training raw is rendered with it (the
+library's float render, :func:`l3cli.kernelset.render_raw`: white balance,
+tone curve and adaptation as ``l3 render`` does them) and split into bands;
+
+1. a sample of every image's coarse level and band energy places the class
+   cut points (quantiles: levels, then energy within each level);
+2. per coarse class, the normal equations of ``target - lp_n`` on the bands
+   are summed over the images (the pixels that train: a pairs folder's
+   weight mask) and solved by ridge regression shrunk towards ``A = I``.
+
+The targets are read in the table's output space, so the stage learns what
+the render still misses in the space it is applied in.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import numpy as np
+
+from l3cli import defaults
+from l3cli.errors import InputError
+from l3cli.multiscale import Multiscale, MultiscaleStats, accumulate, place_cuts, solve
+from l3cli.pairs import Pair, load_pair
+
+__all__ = ["fit_multiscale", "attach_multiscale"]
+
+log = logging.getLogger(__name__)
+
+#: Pixels per image sampled to place the class cut points.
+_CUT_SAMPLES = 200_000
+
+
+def _rendered(table, pair: Pair):
+    from l3cli.kernelset import render_raw
+
+    loaded = load_pair(pair, target_space=table.output_space)
+    if loaded.raw.cfa.spec != table.cfa.spec:
+        raise InputError(f"{pair.raw}: CFA {loaded.raw.cfa.spec} differs from the table's "
+                         f"{table.cfa.spec}")
+    y = render_raw(table, loaded.raw, table_name="the trained table")
+    return y, loaded.target, loaded.weight_mask
+
+
+def fit_multiscale(table, pairs: Sequence[Pair], *, sigmas=defaults.MULTISCALE_SIGMAS,
+                   levels: int = defaults.MULTISCALE_LEVELS,
+                   energy_bins: int = defaults.MULTISCALE_ENERGY_BINS,
+                   ridge: float = defaults.MULTISCALE_RIDGE, seed: int = defaults.SEED,
+                   show_progress: bool | None = False) -> Multiscale:
+    """The multi-scale stage for ``table`` learned from ``pairs``.
+
+    Parameters
+    ----------
+    table
+        The fitted :class:`l3cli.table.TransformTable` (without a stage).
+    pairs
+        The training pairs (:func:`l3cli.pairs.find_pairs`).
+    sigmas
+        Increasing low-pass standard deviations, pixels.
+    levels, energy_bins
+        Coarse classes: level bins x band-energy bins.
+    ridge
+        Shrinkage towards the identity, relative to each class's mean band power.
+    seed
+        Seed of the sample that places the cut points.
+
+    Returns
+    -------
+    Multiscale
+    """
+    from l3cli.progress import progress
+
+    sigmas = tuple(float(s) for s in sigmas)
+    probe = Multiscale.identity(table.n_out, sigmas)
+    rng = np.random.default_rng([seed, 27])
+    levs, ens = [], []
+    for pair in progress(pairs, label="multiscale cuts", enabled=show_progress):
+        y, _, mask = _rendered(table, pair)
+        stack, coarse, _ = probe.features(y)
+        from l3cli.multiscale import energy, level
+
+        lev, en = level(coarse), energy(y, coarse, sigmas[0])
+        idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(lev.size)
+        if idx.size > _CUT_SAMPLES:
+            idx = rng.choice(idx, _CUT_SAMPLES, replace=False)
+        levs.append(lev.ravel()[idx])
+        ens.append(en.ravel()[idx])
+    if not levs or sum(v.size for v in levs) == 0:
+        raise InputError("no training pixels for the multiscale stage")
+    lcuts, ecuts = place_cuts(np.concatenate(levs), np.concatenate(ens), levels, energy_bins)
+    n_classes = levels * energy_bins
+    shape = Multiscale.identity(table.n_out, sigmas, lcuts, ecuts)
+    stats = MultiscaleStats.zeros(n_classes, len(sigmas), table.n_out)
+    for pair in progress(pairs, label="multiscale fit", enabled=show_progress):
+        y, target, mask = _rendered(table, pair)
+        stack, coarse, cls = shape.features(y)
+        accumulate(stats, stack, coarse, cls, target, mask)
+    blend = solve(stats, ridge, table.n_out)
+    log.info("multiscale stage: %d classes from %d pixels", n_classes, int(stats.n.sum()))
+    return Multiscale(np.asarray(sigmas), lcuts, ecuts, blend, stats.n)
+
+
+def attach_multiscale(table, pairs: Sequence[Pair], **options) -> None:
+    """Fit the stage (:func:`fit_multiscale`) and store it in ``table`` with its record."""
+    stage = fit_multiscale(table, pairs, **options)
+    table.multiscale = stage
+    table.provenance["multiscale"] = {
+        "sigmas": stage.sigmas.tolist(), "levels": int(stage.level_cuts.size + 1),
+        "energy_bins": int(stage.energy_cuts.shape[1] + 1),
+        "ridge": float(options.get("ridge", defaults.MULTISCALE_RIDGE)),
+        "pixels": int(stage.counts.sum())}
