@@ -48,6 +48,14 @@ tone_lut           float32      optional (n_lut, n_out): the kernels render a le
 tone_range         float32      optional (2, n_out): the grid's ends (with tone_lut)
 ================== ============ ===============================================
 
+A table with a multi-scale stage (``l3 train --multiscale``, :mod:`l3cli.multiscale`)
+holds the optional keys ``multiscale_rule`` (str, ``"gauss-bands-v1"``),
+``multiscale_sigmas`` (float64 (n_scales,)), ``multiscale_level_cuts`` (float64
+(n_levels - 1,)), ``multiscale_energy_cuts`` (float64 (n_levels, n_energy - 1)),
+``multiscale_blend`` (float32 (n_levels * n_energy, n_scales * n_out, n_out)) and
+``multiscale_counts`` (int64) and is written as version 3, so that an l3 that
+cannot apply the stage refuses the table.
+
 Class index ``= ((group * 2**n_channels + sat) * n_levels + level) * n_contrast
 + contrast``.
 """
@@ -73,6 +81,8 @@ __all__ = ["TransformTable", "save_table", "load_table", "TABLE_FORMAT", "TABLE_
 
 TABLE_FORMAT = "l3-table"
 TABLE_VERSION = 1
+#: The version of tables that hold a multi-scale stage (``multiscale_*`` keys).
+MULTISCALE_VERSION = 3
 
 _STR_KEYS = ("format", "cfa", "level_spacing", "contrast_rule", "saturation_rule",
              "output_space", "provenance")
@@ -146,6 +156,7 @@ class TransformTable:
     white_balance: dict | None = None
     conditions: Any = None  # l3cli.conditions.Conditioned: per-bin kernels (--by iso)
     tone_lut: tuple[np.ndarray, np.ndarray] | None = None  # (lut, range): l3cli.tonecurve
+    multiscale: Any = None  # l3cli.multiscale.Multiscale: applied to the rendered output
 
     def __post_init__(self) -> None:
         self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
@@ -170,6 +181,9 @@ class TransformTable:
             raise TableError(f"inconsistent table: {problem}")
         if self.output_space not in SPACES:
             raise TableError(f"output space {self.output_space!r} is not one of {', '.join(SPACES)}")
+        if self.multiscale is not None and self.multiscale.n_out != self.n_out:
+            raise TableError(f"inconsistent table: the multiscale stage takes "
+                             f"{self.multiscale.n_out} channels, the kernels give {self.n_out}")
         if self.conditions is not None and self.conditions.kernels.shape[1:] != self.kernels.shape:
             raise TableError(f"inconsistent table: condition kernels have shape "
                              f"{self.conditions.kernels.shape[1:]}, the table's {self.kernels.shape}")
@@ -236,6 +250,9 @@ class TransformTable:
             out.update(self.conditions.to_arrays())
         if self.tone_lut is not None:
             out["tone_lut"], out["tone_range"] = self.tone_lut
+        if self.multiscale is not None:  # version 3: an l3 without the stage refuses it
+            out.update(self.multiscale.to_arrays())
+            out["version"] = np.array(MULTISCALE_VERSION, dtype=np.int64)
         return out
 
 
@@ -322,10 +339,10 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         if not ok:
             raise TableError(f"{path}: key {k!r} has dtype {arrs[k].dtype}, expected kind {kind!r}")
     version = _scalar(arrs, "version", path, "i")
-    if version != TABLE_VERSION:
+    if version not in (TABLE_VERSION, MULTISCALE_VERSION):
         raise TableError(
-            f"{path}: table version {version} is not supported; this l3 reads version "
-            f"{TABLE_VERSION}"
+            f"{path}: table version {version} is not supported; this l3 reads versions "
+            f"{TABLE_VERSION} and {MULTISCALE_VERSION}"
         )
     try:
         definition = ClassDefinition(
@@ -373,6 +390,16 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         tone = (arrs["tone_lut"], arrs["tone_range"])
         if any(a.dtype.kind != "f" for a in tone):
             raise TableError(f"{path}: tone_lut/tone_range must be floating point")
+    from l3cli.multiscale import Multiscale
+
+    try:
+        multiscale = Multiscale.from_arrays(arrs)
+    except TableError as exc:
+        raise TableError(f"{path}: {exc}") from exc
+    if (version == MULTISCALE_VERSION) != (multiscale is not None):
+        raise TableError(f"{path}: damaged table, version {version} "
+                         + ("needs the multiscale_* keys" if version == MULTISCALE_VERSION
+                            else "holds multiscale_* keys"))
     try:
         return TransformTable(
             definition=definition,
@@ -386,6 +413,7 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             white_balance=wb,
             conditions=cond,
             tone_lut=tone,
+            multiscale=multiscale,
         )
     except L3Error as exc:
         raise TableError(f"{path}: {exc}") from exc
