@@ -455,7 +455,8 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
     """Render a :class:`l3cli.io.raw.RawImage` to float (checks that the table fits).
 
     The raw's kernel set (:func:`prepare_kernels`: condition bins, white
-    balance) renders its prepared mosaic (a copy: ``raw`` is not changed).
+    balance) renders its prepared mosaic (a copy: ``raw`` is not changed);
+    a table's multi-scale stage (:func:`l3cli.multiscale.apply`) follows.
 
     Returns
     -------
@@ -470,4 +471,6 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
     """
     check_fits(table, raw, table_name=table_name)
     ks = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
-    return render_mosaic(ks, ks.prepare_mosaic(raw.mosaic))
+    from l3cli import multiscale
+
+    return multiscale.apply(table, render_mosaic(ks, ks.prepare_mosaic(raw.mosaic)))

@@ -282,6 +282,7 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     ``turn`` is held around the render stage (the pipeline's
     :meth:`RenderTurns.turn`).
     """
+    from l3cli import multiscale
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
@@ -298,9 +299,10 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     mosaic = kernels.prepare_mosaic(raw.mosaic, inplace=True)  # the decode is ours
     t1 = time.perf_counter()
     with turn if turn is not None else contextlib.nullcontext():
-        if fmt == "exr":
+        if fmt == "exr" or table.multiscale is not None:  # the stage takes the float render
             with _RENDER_LOCK:
                 img = render_mosaic(kernels, mosaic)
+                img = multiscale.apply(table, img)  # noise reduction beyond the patch
         else:
             img = _render_display(kernels, mosaic, 16 if fmt == "tiff" else 8)
     t2 = time.perf_counter()

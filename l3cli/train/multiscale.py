@@ -16,6 +16,7 @@ the render still misses in the space it is applied in.
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections.abc import Sequence
 
@@ -35,6 +36,7 @@ _CUT_SAMPLES = 200_000
 
 
 def _rendered(table, pair: Pair):
+    """The render of ``pair``'s raw by ``table`` (without a stage), its target and mask."""
     from l3cli.kernelset import render_raw
 
     loaded = load_pair(pair, target_space=table.output_space)
@@ -74,6 +76,9 @@ def fit_multiscale(table, pairs: Sequence[Pair], *, sigmas=defaults.MULTISCALE_S
     from l3cli.progress import progress
 
     sigmas = tuple(float(s) for s in sigmas)
+    if getattr(table, "multiscale", None) is not None:  # fit on the kernels' own render
+        table = copy.copy(table)
+        table.multiscale = None
     probe = Multiscale.identity(table.n_out, sigmas)
     rng = np.random.default_rng([seed, 27])
     levs, ens = [], []
