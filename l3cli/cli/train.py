@@ -172,6 +172,10 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @click.option("--sample-weight", type=click.Choice(["none", "luminance"]), default=None,
               help="Weight each training pixel by its target's luminance in the fit "
                    f"{_default('sample_weight')}.")
+@click.option("--multiscale/--no-multiscale", default=defaults.MULTISCALE, show_default=True,
+              help="After the table, learn a multi-scale stage that blends wide low-passes of "
+                   "the render with its detail per coarse class: noise reduction beyond the "
+                   "patch, as cameras do (docs/training.md).")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -190,7 +194,8 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           highlight_bins: str = str(defaults.HIGHLIGHT_BINS),
           highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
           tone_curve: bool | None = None,
-          augment: str | None = None, sample_weight: str | None = None) -> None:
+          augment: str | None = None, sample_weight: str | None = None,
+          multiscale: bool = defaults.MULTISCALE) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -270,6 +275,10 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     else:
         table = train_table(pairs, opts, workers=workers, scheduler=scheduler,
                             show_progress=show)
+    if multiscale:  # the learned stage after the kernels (l3cli.multiscale)
+        from l3cli.train.multiscale import attach_multiscale
+
+        attach_multiscale(table, pairs, seed=seed, show_progress=show)
     save_table(output, table)
     n_tr = int((~table.empty).sum())
     logging.getLogger(__name__).info("wrote %s", output)
