@@ -283,9 +283,9 @@ def plot_coefficient_curves(table: TransformTable, out_dir: str | os.PathLike, *
                     ax.plot(x[btrained], bvals[i, btrained, o], "o", color=col, ms=3)
                     ax.plot(x[~btrained], bvals[i, ~btrained, o], "o", mfc="none", color=col,
                             ms=3)
+            ax.tick_params(labelsize=7)
             plain_log_axis(ax, "x", lo=float(x.min()), hi=float(x.max()))
             ax.set_title(f"{group_name(d, g)} → output {onames[o]}", fontsize=8)
-            ax.tick_params(labelsize=7)
             ax.grid(alpha=0.3)
             ax.grid(alpha=0.12, which="minor")
             if g == ng - 1:
