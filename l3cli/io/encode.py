@@ -161,7 +161,7 @@ def interpolation_table(bits: int, encode: bool = True) -> np.ndarray:
 
 
 class DisplayParams(NamedTuple):
-    """What the display encoder (:func:`l3cli.render_rows.encode_row`) needs, in its order."""
+    """What the display encoder (:func:`l3cli.io.encode_rows.encode_row`) needs, in its order."""
 
     #: Apply ``matrix`` (XYZ to linear sRGB) to each pixel of 3 values first.
     use_matrix: bool
@@ -211,13 +211,13 @@ def display_params(space: str, n_channels: int, bits: int) -> DisplayParams | No
 def _kernel():
     """The numba kernel (compiled, or loaded from numba's on-disk cache, on first use).
 
-    It lives in :mod:`l3cli.render_rows` (imported here, on first use, so that
+    It lives in :mod:`l3cli.io.encode_rows` (imported here, on first use, so that
     importing this module does not import numba) as a module-level function:
     a kernel defined in here as a closure over ``encode_row`` would miss
     numba's cache in every new process (the closure's pickled dispatcher
     differs), costing a compile (~0.4 s) per ``l3 render`` to TIFF.
     """
-    from l3cli.render_rows import encode_rows
+    from l3cli.io.encode_rows import encode_rows
 
     return encode_rows
 
