@@ -341,3 +341,21 @@ def test_default_model_runs_in_a_fresh_process(default_pairs_table, tmp_path):
         want = display_encode(render_raw(t, raw), t.output_space, 8)
         assert got.shape == want.shape == (*raw.mosaic.shape, 3)
         assert np.abs(got.astype(np.int64) - want.astype(np.int64)).max() <= 1
+
+
+def test_stages_the_export_does_not_know_are_refused():
+    """A table stage added to l3 after the export (e.g. multiscale, lens shading) is refused
+    by name instead of being left out of the graph."""
+    import dataclasses
+
+    from l3cli.errors import ConfigError
+    from l3cli.export import _KNOWN_TABLE, check_exportable
+
+    others = [f.name for f in dataclasses.fields(TransformTable) if f.name not in _KNOWN_TABLE]
+    if not others:
+        pytest.skip("this l3's tables have no stage beyond the exported ones")
+    for name in others:
+        t = _table()
+        setattr(t, name, object())
+        with pytest.raises(ConfigError, match="cannot be exported"):
+            check_exportable(t)

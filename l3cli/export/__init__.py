@@ -67,6 +67,8 @@ def check_exportable(table: TransformTable, output: str = "linear") -> None:
     d = table.definition
     if output not in OUTPUTS:
         raise ConfigError(f"output {output!r} is not known; use one of {', '.join(OUTPUTS)}")
+    for name in _unknown_features(table):
+        raise ConfigError(f"the table's {_NAMES.get(name, name)} cannot be exported yet")
     if d.context_block:
         raise ConfigError("the table's context bins (--context-block) cannot be exported yet; "
                           "train without them to export")
@@ -84,6 +86,39 @@ def check_exportable(table: TransformTable, output: str = "linear") -> None:
     if output == "display" and table.n_out == 3 and table.output_space == "lab":
         raise ConfigError("display output of a lab table cannot be exported (its conversion is "
                           "colour-science's); export --output linear")
+
+
+#: Table and class-definition fields the export knows how to build (or refuses above).
+_KNOWN_TABLE = {"definition", "kernels", "counts", "lambdas", "empty", "source_class",
+                "output_space", "provenance", "format", "version", "white_balance",
+                "conditions", "tone_lut"}
+_KNOWN_DEFINITION = {"cfa", "patch", "level_cuts", "level_spacing", "contrast_cuts",
+                     "saturation_threshold", "position_group", "contrast_eps", "contrast_rule",
+                     "saturation_rule", "orientation_bins", "coherence_threshold",
+                     "orientation_rule", "context_block", "context_cuts", "context_rule",
+                     "highlight_bins", "highlight_fraction", "_tables"}
+#: How refusals name the stages that tables may hold beyond those.
+_NAMES = {"multiscale": "multiscale stage", "shading": "lens shading correction"}
+
+
+def _unknown_features(table: TransformTable) -> list[str]:
+    """Fields of the table (and its class definition) in use that this export does not know:
+    a stage added to l3 after the export is refused rather than silently left out."""
+    import dataclasses
+
+    out = [f.name for f in dataclasses.fields(table)
+           if f.name not in _KNOWN_TABLE and getattr(table, f.name) is not None]
+    d = table.definition
+    for f in dataclasses.fields(d):
+        if f.name in _KNOWN_DEFINITION:
+            continue
+        default = (f.default_factory() if f.default_factory is not dataclasses.MISSING
+                   else f.default)
+        value = getattr(d, f.name)
+        if default is dataclasses.MISSING or not np.array_equal(np.asarray(value, dtype=object),
+                                                                np.asarray(default, dtype=object)):
+            out.append(f.name)
+    return out
 
 
 def model_metadata(table: TransformTable, *, table_name: str, table_sha256: str, output: str,
