@@ -85,6 +85,13 @@ class Conditioned:
             raise TableError("condition bins must be positive and increasing")
         if not np.all(np.isfinite(self.kernels)):
             raise TableError("condition kernels hold NaN or Inf")
+        from l3cli.table import MAX_KERNEL_GAIN, _kernel_gain
+
+        if _kernel_gain(self.kernels) > MAX_KERNEL_GAIN:
+            raise TableError(f"condition kernels have an absolute sum beyond "
+                             f"{MAX_KERNEL_GAIN:g}: their outputs would overflow float32")
+        if np.any(self.counts < 0):
+            raise TableError("condition bins: counts hold negative sample counts")
 
     @property
     def own(self) -> np.ndarray:

@@ -95,6 +95,19 @@ _KEYS = {
 }
 
 
+#: Largest absolute sum of one class's kernel (weights and constant, per output):
+#: with raw values up to 1e8 (normalised units; far beyond any white level) every
+#: output stays below 1e38, finite in float32 (largest 3.4e38).
+MAX_KERNEL_GAIN = 1e30
+
+
+def _kernel_gain(kernels: np.ndarray) -> float:
+    """The largest absolute sum of one class's kernel over one output (float64)."""
+    if kernels.size == 0:
+        return 0.0
+    return float(np.abs(kernels, dtype=np.float64).sum(axis=-2).max())
+
+
 @dataclass(eq=False)
 class TransformTable:
     """An L3 transform table.
@@ -209,6 +222,9 @@ class TransformTable:
             return "no class is trained"
         if not np.all(np.isfinite(self.kernels)):
             return "kernels hold NaN or Inf"
+        if _kernel_gain(self.kernels) > MAX_KERNEL_GAIN:
+            return (f"kernels have an absolute sum beyond {MAX_KERNEL_GAIN:g}: their outputs "
+                    "would overflow float32")
         if np.any(self.counts < 0):
             return "counts hold negative sample counts"
         if np.any(np.isinf(self.lambdas)) or np.any(self.lambdas < 0):

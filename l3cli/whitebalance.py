@@ -233,6 +233,15 @@ class WhiteBalanceModel:
         self.whites = np.asarray(whites, dtype=np.float64).reshape(-1, 3)
         if self.coef.shape[0] != 1 + self.center.size or not np.all(np.isfinite(self.coef)):
             raise ValueError("white-balance model: coefficients do not fit the features")
+        if not np.all(np.isfinite(self.center)):
+            raise ValueError("white-balance model: feature centre holds NaN or Inf")
+        if not np.all(np.isfinite(self.whites)) or not np.all(self.whites > 0):
+            raise ValueError("white-balance model: training whites must be finite and positive")
+        from l3cli.colourspace import SPACES
+
+        if self.space not in SPACES:
+            raise ValueError(f"white-balance model: space {self.space!r} is not one of "
+                             f"{', '.join(SPACES)}")
 
     def as_dict(self) -> dict[str, Any]:
         return {"input": "as-shot", "feature": WB_FEATURE, "space": self.space,

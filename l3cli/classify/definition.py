@@ -29,6 +29,8 @@ CONTRAST_RULE = "relative-std-v1"
 SATURATION_RULE = "any-pixel-per-channel-v1"
 #: ``eps`` in the contrast denominator (normalised raw units).
 DEFAULT_CONTRAST_EPS = 1e-4
+#: The largest finite float32: thresholds beyond it become infinite in the kernels.
+_F32_MAX = float(np.finfo(np.float32).max)
 
 
 def check_patch(patch: int, name: str = "patch size") -> int:
@@ -138,8 +140,16 @@ class ClassDefinition:
                 f"contrast cut points must have shape (n_levels, n_contrast - 1) = "
                 f"({cuts.size + 1}, k), got {cc.shape}"
             )
-        if cc.shape[1] and (np.any(np.diff(cc, axis=1) < 0) or not np.all(np.isfinite(cc))):
-            raise ConfigError("contrast cut points must be finite and increasing per level")
+        if cc.shape[1] and (np.any(np.diff(cc, axis=1) < 0) or not np.all(np.isfinite(cc))
+                            or np.any(cc < 0)):
+            raise ConfigError("contrast cut points must be finite, >= 0 and increasing per level")
+        # the kernels compare in float32: every threshold must stay finite there
+        if np.any(np.abs(cuts) > _F32_MAX) or np.any(np.abs(cc) > _F32_MAX):
+            raise ConfigError("level or contrast cut points are beyond float32 range")
+        eps = float(self.contrast_eps)
+        if not 0.0 < eps <= 1.0:
+            raise ConfigError(f"contrast eps {self.contrast_eps} must be in (0, 1] (normalised "
+                              "raw units)")
         grp = np.asarray(self.position_group, dtype=np.int64)
         if grp.shape != (self.cfa.n_positions,) or grp.min() != 0 or \
                 set(grp.tolist()) != set(range(int(grp.max()) + 1)):
@@ -157,8 +167,9 @@ class ClassDefinition:
                 )
         if self.level_spacing not in SPACINGS:
             raise ConfigError(f"level spacing {self.level_spacing!r} is not known")
-        if not np.isfinite(self.saturation_threshold) or self.saturation_threshold <= 0:
-            raise ConfigError(f"saturation threshold {self.saturation_threshold} must be > 0")
+        if not 0 < self.saturation_threshold <= _F32_MAX:
+            raise ConfigError(f"saturation threshold {self.saturation_threshold} must be a "
+                              "finite number > 0")
         if self.contrast_rule != CONTRAST_RULE:
             raise ConfigError(f"contrast rule {self.contrast_rule!r} is not known; "
                               f"this l3 implements {CONTRAST_RULE!r}")
@@ -184,7 +195,7 @@ class ClassDefinition:
             raise ConfigError(f"context block {blk} is not allowed; use 0 (off) or a multiple "
                               f"of the CFA period {pw}x{ph}")
         if blk and (xc.size < 1 or np.any(np.diff(xc) <= 0) or not np.all(np.isfinite(xc))
-                    or xc[0] <= 0):
+                    or xc[0] <= 0 or xc[-1] > _F32_MAX):
             raise ConfigError("context cut points must be a finite, positive, increasing list")
         if not blk and xc.size:
             raise ConfigError("context cut points given without a context block size")
@@ -195,6 +206,7 @@ class ClassDefinition:
             raise ConfigError(f"highlight bins {self.highlight_bins} is not allowed; use 0 or 2")
         if self.highlight_bins and not 0.0 < self.highlight_fraction <= 1.0:
             raise ConfigError(f"highlight fraction {self.highlight_fraction} must be in (0, 1]")
+        object.__setattr__(self, "contrast_eps", eps)
         object.__setattr__(self, "highlight_bins", int(self.highlight_bins))
         object.__setattr__(self, "highlight_fraction", float(self.highlight_fraction))
         object.__setattr__(self, "orientation_bins", nb)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from l3cli.cli.options import format_opt, output_opt, quiet, seed_opt
+from l3cli.cli.options import InputPath, format_opt, output_opt, quiet, seed_opt
 
 _METHODS = ("bilinear", "malvar2004", "menon2007")
 
@@ -30,9 +30,9 @@ def _expand_raws(raws: tuple[str, ...]) -> list[Path]:
 
 
 @click.command(short_help="Conventional pipeline: demosaic + fitted 3x3 colour matrix.")
-@click.argument("raws", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("raws", nargs=-1, required=True, type=InputPath(exists=True))
 @click.option("--train", "train_inputs", multiple=True, required=True,
-              type=click.Path(exists=True, file_okay=False),
+              type=InputPath(exists=True, file_okay=False),
               help="Training folder (a `l3 simulate` output or a pairs folder) for the colour "
                    "matrix; repeatable. Use the data the L3 table was trained on.")
 @output_opt
@@ -60,11 +60,14 @@ def baseline(raws: tuple[str, ...], train_inputs: tuple[str, ...], output: str, 
     l3 evaluate BASE_DIR --reference SIM_DIR --json base.json
     """
     from l3cli.baseline import fit_baseline, render_baseline_file
+    from l3cli.cli.options import distinct_inputs
     from l3cli.cli.paths import check_outputs, plan_outputs
     from l3cli.io.atomic import atomic_path
     from l3cli.progress import progress
 
     raw_paths = _expand_raws(raws)
+    distinct_inputs(raw_paths, "a raw")
+    distinct_inputs(train_inputs, "a --train input")
     plan = plan_outputs(raw_paths, output, fmt, protect=train_inputs)
     check_outputs([(save_model, "--save-model"), *((o, "-o") for _, o in plan.targets)],
                   [*raw_paths, *train_inputs])

@@ -5,18 +5,16 @@ from __future__ import annotations
 import click
 
 from l3cli import defaults
+from l3cli.cli.options import Finite, InputPath
 
 
 def _numbers(count: int, *, integers: bool = False):
     def convert(ctx, param, value):
         if value is None:
             return None
-        try:
-            parts = [float(v) for v in value.replace(" ", "").split(",")]
-        except ValueError:
-            raise click.BadParameter(f"{value!r}: expected {count} comma-separated numbers") from None
-        if len(parts) != count:
-            raise click.BadParameter(f"{value!r}: expected {count} comma-separated numbers, got {len(parts)}")
+        from l3cli.cli.options import finite_numbers
+
+        parts = finite_numbers(value, count, param, ctx)
         return [int(round(v)) for v in parts] if integers else parts
 
     return convert
@@ -47,17 +45,17 @@ class _GreedyOption(click.Option):
 
 
 @click.command(short_help="Score rendered images: S-CIELAB, PSNR, Macbeth ΔE, MTF50.")
-@click.argument("rendered", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("rendered", nargs=-1, required=True, type=InputPath(exists=True))
 @click.option("--reference", "references", cls=_GreedyOption, multiple=True, required=True,
-              type=click.Path(exists=True), metavar="REF...",
+              type=InputPath(exists=True), metavar="REF...",
               help="Reference images (one per rendered image, in order; all the paths after "
                    "--reference up to the next option), a folder of references matched by stem, "
                    "or a `l3 simulate` folder.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False),
               help="Write the report as JSON (atomically).")
-@click.option("--dpi", type=float, default=defaults.DPI, show_default=True,
+@click.option("--dpi", type=Finite(min=0, min_open=True), default=defaults.DPI, show_default=True,
               help="Display resolution for S-CIELAB (dots per inch).")
-@click.option("--distance", type=float, default=defaults.VIEWING_DISTANCE_M, show_default=True,
+@click.option("--distance", type=Finite(min=0, min_open=True), default=defaults.VIEWING_DISTANCE_M, show_default=True,
               help="Viewing distance for S-CIELAB (metres).")
 @click.option("--filters", type=click.Choice(["distribution", "original"]),
               default=defaults.SCIELAB_FILTERS,
@@ -74,7 +72,7 @@ class _GreedyOption(click.Option):
                    "(dark skin), top-right, bottom-right (black), bottom-left (white).")
 @click.option("--edge", "edge", callback=_numbers(4, integers=True), metavar="x0,y0,x1,y1",
               help="Region holding a slanted edge in the images (x1, y1 exclusive).")
-@click.option("--pixel-pitch", "pixel_pitch", type=click.FloatRange(min=0, min_open=True),
+@click.option("--pixel-pitch", "pixel_pitch", type=Finite(min=0, min_open=True),
               metavar="UM", help="Pixel pitch in micrometres for MTF50 in cycles/mm "
                                  "(default: the simulation manifest's).")
 @click.option("--exclude-border", type=click.IntRange(min=0), default=0, show_default=True,

@@ -7,9 +7,11 @@ from pathlib import Path
 
 import click
 
+from l3cli.cli.options import InputPath
+
 
 @click.command(short_help="Describe raw files; write CFA planes and a quick preview.")
-@click.argument("raws", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("raws", nargs=-1, required=True, type=InputPath(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 @click.option("--preview", type=click.Path(dir_okay=False),
               help="Write a quick binned, grey-world-balanced preview (one input only).")

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from l3cli.cli.options import InputPath
+
 
 def _levels(ctx, param, value):
     if not value:
@@ -22,11 +24,11 @@ def _levels(ctx, param, value):
 
 
 @click.command(short_help="Describe a table: class layout, samples, λ, filled classes; plots.")
-@click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
+@click.argument("table_path", metavar="TABLE.npz", type=InputPath(dir_okay=False))
 @click.option("--plots", "plots", type=click.Path(file_okay=False), default=None,
               help="Write kernel weight images, coefficient-vs-level curves (and the tone "
                    "curve of a table that has one) into this folder (created if missing).")
-@click.option("--compare", "compare", type=click.Path(dir_okay=False), default=None,
+@click.option("--compare", "compare", type=InputPath(dir_okay=False), default=None,
               metavar="OTHER.npz",
               help="The table before smoothing (same classes): curves show it as markers.")
 @click.option("--levels", "levels", callback=_levels, default=None, metavar="L1,L2,...",

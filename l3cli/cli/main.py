@@ -34,7 +34,7 @@ progress.set_bar_factory(_click_bar)
 
 #: OS errors that are the machine's state (full disk, I/O error), not l3 bugs.
 _IO_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EFBIG, errno.EROFS,
-                        errno.EACCES, errno.EPERM})
+                        errno.EACCES, errno.EPERM, errno.ENAMETOOLONG, errno.ELOOP})
 
 #: name -> "module:attribute" of each registered subcommand. Register a command
 #: only when it works.
@@ -104,7 +104,8 @@ class _LazyGroup(click.Group):
                 raise click.ClickException(
                     f"internal error: {type(exc).__name__}: {exc} (rerun with --debug for the "
                     "traceback and please report it)") from exc
-            where = f"{exc.filename}: " if exc.filename else ""
+            name = str(exc.filename) if exc.filename else ""
+            where = f"{name if len(name) < 100 else name[:60] + '...'}: " if name else ""
             raise click.ClickException(f"{where}{exc.strerror or exc}") from exc
         except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (startup.handle_signals)
             click.echo("Aborted.", err=True)
@@ -148,6 +149,11 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
         handlers=[handler],
         force=True,
     )
+    # Python warnings (numpy's "invalid value encountered ...") are log records
+    # (py.warnings), shown with -vv / --debug only: l3 reports bad values itself
+    logging.captureWarnings(True)
+    logging.getLogger("py.warnings").setLevel(
+        logging.DEBUG if level <= logging.DEBUG else logging.CRITICAL + 1)
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
 
 

@@ -130,8 +130,11 @@ def plan_outputs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike,
     """
     from l3cli.errors import OutputError
 
+    from l3cli.io.paths import check_name_length
+
     ins = [Path(p) for p in inputs]
     out = Path(output)
+    check_name_length(out, option)
     plan = OutputPlan()
     if len(ins) == 1 and not out.is_dir() and not folder:
         suffix = out.suffix.lower()

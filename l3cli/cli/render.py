@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from l3cli.cli.options import (
+    InputPath,
     format_opt,
     output_opt,
     quiet,
@@ -16,8 +17,8 @@ from l3cli.cli.options import (
 
 
 @click.command(short_help="Render raw files with a transform table.")
-@click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
-@click.argument("raws", nargs=-1, required=True, type=click.Path())
+@click.argument("table_path", metavar="TABLE.npz", type=InputPath(dir_okay=False))
+@click.argument("raws", nargs=-1, required=True, type=InputPath())
 @output_opt
 @format_opt(help="Output format (default: from OUT's suffix, else exr). EXR keeps the "
                  "table's colour space (linear); TIFF/PNG/JPEG get display sRGB.")
@@ -70,10 +71,12 @@ def _render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None
             workers: int | None, scheduler: str | None, prefetch, from_folder: bool) -> None:
     from pathlib import Path
 
+    from l3cli.cli.options import distinct_inputs
     from l3cli.cli.paths import plan_outputs
     from l3cli.render import check_white_balance, render_files, table_for_task
 
     table = table_for_task(table_path)  # a bad table fails before anything is created
+    distinct_inputs(raws, "a raw")
     gains = white_balance
     plan = plan_outputs(raws, output, fmt, protect=[table_path], folder=from_folder)
     options = _write_options(plan.targets[0][1], compression, half, quality)

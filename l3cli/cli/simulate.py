@@ -6,7 +6,15 @@ from pathlib import Path
 
 import click
 
-from l3cli.cli.options import quiet, scheduler_opt, seed_opt, silenced, workers_opt
+from l3cli.cli.options import (
+    Finite,
+    InputPath,
+    quiet,
+    scheduler_opt,
+    seed_opt,
+    silenced,
+    workers_opt,
+)
 
 
 def _size(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[int, int] | None:
@@ -35,7 +43,7 @@ def _print_list(ctx: click.Context, param: click.Parameter, value: bool) -> None
 
 
 @click.command(short_help="Simulate raw captures and ideal XYZ targets of a camera.")
-@click.argument("camera", type=click.Path(dir_okay=False))
+@click.argument("camera", type=InputPath(dir_okay=False))
 @click.option("-o", "--output", "output", required=True, type=click.Path(file_okay=False),
               help="Output folder SIM_DIR (created; its parent must exist).")
 @click.option("--scene", "scenes", multiple=True, metavar="NAME|PATH",
@@ -45,12 +53,12 @@ def _print_list(ctx: click.Context, param: click.Parameter, value: bool) -> None
 @click.option("--illuminant", default=None, metavar="NAME",
               help="Illuminant (default: the camera's exposure.illuminant); "
                    "`l3 simulate --list` shows the names.")
-@click.option("--lux", "lux", multiple=True, type=float, metavar="LUX",
+@click.option("--lux", "lux", multiple=True, type=Finite(min=0, min_open=True), metavar="LUX",
               help="Scene illuminance in lux, repeatable (default: the camera's "
                    "exposure.light_levels_lux).")
 @click.option("--size", callback=_size, default=None, metavar="WxH",
               help="Image size in pixels  [default: 480x320]")
-@click.option("--exposure", "exposure_s", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--exposure", "exposure_s", type=Finite(min=0, min_open=True), default=None,
               metavar="SECONDS",
               help="Fixed exposure time in seconds (overrides the camera's exposure mode).")
 @click.option("--oversample", type=click.IntRange(1, 8), default=1, show_default=True, metavar="N",

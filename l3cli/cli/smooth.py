@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from l3cli import defaults
-from l3cli.cli.options import output_opt
+from l3cli.cli.options import InputPath, output_opt
 
 
 def _strength(ctx, param, value):
@@ -21,7 +21,7 @@ def _strength(ctx, param, value):
 
 
 @click.command(short_help="Improve a table with priors: symmetry, smoothness, uniformity.")
-@click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
+@click.argument("table_path", metavar="TABLE.npz", type=InputPath(dir_okay=False))
 @output_opt
 @click.option("--symmetry/--no-symmetry", default=True, show_default=True,
               help="Average kernels of CFA positions whose patch layouts are mirror images "

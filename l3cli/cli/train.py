@@ -6,11 +6,13 @@ import click
 
 from l3cli import defaults
 from l3cli.cli.options import (
+    Finite,
+    InputPath,
     output_opt,
     quiet,
-    silenced,
     scheduler_opt,
     seed_opt,
+    silenced,
     white_balance_opt,
     workers_opt,
 )
@@ -38,8 +40,8 @@ class _Threshold(click.ParamType):
             v = float(value)
         except (TypeError, ValueError):
             self.fail(f"{value!r} is neither a number nor 'quantile'", param, ctx)
-        if not v > 0:
-            self.fail(f"{value!r} must be > 0", param, ctx)
+        if not 0 < v < float("inf"):
+            self.fail(f"{value!r} must be a finite number > 0", param, ctx)
         return v
 
 
@@ -69,7 +71,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 
 
 @click.command(short_help="Learn a transform table from simulate or pairs folders.")
-@click.argument("inputs", nargs=-1, required=True, type=click.Path())
+@click.argument("inputs", nargs=-1, required=True, type=InputPath())
 @output_opt
 @click.option("--patch", type=int, default=None, callback=_odd,
               help="Patch size (odd): the kernel sees PATCH x PATCH raw pixels "
@@ -79,7 +81,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
                    f"{_default('levels')}.")
 @click.option("--spacing", type=click.Choice(["log", "linear"]), default=defaults.LEVEL_SPACING,
               show_default=True, help="Spacing of the level cut points.")
-@click.option("--level-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
+@click.option("--level-range", nargs=2, type=Finite(min=0, min_open=True), default=None, metavar="LOW HIGH",
               help="First and last level cut (normalised raw units); default: from the data "
                    "(just above its noise floor to near saturation).")
 @click.option("--contrast-bins", type=click.IntRange(min=1), default=None,
@@ -89,7 +91,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               help="Relative-contrast threshold (bin k starts at k x T), or 'quantile': "
                    "thresholds at the per-level quantiles of the data "
                    f"{_default('contrast_threshold', 'quantile')}.")
-@click.option("--saturation", type=float, default=defaults.SATURATION, show_default=True,
+@click.option("--saturation", type=Finite(min=0, max=1.5, min_open=True), default=defaults.SATURATION, show_default=True,
               help="Normalised value at or above which a pixel counts as saturated.")
 @click.option("--merge-positions/--no-merge-positions", default=defaults.MERGE_POSITIONS,
               show_default=True,
@@ -104,10 +106,10 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
                    "kernels in its linear space; the table maps their output back through "
                    "the curve (docs/training.md) [default: on for pairs folders with the "
                    "linear-srgb target, else off].")
-@click.option("--sample-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
+@click.option("--sample-fraction", type=Finite(min=0, max=1, min_open=True),
               default=defaults.SAMPLE_FRACTION, show_default=True,
               help="Use this random fraction of the pixels of each image (fixed by --seed).")
-@click.option("--min-samples", "min_samples_factor", type=float,
+@click.option("--min-samples", "min_samples_factor", type=Finite(min=1, min_open=True),
               default=defaults.MIN_SAMPLES_FACTOR,
               show_default=True,
               help="A class needs at least this many samples per coefficient to be trained.")
@@ -137,7 +139,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
                    "cross-validation "
                    "over the training images (S-CIELAB of held-out images); prints the "
                    "candidates and records them in the table (docs/training.md).")
-@click.option("--config", type=click.Path(dir_okay=False), callback=_read_config,
+@click.option("--config", type=InputPath(dir_okay=False), callback=_read_config,
               is_eager=True, expose_value=False,
               help="TOML file whose [train] table sets these options (keys as the long "
                    "option names; a [train.tune] table sets the searched values).")
@@ -145,7 +147,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               default=defaults.ORIENTATION_BINS, show_default=True,
               help="Edge-angle classes from the patch's structure tensor (even N; 0 = off); "
                    "patches with coherence <= --coherence form one isotropic class.")
-@click.option("--coherence", type=click.FloatRange(min=0, max=1, max_open=True),
+@click.option("--coherence", type=Finite(min=0, max=1, max_open=True),
               default=defaults.COHERENCE, show_default=True,
               help="Structure-tensor coherence at or below which a patch is isotropic.")
 @click.option("--context-block", type=click.IntRange(min=0), default=defaults.CONTEXT_BLOCK,
@@ -161,7 +163,7 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
               default=str(defaults.HIGHLIGHT_BINS), show_default=True,
               help="2 = split the classes by how much of the patch clips (at least "
                    "--highlight-fraction of its pixels saturated, or less); 0 = off.")
-@click.option("--highlight-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
+@click.option("--highlight-fraction", type=Finite(min=0, max=1, min_open=True),
               default=defaults.HIGHLIGHT_FRACTION, show_default=True,
               help="Fraction of saturated patch pixels that makes a strong highlight.")
 @click.option("--augment", type=click.Choice(["none", "flips", "d4"]), default=None,
@@ -209,6 +211,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     """
     import logging
 
+    from l3cli.cli.options import distinct_inputs
     from l3cli.cli.paths import check_outputs
     from l3cli.table import save_table
     from l3cli.train import TrainOptions, find_pairs
@@ -216,6 +219,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     from l3cli.train.fit import layout_defaults
 
     check_outputs([(output, "-o")], inputs)
+    distinct_inputs(inputs, "a training input")
     if embedded_preview:
         import shutil
         import tempfile

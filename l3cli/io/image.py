@@ -24,6 +24,7 @@ Images are float32 (H, W, C), channels last.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ import numpy as np
 
 from l3cli.colourspace import check_space
 from l3cli.errors import InputError, OutputError
+from l3cli.io import fd2
 from l3cli.io.atomic import atomic_path, check_free_space
 
 __all__ = ["read_image", "write_image", "IMAGE_FORMATS", "format_of", "COMPRESSIONS",
@@ -86,16 +88,21 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, str]:
     config = oiio.ImageSpec()
     # keep colour values as stored: PNG/TIFF alpha is not multiplied into them
     config.attribute("oiio:UnassociatedAlpha", 1)
-    inp = oiio.ImageInput.open(str(path), config)
-    if inp is None:
-        raise InputError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown'})")
-    try:
-        spec = inp.spec()
-        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        err = inp.geterror()
-        space_attr = spec.getattribute("l3:space")
-    finally:
-        inp.close()
+    # libpng and libjpeg also print their errors on fd 2 ("libpng error: ..."); the
+    # same text comes back through geterror(): keep the terminal to l3's one line
+    quiet_c = fd2.captured(str(path)) if fmt != "exr" else contextlib.nullcontext()
+    with quiet_c:
+        inp = oiio.ImageInput.open(str(path), config)
+        if inp is None:
+            raise InputError(f"{path}: cannot read image "
+                             f"({oiio.geterror().strip() or 'unknown'})")
+        try:
+            spec = inp.spec()
+            data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+            err = inp.geterror()
+            space_attr = spec.getattribute("l3:space")
+        finally:
+            inp.close()
     if data is None or (err and "error" in err.lower()):
         raise InputError(f"{path}: damaged or truncated image ({(err or 'no data').strip()})")
     arr = np.asarray(data, dtype=np.float32)
@@ -168,6 +175,7 @@ def write_image(
         space = check_space(space)
     _check_compression(path, fmt, compression)
     if fmt == "exr":
+        _check_finite(path, img, half)
         data = img
         typedesc = "half" if half else "float"
     else:
@@ -177,6 +185,25 @@ def write_image(
         typedesc = "uint16" if data.dtype == np.uint16 else "uint8"
     return _write(path, fmt, data, typedesc, space=space, quality=quality,
                   attributes=attributes, compression=compression, metadata=metadata)
+
+
+#: Values at or beyond this magnitude become infinite as half floats (65504 is the
+#: largest finite one; up to here they round to it).
+HALF_LIMIT = 65520.0
+
+
+def _check_finite(path: Path, img: np.ndarray, half: bool) -> None:
+    """Refuse float pixels an EXR would store as NaN or infinity (two reductions,
+    no copy): NaN or ±inf, and with ``half`` values beyond half-float range."""
+    if img.size == 0:
+        return
+    lo, hi = float(img.min()), float(img.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise OutputError(f"{path}: the image holds NaN or infinite values; nothing written")
+    if half and max(-lo, hi) >= HALF_LIMIT:
+        raise OutputError(f"{path}: values up to {max(-lo, hi):.6g} overflow half floats "
+                          "(largest 65504) and would be written as infinity; write full "
+                          "floats (without --half)")
 
 
 def _bits_of(fmt: str, bits: int | None) -> int:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from l3cli.errors import OutputError
 
-__all__ = ["input_files", "refuse_overwrite", "same_file"]
+__all__ = ["check_name_length", "input_files", "refuse_overwrite", "same_file"]
 
 
 def _key(path: Path) -> tuple[str, tuple[int, int] | None]:
@@ -60,6 +60,38 @@ def input_files(inputs: Iterable[str | os.PathLike]) -> list[Path]:
     return out
 
 
+def check_name_length(path: str | os.PathLike, what: str = "output") -> None:
+    """Refuse an output path the filesystem cannot hold: a name (any component)
+    longer than its folder's filesystem allows, or a path beyond ``PATH_MAX``.
+
+    Raises
+    ------
+    OutputError
+        One line naming the option and the limit.
+    """
+    p = Path(path)
+    raw = os.fsencode(p)
+    try:
+        path_max = os.pathconf(".", "PC_PATH_MAX")
+    except (OSError, ValueError):
+        path_max = 4096
+    if len(raw) >= path_max:
+        raise OutputError(f"{str(p)[:60]}...: {what} path is {len(raw)} bytes long, more than "
+                          f"the {path_max} this system allows")
+    folder = p.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        name_max = os.pathconf(folder if str(folder) else ".", "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    for part in p.parts:
+        n = len(os.fsencode(part))
+        if n > name_max:
+            raise OutputError(f"{part[:40]}...: {what} name is {n} bytes long, more than the "
+                              f"{name_max} the filesystem allows; choose a shorter name")
+
+
 def refuse_overwrite(outputs: Iterable[tuple[str | os.PathLike, str]],
                      inputs: Iterable[str | os.PathLike]) -> None:
     """Raise when an output would replace an input, or two outputs are one file.
@@ -89,6 +121,7 @@ def refuse_overwrite(outputs: Iterable[tuple[str | os.PathLike, str]],
         if "\0" in str(out):
             raise OutputError(f"{str(out)!r}: {what} is not a valid path (NUL character)")
         out = Path(out)
+        check_name_length(out, what)
         real, ident = _key(out)
         hit = by_real.get(real) or (by_ident.get(ident) if ident is not None else None)
         if hit is not None:

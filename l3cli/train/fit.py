@@ -42,6 +42,7 @@ from l3cli.train.options import (  # re-exported: l3cli.train.fit's public names
     NO_CURVE,
     TONE_CURVE_SPACE,
     TrainOptions,
+    check_class_budget,
     default_target_space,
     layout_defaults,
     pairs_kind,
@@ -255,6 +256,9 @@ def definition_from_histogram(cfa: CFA, hist: ContrastHistogram | None,
     levels or contrast bins, so one histogram serves every such layout
     (:mod:`l3cli.train.tune`).
     """
+    if hist is not None and not hist.counts.any() and opts.sample_fraction < 1.0:
+        raise InputError(f"--sample-fraction {opts.sample_fraction:g} leaves no sample of the "
+                         "training data to place the class cut points; raise it")
     if opts.level_range is not None:
         lo, hi = opts.level_range
     else:
@@ -268,7 +272,7 @@ def definition_from_histogram(cfa: CFA, hist: ContrastHistogram | None,
     else:
         ccuts = hist.contrast_cuts(cuts, opts.contrast_bins)
     xcuts = hist.context_cuts(opts.context_bins) if opts.context_block else None
-    return ClassDefinition.build(cfa, patch=opts.patch, level_cuts=cuts,
+    definition = ClassDefinition.build(cfa, patch=opts.patch, level_cuts=cuts,
                                  level_spacing=opts.spacing, contrast_cuts=ccuts,
                                  saturation_threshold=opts.saturation,
                                  merge_positions=opts.merge_positions,
@@ -278,6 +282,8 @@ def definition_from_histogram(cfa: CFA, hist: ContrastHistogram | None,
                                  context_rule=opts.context_rule,
                                  highlight_bins=opts.highlight_bins,
                                  highlight_fraction=opts.highlight_fraction)
+    check_class_budget(opts, definition.n_classes)  # before pass 2 allocates them
+    return definition
 
 
 def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: TrainOptions, *,
@@ -377,6 +383,21 @@ def solve_stats(stats: ClassStats, opts: TrainOptions
     return kernels, lambdas, lam_rel, counts, trained
 
 
+def _no_class_trained(stats: ClassStats, opts: TrainOptions, min_n: float) -> None:
+    """Raise the error for statistics in which no class reached ``min_n`` samples,
+    naming what to change: the option that thinned the samples, else the data."""
+    total, most = int(stats.n.sum()), int(stats.n.max(initial=0))
+    what = (f"no class has enough training samples ({total:,} samples in all, at most "
+            f"{most:,} in one class; a class needs {min_n:g})")
+    if total < min_n and opts.sample_fraction < 1.0:
+        raise TableError(f"{what}: --sample-fraction {opts.sample_fraction:g} keeps too few "
+                         "pixels; raise it")
+    if total < min_n:
+        raise TableError(f"{what}: train on more data, a smaller --patch or a lower "
+                         "--min-samples")
+    raise TableError(f"{what}: train on more data or use fewer --levels")
+
+
 def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
                      provenance: dict | None = None) -> TransformTable:
     """Solve every class (:func:`solve_stats`) and assemble the table."""
@@ -384,6 +405,8 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
     nc, q = d.n_classes, d.n_coeffs
     min_n = opts.min_samples_factor * q
     kernels, lambdas, lam_rel, counts, trained = solve_stats(stats, opts)
+    if not trained.any():
+        _no_class_trained(stats, opts, min_n)
     src = fallback_sources(d, trained)
     kernels = kernels[src]
     prov = dict(provenance or {})

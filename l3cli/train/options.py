@@ -20,7 +20,7 @@ from l3cli.pairs import Pair
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID
 
 __all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOptions",
-           "TONE_CURVE_SPACE", "NO_CURVE"]
+           "TONE_CURVE_SPACE", "NO_CURVE", "check_class_budget", "stats_bytes"]
 
 #: The target space a learned tone curve works with (its encoding is display sRGB).
 TONE_CURVE_SPACE = "linear-srgb"
@@ -48,6 +48,59 @@ def layout_defaults(pairs: Sequence[Pair]) -> dict:
 def default_target_space(pairs: Sequence[Pair]) -> str:
     """The default target space for these inputs (:func:`layout_defaults`)."""
     return layout_defaults(pairs)["target_space"]
+
+
+#: Bytes of training statistics per class beyond its q x q Gram matrix (in units
+#: of q: the q x n_out cross products and the sums; :class:`l3cli.train.stats.ClassStats`).
+_STATS_BYTES_PER_Q = 8 * (3 + 2)
+
+
+def stats_bytes(n_classes: int, patch: int) -> int:
+    """Bytes of the training statistics of ``n_classes`` classes of ``patch`` x ``patch``
+    kernels (float64 Gram matrix, cross products, sums and counts of each class)."""
+    q = patch * patch + 1
+    return int(n_classes) * (8 * q * q + _STATS_BYTES_PER_Q * q)
+
+
+def available_memory() -> int:
+    """Bytes of memory this process may still use (psutil's "available", else the
+    physical memory)."""
+    try:
+        import psutil
+
+        return int(psutil.virtual_memory().available)
+    except Exception:  # noqa: BLE001 - psutil absent or /proc unreadable
+        import os
+
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+
+
+def check_class_budget(opts: TrainOptions, n_classes: int, *, what: str = "") -> None:
+    """Refuse a class layout whose training statistics cannot fit in memory.
+
+    Named after the option that multiplies the count most (``--levels`` unless
+    another count is larger), so an absurd ``--levels 100000000`` fails at once,
+    before any input is read, and ``--levels 100000`` with a clear message
+    instead of "out of memory".
+
+    Raises
+    ------
+    ConfigError
+        The statistics need more than the available memory.
+    """
+    need = stats_bytes(n_classes, opts.patch)
+    have = available_memory()
+    if need <= have:
+        return
+    counts = {"--levels": opts.levels, "--contrast-bins": opts.contrast_bins,
+              "--context-bins": opts.context_bins if opts.context_block else 0,
+              "--orientation-bins": opts.orientation_bins, "--patch": opts.patch}
+    name = max(counts, key=lambda k: counts[k])
+    gib = 1 << 30
+    raise ConfigError(f"{name} {counts[name]} is too large: {what + ' ' if what else ''}"
+                      f"{n_classes:,} classes, whose training statistics need "
+                      f"{need / gib:,.1f} GiB, more than the {have / gib:,.1f} GiB of memory "
+                      f"available; use fewer {name}")
 
 
 class TrainOptions:
@@ -80,16 +133,24 @@ class TrainOptions:
         from l3cli.train.augment import augment_elements
         from l3cli.train.weights import check_weight
 
+        # comparisons written so that NaN fails them
         if levels < 2:
             raise ConfigError(f"--levels {levels} is not allowed; use 2 or more")
         if contrast_bins < 1:
             raise ConfigError(f"contrast bins {contrast_bins} is not allowed; use 1 or more")
         if not 0.0 < sample_fraction <= 1.0:
-            raise ConfigError(f"sample fraction {sample_fraction} is not allowed; use (0, 1]")
+            raise ConfigError(f"--sample-fraction {sample_fraction} is not allowed; use (0, 1]")
         if not 0.0 < saturation <= 1.5:
             raise ConfigError(f"saturation threshold {saturation} is not allowed; use (0, 1.5]")
-        if min_samples_factor <= 1.0:
-            raise ConfigError(f"min samples factor {min_samples_factor} must be > 1")
+        if not 1.0 < min_samples_factor < np.inf:
+            raise ConfigError(f"--min-samples {min_samples_factor} is not allowed; use a "
+                              "finite number > 1")
+        if level_range is not None:
+            lo, hi = (float(v) for v in level_range)
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 < lo < hi):
+                raise ConfigError(f"--level-range {lo:g} {hi:g} is not allowed; use two finite "
+                                  "numbers 0 < LOW < HIGH (normalised raw units)")
+            level_range = (lo, hi)
         if orientation_bins < 0 or orientation_bins % 2 or orientation_bins > 16:
             raise ConfigError(f"--orientation-bins {orientation_bins} is not allowed; use 0 "
                               "(off) or an even number from 2 to 16")
