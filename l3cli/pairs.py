@@ -476,6 +476,24 @@ def _load_simulated(pair: Pair, target_space: str | None) -> LoadedPair:
                       space=dst, pair=pair)
 
 
+#: Alignments found in this process, by the two files' identity (path, size, mtime) and the
+#: search's options: ``l3 train`` reads every pair twice (the tone curve's pass, then the
+#: kernels'), and so aligns -- and logs the alignment -- once. At most _MEMO_SIZE entries.
+_ALIGNMENTS: dict[tuple, Alignment | ScaledAlignment] = {}
+_MEMO_SIZE = 256
+
+
+def _file_id(path: Path) -> tuple:
+    st = os.stat(path)
+    return (str(Path(path).resolve()), st.st_size, st.st_mtime_ns)
+
+
+def _remember(key: tuple, a: Alignment | ScaledAlignment) -> None:
+    if len(_ALIGNMENTS) >= _MEMO_SIZE:
+        _ALIGNMENTS.pop(next(iter(_ALIGNMENTS)))
+    _ALIGNMENTS[key] = a
+
+
 def _load_rendered(pair: Pair, *, target_space: str | None, margin: int, clip_low: float,
                    clip_high: float, flips: Sequence[str], min_score: float,
                    min_sharpness: float, scaled: bool) -> LoadedPair:
@@ -490,19 +508,29 @@ def _load_rendered(pair: Pair, *, target_space: str | None, margin: int, clip_lo
         )
     img = img[:, :, :3]
     is_float = pair.target.suffix.lower() == ".exr"
-    try:
-        a = align(raw, img, space=space, raw_name=pair.raw, render_name=pair.target,
-                  flips=tuple(flips), min_score=min_score, min_sharpness=min_sharpness)
-    except InputError as exc:
-        smaller = img.shape[0] * img.shape[1] < raw.height * raw.width
-        if not (scaled and smaller):
-            hint = (" (if the render is a resized copy of the raw, `l3 train --scaled-renders` "
-                    "trains at its reduced resolution)") if smaller and not scaled else ""
-            raise InputError(f"{exc}{hint}") from None
-        return _load_scaled(pair, raw, img, space, target_space=target_space, margin=margin,
-                            clip_low=None if is_float else clip_low,
-                            clip_high=None if is_float else clip_high, flips=flips,
-                            min_score=min_score)
+    key = (_file_id(pair.raw), _file_id(pair.target), tuple(flips), float(min_score),
+           float(min_sharpness), bool(scaled))
+    a = _ALIGNMENTS.get(key)
+    reused = a is not None
+    scaled_args = dict(target_space=target_space, margin=margin,
+                       clip_low=None if is_float else clip_low,
+                       clip_high=None if is_float else clip_high, flips=flips,
+                       min_score=min_score, key=key)
+    if isinstance(a, ScaledAlignment):
+        return _load_scaled(pair, raw, img, space, found=a, **scaled_args)
+    if a is None:
+        try:
+            a = align(raw, img, space=space, raw_name=pair.raw, render_name=pair.target,
+                      flips=tuple(flips), min_score=min_score, min_sharpness=min_sharpness)
+        except InputError as exc:
+            smaller = img.shape[0] * img.shape[1] < raw.height * raw.width
+            if not (scaled and smaller):
+                hint = (" (if the render is a resized copy of the raw, `l3 train "
+                        "--scaled-renders` trains at its reduced resolution)"
+                        ) if smaller and not scaled else ""
+                raise InputError(f"{exc}{hint}") from None
+            return _load_scaled(pair, raw, img, space, **scaled_args)
+        _remember(key, a)
     crop, encoded = aligned_pair(raw, img, a)
     # Keep the raw's CFA phase: a render starting at an odd row/column of a
     # Bayer raw loses its first row/column, so the crop's CFA equals the raw's
@@ -516,8 +544,9 @@ def _load_rendered(pair: Pair, *, target_space: str | None, margin: int, clip_lo
     mask = weight_mask(encoded, margin=margin,
                        clip_low=None if is_float else clip_low,
                        clip_high=None if is_float else clip_high)
-    log.info("%s: %s; %.1f%% of pixels train (margin %d, clipped excluded)",
-             pair.name, a.describe(), 100 * float(mask.mean()), margin)
+    (log.debug if reused else log.info)(
+        "%s: %s; %.1f%% of pixels train (margin %d, clipped excluded)%s", pair.name,
+        a.describe(), 100 * float(mask.mean()), margin, " (alignment reused)" if reused else "")
     return _make_pair(pair, crop, encoded, mask, a, space, target_space, margin)
 
 
@@ -541,11 +570,17 @@ def _make_pair(pair: Pair, crop: RawImage, encoded: np.ndarray, mask: np.ndarray
 
 def _load_scaled(pair: Pair, raw: RawImage, img: np.ndarray, space: str, *,
                  target_space: str | None, margin: int, clip_low: float | None,
-                 clip_high: float | None, flips: Sequence[str], min_score: float) -> LoadedPair:
-    """:func:`load_pair` for a resized render (``scaled=True``)."""
+                 clip_high: float | None, flips: Sequence[str], min_score: float,
+                 key: tuple | None = None, found: ScaledAlignment | None = None) -> LoadedPair:
+    """:func:`load_pair` for a resized render (``scaled=True``); ``found``: its alignment
+    already known (under ``key`` of the memo)."""
 
-    a = align_scaled(raw, img, space=space, raw_name=pair.raw, render_name=pair.target,
-                     flips=tuple(flips), min_score=min_score)
+    a = found
+    if a is None:
+        a = align_scaled(raw, img, space=space, raw_name=pair.raw, render_name=pair.target,
+                         flips=tuple(flips), min_score=min_score)
+        if key is not None:
+            _remember(key, a)
     valid = weight_mask(img, margin=margin, clip_low=clip_low, clip_high=clip_high)
     crop, encoded, mask = scaled_pair(raw, img, a, valid=valid, space=space)
     if margin:
@@ -553,10 +588,12 @@ def _load_scaled(pair: Pair, raw: RawImage, img: np.ndarray, space: str, *,
         mask[mask.shape[0] - margin:] = False
         mask[:, :margin] = False
         mask[:, mask.shape[1] - margin:] = False
-    log.info("%s: %s; trains at the render's reduced resolution on the raw's %dx%d pixels "
-             "from (y=%d, x=%d); %.1f%% of them train (margin %d, clipped excluded)",
-             pair.name, a.describe(), crop.width, crop.height, crop.metadata["crop"][0],
-             crop.metadata["crop"][1], 100 * float(mask.mean()), margin)
+    (log.debug if found is not None else log.info)(
+        "%s: %s; trains at the render's reduced resolution on the raw's %dx%d pixels "
+        "from (y=%d, x=%d); %.1f%% of them train (margin %d, clipped excluded)%s",
+        pair.name, a.describe(), crop.width, crop.height, crop.metadata["crop"][0],
+        crop.metadata["crop"][1], 100 * float(mask.mean()), margin,
+        " (alignment reused)" if found is not None else "")
     return _make_pair(pair, crop, encoded, mask, a, space, target_space, margin)
 
 
