@@ -1,0 +1,188 @@
+"""The multi-scale stage (l3cli.multiscale): fit, apply, table keys, l3 train --multiscale."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from l3cli.errors import TableError
+from l3cli.multiscale import (
+    TRUNCATE,
+    Multiscale,
+    MultiscaleStats,
+    accumulate,
+    apply_stage,
+    place_cuts,
+    solve,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _gauss_taps(sigma: float) -> np.ndarray:
+    """The 1-D Gaussian of a sampled standard deviation, written out (not scipy's)."""
+    r = int(TRUNCATE * sigma + 0.5)
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (x / sigma) ** 2)
+    return g / g.sum()
+
+
+def test_identity_blend_returns_the_render():
+    rng = np.random.default_rng(0)
+    y = rng.random((40, 56, 3), dtype=np.float32)
+    stage = Multiscale.identity(3, (1.5, 4.0), [0.3, 0.6], np.array([[0.01, 0.1]] * 3))
+    out = apply_stage(stage, y)
+    assert out.shape == y.shape and out.dtype == np.float32
+    np.testing.assert_allclose(out, y, atol=2e-6)
+
+
+def test_zero_blend_returns_the_coarsest_lowpass():
+    # A = 0: out = lp_n, a Gaussian of the image; on a delta far from the borders
+    # that is the 2-D Gaussian's own taps
+    sigma = 3.0
+    stage = Multiscale.identity(1, (1.0, sigma))
+    stage.blend[:] = 0
+    y = np.zeros((41, 41, 1), np.float32)
+    y[20, 20, 0] = 1.0
+    out = apply_stage(stage, y)[..., 0]
+    g = _gauss_taps(sigma)
+    r = g.size // 2
+    np.testing.assert_allclose(out[20 - r:21 + r, 20 - r:21 + r], np.outer(g, g), atol=1e-6)
+
+
+def test_fit_recovers_a_known_blend():
+    # target = lp_n + sum_j A_true[k, j] b_j exactly: the per-class solve gives A_true back
+    rng = np.random.default_rng(1)
+    y = rng.random((96, 128, 3), dtype=np.float32)
+    probe = Multiscale.identity(3, (1.0, 3.0))
+    stack, coarse, _ = probe.features(y)
+    from l3cli.multiscale import energy, level
+
+    lc, ec = place_cuts(level(coarse), energy(y, coarse, 1.0), 2, 2)
+    shape = Multiscale.identity(3, (1.0, 3.0), lc, ec)
+    stack, coarse, cls = shape.features(y)
+    assert set(np.unique(cls)) == {0, 1, 2, 3}
+    a_true = rng.normal(size=(4, 6, 3)).astype(np.float32)
+    target = coarse + np.einsum("hwr,hwrc->hwc", stack, a_true[cls])
+    stats = accumulate(MultiscaleStats.zeros(4, 2, 3), stack, coarse, cls, target)
+    assert stats.n.sum() == y.shape[0] * y.shape[1]
+    a = solve(stats, 1e-9, 3)
+    np.testing.assert_allclose(a, a_true, atol=1e-4)
+    fitted = Multiscale(np.array([1.0, 3.0]), lc, ec, a, stats.n)
+    np.testing.assert_allclose(apply_stage(fitted, y), target, atol=1e-4)
+
+
+def test_fit_of_a_flat_noisy_image_is_the_wiener_blend():
+    # y = s + n (s constant, n white, independent per channel), one scale, one class:
+    # the least-squares A of (s - lp) on (y - lp) is, with the 2-D kernel's centre tap
+    # g0 and energy e = sum g^2, A = (e - g0) / (1 - 2 g0 + e) on the diagonal, 0 off it
+    sigma = 2.0
+    rng = np.random.default_rng(2)
+    y = (0.4 + 0.05 * rng.standard_normal((600, 600, 3))).astype(np.float32)
+    stage = Multiscale.identity(3, (sigma,))
+    stack, coarse, cls = stage.features(y)
+    r = 3 * int(TRUNCATE * sigma + 0.5)
+    mask = np.zeros(y.shape[:2], bool)
+    mask[r:-r, r:-r] = True  # away from the mirrored borders
+    stats = accumulate(MultiscaleStats.zeros(1, 1, 3), stack, coarse, cls,
+                       np.full_like(y, 0.4), mask)
+    a = solve(stats, 0.0, 3)[0]
+    g = _gauss_taps(sigma)
+    g0, e = g[g.size // 2] ** 2, (g ** 2).sum() ** 2
+    wiener = (e - g0) / (1 - 2 * g0 + e)
+    np.testing.assert_allclose(np.diag(a), wiener, atol=0.01)
+    assert np.abs(a - np.diag(np.diag(a))).max() < 0.01
+    # the blended output is smoother than the render
+    out = apply_stage(Multiscale(stage.sigmas, [], np.zeros((1, 0)), a[None], stats.n), y)
+    assert out[mask].std(axis=0).max() < 0.3 * y[mask].std(axis=0).min()
+
+
+def test_empty_class_keeps_the_identity():
+    stats = MultiscaleStats.zeros(2, 2, 3)
+    a = solve(stats, 1e-3, 3)
+    np.testing.assert_allclose(a, np.tile(np.eye(3), (2, 1))[None].repeat(2, 0), atol=1e-12)
+
+
+def test_table_round_trip_and_refusals(tmp_path):
+    from l3cli.classify import ClassDefinition
+    from l3cli.table import MULTISCALE_VERSION, TransformTable, load_table, save_table
+
+    d = ClassDefinition.build("RGGB", patch=3, level_cuts=[0.1])
+    n = d.n_classes
+    rng = np.random.default_rng(3)
+    stage = Multiscale(np.array([2.0, 6.0]), np.array([0.1, 0.3]),
+                       np.array([[0.01, 0.02], [0.01, 0.03], [0.02, 0.05]]),
+                       rng.normal(size=(9, 6, 3)), np.arange(9))
+    t = TransformTable(d, np.zeros((n, d.n_coeffs, 3)), np.full(n, 100), np.zeros((n, 3)),
+                       np.zeros(n, bool), np.arange(n), multiscale=stage)
+    path = save_table(tmp_path / "t.npz", t)
+    back = load_table(path)
+    for name in ("sigmas", "level_cuts", "energy_cuts", "blend", "counts"):
+        np.testing.assert_array_equal(getattr(back.multiscale, name), getattr(stage, name))
+    with np.load(path, allow_pickle=False) as z:
+        arrs = {k: z[k] for k in z.files}
+    assert int(arrs["version"]) == MULTISCALE_VERSION
+    plain = TransformTable(d, t.kernels, t.counts, t.lambdas, t.empty, t.source_class)
+    assert load_table(save_table(tmp_path / "p.npz", plain)).multiscale is None
+
+    def refused(change, match):
+        a = dict(arrs)
+        change(a)
+        p = tmp_path / "bad.npz"
+        np.savez(p, **a)
+        with pytest.raises(TableError, match=match):
+            load_table(p)
+
+    refused(lambda a: a.update(multiscale_blend=np.full((9, 6, 3), np.nan, np.float32)),
+            "NaN or Inf")
+    refused(lambda a: a.pop("multiscale_counts"), "missing keys multiscale_counts")
+    refused(lambda a: a.update(version=np.array(1)), "holds multiscale_")
+    refused(lambda a: a.update(multiscale_rule=np.array("gauss-bands-v9")), "not supported")
+    refused(lambda a: a.update(multiscale_sigmas=np.array([6.0, 2.0])), "increasing")
+    refused(lambda a: [a.pop(k) for k in list(a) if k.startswith("multiscale_")],
+            "needs the multiscale_")
+    with pytest.raises(TableError, match="takes 1 channels"):
+        TransformTable(d, t.kernels, t.counts, t.lambdas, t.empty, t.source_class,
+                       multiscale=Multiscale.identity(1))
+
+
+def test_train_multiscale_flag_and_render(runner, tmp_path):
+    from l3cli.cli.main import cli
+    from l3cli.io.image import read_image
+    from l3cli.io.raw import read_raw
+    from l3cli.kernelset import render_mosaic, prepare_kernels
+    from l3cli.table import load_table
+
+    sim = tmp_path / "sim"
+    res = runner.invoke(cli, ["-q", "simulate", str(ROOT / "sample_configs" / "bayer.toml"),
+                              "-o", str(sim), "--scene", "macbeth", "--lux", "30",
+                              "--size", "96x64"])
+    assert res.exit_code == 0, res.output
+    for flag, name in (("--multiscale", "ms.npz"), ("--no-multiscale", "plain.npz")):
+        res = runner.invoke(cli, ["-q", "train", str(sim), flag, "-o", str(tmp_path / name)])
+        assert res.exit_code == 0, res.output
+    table = load_table(tmp_path / "ms.npz")
+    assert load_table(tmp_path / "plain.npz").multiscale is None
+    assert table.multiscale is not None and table.multiscale.counts.sum() == 96 * 64
+    assert table.provenance["multiscale"]["sigmas"] == [2.0, 6.0]
+    raw_path = next(sim.glob("*.dng"))
+    raw = read_raw(raw_path)
+    ks = prepare_kernels(table, raw)
+    expected = apply_stage(table.multiscale, render_mosaic(ks, ks.prepare_mosaic(raw.mosaic)))
+    for suffix in (".exr", ".tif"):
+        out = tmp_path / f"r{suffix}"
+        res = runner.invoke(cli, ["-q", "render", str(tmp_path / "ms.npz"), str(raw_path),
+                                  "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        img = read_image(out)[0]
+        if suffix == ".exr":
+            np.testing.assert_allclose(img, expected, atol=1e-6)
+        else:  # display sRGB of the staged float render, within one 16-bit code
+            from l3cli.io.encode import display_encode
+
+            codes = display_encode(expected, table.output_space, 16).astype(np.int64)
+            assert np.abs(np.round(img * 65535).astype(np.int64) - codes).max() <= 1
+    assert json.loads(json.dumps(table.provenance["multiscale"]))["levels"] == 8
