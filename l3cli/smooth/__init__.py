@@ -201,7 +201,8 @@ def smooth_table(table: TransformTable, *, symmetry: bool = True, spline: bool =
                           lambdas=table.lambdas, empty=empty, source_class=src,
                           output_space=table.output_space, provenance=prov,
                           white_balance=table.white_balance, conditions=conditions,
-                          tone_lut=table.tone_lut)
+                          tone_lut=table.tone_lut,
+                          multiscale=table.multiscale)  # kept: it follows any kernels
 
 
 def filled_classes(table: TransformTable) -> dict[str, list[int]]:
