@@ -318,3 +318,16 @@ def test_numpy_warnings_do_not_reach_the_terminal(tmp_path: Path) -> None:
     res = subprocess.run([sys.executable, "-c", code, "-vv", "warns"], capture_output=True,
                          text=True, timeout=60)
     assert "RuntimeWarning" in res.stderr  # still there for whoever asks
+
+
+def test_simulate_size_beyond_memory_is_refused(runner, tmp_path: Path, monkeypatch) -> None:
+    """A capture size whose simulation cannot fit: refused before any work, naming --size
+    (it used to end in "out of memory")."""
+    import l3cli.train.options as options
+
+    monkeypatch.setattr(options, "available_memory", lambda: 1 << 30)
+    cam = Path(__file__).parents[1] / "sample_configs" / "bayer.toml"
+    res = runner.invoke(cli, ["simulate", str(cam), "-o", str(tmp_path / "sim"),
+                              "--size", "4000x3000", "--scene", "macbeth", "--lux", "100"])
+    assert_one_line_error(res, "--size 4000x3000", "GiB")
+    assert not (tmp_path / "sim").exists()
