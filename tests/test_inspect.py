@@ -129,3 +129,39 @@ def test_plot_kernels_rejects_bad_contrast(tmp_path):
 
     with pytest.raises(ConfigError, match="contrast bin 5"):
         plot_kernels(plausible_table(n_levels=4), tmp_path, contrast=5)
+
+
+def test_cli_inspect_checks_options_before_any_output(tmp_path, runner):
+    a = save_table(tmp_path / "a.npz", plausible_table("RGGB", n_levels=6))
+    r = runner.invoke(cli, ["inspect", str(a), "--plots", str(tmp_path / "p"), "--levels", "2,30"])
+    assert r.exit_code == 1
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert lines[0].startswith("Error:") and "--levels" in lines[0] and "a.npz" in lines[0]
+    assert "level 30 is not in 0..5" in lines[0]
+    assert not (tmp_path / "p").exists()  # nothing written either
+    r = runner.invoke(cli, ["inspect", str(a), "--levels", "2"])
+    assert r.exit_code == 2 and "--plots" in r.output and "CFA" not in r.output
+
+
+def test_inspect_text_is_plain_not_json(tmp_path, runner):
+    from l3cli.inspect import plain_value
+
+    raw = plausible_table("GRBG", n_levels=6, seed=3)
+    raw.provenance["options"] = {"lambda_grid": np.logspace(-9, 1, 41).tolist(), "patch": 5,
+                                 "white_balance": False, "level_range": None}
+    raw.provenance["tone_curve"] = {"knots": np.linspace(0, 1, 66).reshape(33, 2).tolist(),
+                                    "used": True, "heldout_rms": 0.0026981}
+    b = save_table(tmp_path / "s.npz", smooth_table(raw))
+    r = runner.invoke(cli, ["inspect", str(b), "--classes", "none"])
+    assert r.exit_code == 0, r.output
+    out = r.output
+    assert "lambda_grid: 41 values from 1e-09 to 10, log-spaced (x1.78 each)" in out
+    assert "knots: 33 x 2 numbers from 0 to 1" in out
+    assert "heldout_rms: 0.002698" in out and "used: yes" in out
+    assert "white_balance: no" in out and "level_range: none" in out
+    assert "0: G at (0,0); 1: R at (0,1); 2: B at (1,0); 3: G at (1,1)" in out
+    assert not [ln for ln in out.splitlines() if ln.strip().endswith(("]}", "}")) or '": ' in ln]
+    js = json.loads(runner.invoke(cli, ["inspect", str(b), "--json"]).output)
+    assert len(js["provenance"]["options"]["lambda_grid"]) == 41  # --json keeps every number
+    assert plain_value([0.5, 1]) == "0.5, 1" and plain_value([]) == "none"
+    assert plain_value(["a"] * 8) == "a, a, a, a, a, a, ... (8 in all)"
