@@ -21,15 +21,17 @@ slowing ``l3 --help``.
 #: but lose 30 % on a LibRaw render of a real sensor (Blackmagic DNG, left half -> right half
 #: 0.078 -> 0.104) and the weights lose on a simulated converter; ``l3 train --tune`` tries
 #: both on the user's own data (docs/training.md, "Augmentation and sample weights").
+#: ``shading``: learn a lens-shading gain field (l3cli.shading; docs/training.md, "Lens
+#: shading"); kept only where it predicts held-out images better than none.
 PAIRS_LAYOUT = {"patch": 7, "levels": 24, "contrast_bins": 3, "contrast_threshold": 0.2,
                 "target_space": "linear-srgb", "tone_curve": True,
-                "augment": "none", "sample_weight": "none"}
+                "augment": "none", "sample_weight": "none", "shading": True}
 #: Simulate folders (ideal XYZ targets): the paper's layout, measured by make paper's
 #: experiments 4 and 5 (the pairs layout leaves small simulations with untrained classes).
 #: ``contrast_threshold`` None: thresholds at the per-level quantiles of the data.
 SIMULATION_LAYOUT = {"patch": 5, "levels": 24, "contrast_bins": 2, "contrast_threshold": None,
                      "target_space": "xyz", "tone_curve": False,
-                     "augment": "none", "sample_weight": "none"}
+                     "augment": "none", "sample_weight": "none", "shading": False}
 #: Patch size (odd) of :class:`l3cli.train.TrainOptions`: the kernel sees PATCH x PATCH pixels.
 PATCH = SIMULATION_LAYOUT["patch"]
 #: Number of response-level bins (library default).
@@ -37,6 +39,9 @@ LEVELS = SIMULATION_LAYOUT["levels"]
 #: Learn the renders' per-channel tone curve and train in its linear space (library
 #: default; pairs folders use PAIRS_LAYOUT's). Only with the linear-srgb target.
 TONE_CURVE = False
+#: Learn a lens-shading gain field from rendered pairs (library default; pairs folders use
+#: PAIRS_LAYOUT's).
+SHADING = SIMULATION_LAYOUT["shading"]
 #: Dihedral augmentation of the training pairs (library default; ``"none"``, ``"flips"``, ``"d4"``).
 AUGMENT = SIMULATION_LAYOUT["augment"]
 #: Per-sample weights of the fit (library default; ``"none"`` or ``"luminance"``).

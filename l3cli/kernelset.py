@@ -471,6 +471,8 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
     """
     check_fits(table, raw, table_name=table_name)
     ks = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
-    from l3cli import multiscale
+    from l3cli import multiscale, shading
+
+    raw = shading.corrected(table, raw)  # lens shading first (l3cli.shading)
 
     return multiscale.apply(table, render_mosaic(ks, ks.prepare_mosaic(raw.mosaic)))

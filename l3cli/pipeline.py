@@ -286,6 +286,7 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
+    from l3cli import shading
     from l3cli.kernelset import check_fits, prepare_kernels, render_mosaic
 
     fmt = format_of(out_path)
@@ -296,6 +297,7 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     check_fits(table, raw, table_name=table_name)
     shot = exif_attributes(raw.metadata.get("shot", {}))
     kernels = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
+    raw = shading.corrected(table, raw, inplace=True)  # lens shading first (l3cli.shading)
     mosaic = kernels.prepare_mosaic(raw.mosaic, inplace=True)  # the decode is ours
     t1 = time.perf_counter()
     with turn if turn is not None else contextlib.nullcontext():

@@ -46,7 +46,17 @@ tone_lut           float32      optional (n_lut, n_out): the kernels render a le
                                 channel (:mod:`l3cli.tonecurve`); absent in tables
                                 without a tone curve (their kernels render directly)
 tone_range         float32      optional (2, n_out): the grid's ends (with tone_lut)
+shading_rule       str          optional (version 2): ``"radial-poly-r2-v1"``, a lens
+                                shading gain field applied to the normalised mosaic
+                                before classification (:mod:`l3cli.shading`)
+shading_centre     float64      (2,) optical centre (cy, cx), normalised coordinates
+shading_coeffs     float64      (n_positions, k) gain = sum_j coeffs[p, j] r^(2j)
+shading_size       int64        (2,) height, width of the training raws
 ================== ============ ===============================================
+
+A table with a shading gain field is written as version 2 (so that an l3
+that cannot apply it refuses the table; version 3 when it also holds a
+multi-scale stage); every other table as version 1.
 
 A table with a multi-scale stage (``l3 train --multiscale``, :mod:`l3cli.multiscale`)
 holds the optional keys ``multiscale_rule`` (str, ``"gauss-bands-v1"``),
@@ -77,12 +87,15 @@ from l3cli.colourspace import SPACES
 from l3cli.errors import ConfigError, L3Error, TableError
 from l3cli.io.atomic import atomic_path
 
-__all__ = ["TransformTable", "save_table", "load_table", "TABLE_FORMAT", "TABLE_VERSION"]
+__all__ = ["TransformTable", "save_table", "load_table", "TABLE_FORMAT", "TABLE_VERSION",
+           "SHADING_VERSION"]
 
 TABLE_FORMAT = "l3-table"
 TABLE_VERSION = 1
 #: The version of tables that hold a multi-scale stage (``multiscale_*`` keys).
 MULTISCALE_VERSION = 3
+#: The version of tables that hold a shading gain field (``shading_*`` keys).
+SHADING_VERSION = 2
 
 _STR_KEYS = ("format", "cfa", "level_spacing", "contrast_rule", "saturation_rule",
              "output_space", "provenance")
@@ -170,6 +183,7 @@ class TransformTable:
     conditions: Any = None  # l3cli.conditions.Conditioned: per-bin kernels (--by iso)
     tone_lut: tuple[np.ndarray, np.ndarray] | None = None  # (lut, range): l3cli.tonecurve
     multiscale: Any = None  # l3cli.multiscale.Multiscale: applied to the rendered output
+    shading: Any = None  # l3cli.shading.GainField: lens shading corrected before classification
 
     def __post_init__(self) -> None:
         self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
@@ -197,6 +211,11 @@ class TransformTable:
         if self.multiscale is not None and self.multiscale.n_out != self.n_out:
             raise TableError(f"inconsistent table: the multiscale stage takes "
                              f"{self.multiscale.n_out} channels, the kernels give {self.n_out}")
+        if (self.shading is not None
+                and self.shading.coeffs.shape[0] != self.definition.cfa.n_positions):
+            raise TableError(f"inconsistent table: the shading gain field has "
+                             f"{self.shading.coeffs.shape[0]} CFA positions, the CFA "
+                             f"{self.definition.cfa.n_positions}")
         if self.conditions is not None and self.conditions.kernels.shape[1:] != self.kernels.shape:
             raise TableError(f"inconsistent table: condition kernels have shape "
                              f"{self.conditions.kernels.shape[1:]}, the table's {self.kernels.shape}")
@@ -250,7 +269,8 @@ class TransformTable:
         """The NPZ content."""
         out = {
             "format": np.array(self.format),
-            "version": np.array(self.version, dtype=np.int64),
+            "version": np.array(SHADING_VERSION if self.shading is not None else self.version,
+                                dtype=np.int64),
             **self.definition.to_dict(),
             "kernels": self.kernels,
             "counts": self.counts,
@@ -266,6 +286,8 @@ class TransformTable:
             out.update(self.conditions.to_arrays())
         if self.tone_lut is not None:
             out["tone_lut"], out["tone_range"] = self.tone_lut
+        if self.shading is not None:
+            out.update(self.shading.to_arrays())
         if self.multiscale is not None:  # version 3: an l3 without the stage refuses it
             out.update(self.multiscale.to_arrays())
             out["version"] = np.array(MULTISCALE_VERSION, dtype=np.int64)
@@ -355,11 +377,16 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         if not ok:
             raise TableError(f"{path}: key {k!r} has dtype {arrs[k].dtype}, expected kind {kind!r}")
     version = _scalar(arrs, "version", path, "i")
-    if version not in (TABLE_VERSION, MULTISCALE_VERSION):
+    if version not in (TABLE_VERSION, SHADING_VERSION, MULTISCALE_VERSION):
         raise TableError(
             f"{path}: table version {version} is not supported; this l3 reads versions "
-            f"{TABLE_VERSION} and {MULTISCALE_VERSION}"
+            f"{TABLE_VERSION}, {SHADING_VERSION} and {MULTISCALE_VERSION}"
         )
+    has_shading = "shading_rule" in arrs
+    if (version == SHADING_VERSION) > has_shading or has_shading > (version >= SHADING_VERSION):
+        raise TableError(f"{path}: damaged table, version {version} "
+                         + ("holds no shading_* keys" if has_shading
+                            else "needs the shading_* keys"))
     try:
         definition = ClassDefinition(
             cfa=CFA.from_spec(_scalar(arrs, "cfa", path, "U")),
@@ -406,6 +433,12 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         tone = (arrs["tone_lut"], arrs["tone_range"])
         if any(a.dtype.kind != "f" for a in tone):
             raise TableError(f"{path}: tone_lut/tone_range must be floating point")
+    from l3cli.shading import GainField
+
+    try:
+        shading = GainField.from_arrays(arrs, definition.cfa.n_positions)
+    except TableError as exc:
+        raise TableError(f"{path}: {exc}") from exc
     from l3cli.multiscale import Multiscale
 
     try:
@@ -430,6 +463,7 @@ def load_table(path: str | os.PathLike) -> TransformTable:
             conditions=cond,
             tone_lut=tone,
             multiscale=multiscale,
+            shading=shading,
         )
     except L3Error as exc:
         raise TableError(f"{path}: {exc}") from exc

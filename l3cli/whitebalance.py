@@ -324,7 +324,13 @@ def training_gains(raw: Any, opts: Any) -> np.ndarray:
 
 
 def training_mosaic(raw: Any, opts: Any) -> np.ndarray:
-    """The mosaic training sees: normalised by the white balance when ``opts.white_balance``."""
+    """The mosaic training sees: shading-corrected when ``opts.shading_field`` is set
+    (:mod:`l3cli.shading`), then normalised by the white balance when ``opts.white_balance``."""
+    field = getattr(opts, "shading_field", None)
+    if field is not None:
+        from l3cli.shading import corrected_raw
+
+        raw = corrected_raw(field, raw, opts.saturation)
     if not getattr(opts, "white_balance", False):
         return raw.mosaic
     return apply_gains(raw.mosaic, raw.cfa, training_gains(raw, opts), opts.saturation)

@@ -106,6 +106,11 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
                    "kernels in its linear space; the table maps their output back through "
                    "the curve (docs/training.md) [default: on for pairs folders with the "
                    "linear-srgb target, else off].")
+@click.option("--shading/--no-shading", "shading", default=None,
+              help="Learn the camera's lens-shading correction (a smooth per-channel gain over "
+                   "sensor position, applied to the raw before classification; kept only where "
+                   "it predicts held-out pairs better than none; docs/training.md) [default: "
+                   "on for pairs folders, else off].")
 @click.option("--sample-fraction", type=Finite(min=0, max=1, min_open=True),
               default=defaults.SAMPLE_FRACTION, show_default=True,
               help="Use this random fraction of the pixels of each image (fixed by --seed).")
@@ -195,7 +200,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           context_rule: str = defaults.CONTEXT_RULE,
           highlight_bins: str = str(defaults.HIGHLIGHT_BINS),
           highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
-          tone_curve: bool | None = None,
+          tone_curve: bool | None = None, shading: bool | None = None,
           augment: str | None = None, sample_weight: str | None = None,
           multiscale: bool = defaults.MULTISCALE) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
@@ -250,6 +255,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
         tone_curve = layout["tone_curve"] and target_space == TONE_CURVE_SPACE
     augment = augment or layout["augment"]
     sample_weight = sample_weight or layout["sample_weight"]
+    shading = layout["shading"] if shading is None else shading
     gains = white_balance
     if gains is not None:
         if as_shot_wb is False:
@@ -272,7 +278,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         context_block=context_block, context_bins=context_bins,
                         context_rule=context_rule, highlight_bins=int(highlight_bins),
                         highlight_fraction=highlight_fraction, tone_curve=tone_curve,
-                        augment=augment, sample_weight=sample_weight)
+                        augment=augment, sample_weight=sample_weight, shading=shading)
     show = not quiet()
     if tune:
         table = _tune(pairs, opts, workers, scheduler, show)

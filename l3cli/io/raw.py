@@ -106,17 +106,23 @@ class RawImage:
         return int(self.mosaic.shape[1])
 
     def crop(self, y0: int, x0: int, height: int, width: int) -> RawImage:
-        """A view of a window; the CFA phase follows the crop origin."""
+        """A view of a window; the CFA phase follows the crop origin.
+
+        ``metadata["crop"]`` is the window on the file's full raw (offsets add
+        over crops of crops), ``metadata["full_size"]`` that raw's (height, width).
+        """
         ph, pw = self.cfa.period
         bl = self.black_level.reshape(ph, pw)
         bl = np.roll(bl, (-y0, -x0), axis=(0, 1)).ravel()
+        oy, ox = self.metadata.get("crop", (0, 0, 0, 0))[:2]
         return RawImage(
             mosaic=self.mosaic[y0 : y0 + height, x0 : x0 + width],
             cfa=self.cfa.shifted(y0, x0),
             black_level=bl,
             white_level=self.white_level,
             path=self.path,
-            metadata={**self.metadata, "crop": [int(y0), int(x0), int(height), int(width)]},
+            metadata={"full_size": [self.height, self.width], **self.metadata,
+                      "crop": [int(oy + y0), int(ox + x0), int(height), int(width)]},
         )
 
     def planes(self) -> dict[str, np.ndarray]:

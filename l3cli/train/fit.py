@@ -467,6 +467,14 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
         from l3cli.conditions import group_pairs
 
         groups = group_pairs(pairs, opts.by)
+    shading_record = None
+    if opts.shading and pairs_kind(pairs) == "pairs":  # lens shading: corrected in every pass
+        from l3cli.train.shading import learn_shading
+
+        field, shading_record = learn_shading(pairs, opts)
+        if field is not None:
+            opts = copy.copy(opts)
+            opts.shading_field = field
     with dask_client(workers, scheduler) as client:
         definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
         model = None
@@ -501,6 +509,9 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
         attach_curve(table, stats_opts.tone_model, curve_record)
     if model is not None:
         table.white_balance = model.as_dict()
+    if shading_record is not None:
+        table.shading = opts.shading_field
+        table.provenance["shading"] = shading_record
     if opts.by:
         from l3cli.conditions import Conditioned
 

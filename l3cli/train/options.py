@@ -129,7 +129,8 @@ class TrainOptions:
                  highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
                  tone_curve: bool = defaults.TONE_CURVE,
                  augment: str = defaults.AUGMENT,
-                 sample_weight: str = defaults.SAMPLE_WEIGHT) -> None:
+                 sample_weight: str = defaults.SAMPLE_WEIGHT,
+                 shading: bool = defaults.SHADING) -> None:
         from l3cli.train.augment import augment_elements
         from l3cli.train.weights import check_weight
 
@@ -204,6 +205,8 @@ class TrainOptions:
         augment_elements(augment)  # a known choice
         self.augment = augment
         self.sample_weight = check_weight(sample_weight)
+        self.shading = bool(shading)  # learn a lens-shading gain field (l3cli.shading)
+        self.shading_field = None  # the fitted l3cli.shading.GainField (set by train())
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance).
@@ -219,7 +222,9 @@ class TrainOptions:
             del d["context_block"], d["context_bins"], d["context_rule"]
         if not self.highlight_bins:
             del d["highlight_bins"], d["highlight_fraction"]
-        del d["tone_model"]
+        del d["tone_model"], d["shading_field"]
+        if not self.shading:
+            del d["shading"]
         if not self.tone_curve:
             del d["tone_curve"]
         if self.augment == "none":

@@ -1,0 +1,462 @@
+"""Lens shading: a smooth gain over sensor position, per CFA channel.
+
+Cameras correct lens shading (the fall-off of a lens's relative illumination
+toward the corners, different per colour) on the raw data before anything
+else. l3's classes know a pixel's CFA phase but not where on the sensor it
+lies, so a camera whose renders are shading-corrected is learned here in two
+parts: a gain field that corrects the raw first, then the table.
+
+The gain field (:class:`GainField`)
+    Per CFA position ``p``, a polynomial in the squared radius about an optical
+    centre ``(cy, cx)``: ``g_p(r) = c_p0 + c_p1 r^2 + c_p2 r^4 + c_p3 r^6``, with
+    ``r`` in normalised sensor coordinates (:func:`normalised_coords`: the
+    image centre is 0, the half-diagonal is 1). Positions of one colour share
+    their coefficients when learned. The gains are scaled so that their
+    largest value over the training raws' area is 1: a correction darkens the
+    centre rather than brightening the corners, so a pixel below the
+    saturation threshold stays below it and the saturation classes still see
+    only real clipping (pixels at or above it are left as they are).
+Learning (:func:`fit_field`, glue in :mod:`l3cli.train.shading`)
+    The pairs are cut into blocks; each block's per-channel raw means ``m``
+    and its target's linear means ``t`` should follow ``t = M_i (g(r) m)``
+    with one colour matrix ``M_i`` per image (it absorbs each render's white
+    balance and the field's per-channel scale). The matrices and the gain
+    coefficients are fitted by alternating least squares (each step is
+    linear), the centre by Nelder-Mead around the image centre. The field is
+    kept only where it predicts held-out images' blocks better than no field
+    (leave one image out), so unshaded cameras train as before.
+Application (:func:`corrected`)
+    Before classification, in training and rendering alike: the per-pixel
+    gain map is computed once per raw size (cached) and multiplied in place.
+DNG ``GainMap`` opcodes (:func:`apply_gain_maps`)
+    The camera's own correction, read from a DNG's OpcodeList2/3 by
+    :mod:`l3cli.io.dng_opcodes` and applied as the DNG SDK does, to the
+    normalised mosaic as it is read.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from l3cli.errors import TableError
+
+__all__ = ["SHADING_RULE", "GainField", "normalised_coords", "gain_map", "corrected",
+           "corrected_raw", "correct_mosaic", "block_samples", "BlockSamples", "fit_field", "apply_gain_maps"]
+
+log = logging.getLogger(__name__)
+
+#: Name of the gain-field rule recorded in tables.
+SHADING_RULE = "radial-poly-r2-v1"
+#: Powers of r^2 in the polynomial (0 .. ORDER).
+ORDER = 3
+
+
+def normalised_coords(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel-centre coordinates ``(v, u)`` (float64 (H,), (W,)): 0 at the image
+    centre, 1 at the half-diagonal."""
+    half = 0.5 * float(np.hypot(height, width))
+    v = (np.arange(height) + 0.5 - 0.5 * height) / half
+    u = (np.arange(width) + 0.5 - 0.5 * width) / half
+    return v, u
+
+
+@dataclass(eq=False)
+class GainField:
+    """A radial gain per CFA position (see the module notes).
+
+    Attributes
+    ----------
+    centre
+        float64 (2,): optical centre ``(cy, cx)`` in normalised coordinates.
+    coeffs
+        float64 (n_positions, ORDER + 1): ``g_p(r) = sum_k coeffs[p, k] r^(2k)``.
+    size
+        ``(height, width)`` of the training raws.
+    """
+
+    centre: np.ndarray
+    coeffs: np.ndarray
+    size: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        self.centre = np.asarray(self.centre, dtype=np.float64)
+        self.coeffs = np.asarray(self.coeffs, dtype=np.float64)
+        self.size = (int(self.size[0]), int(self.size[1]))
+        problem = self._problem()
+        if problem:
+            raise TableError(f"bad shading gain field: {problem}")
+
+    def _problem(self) -> str | None:
+        if self.centre.shape != (2,) or self.coeffs.ndim != 2 or self.coeffs.shape[1] < 1:
+            return f"centre {self.centre.shape} / coeffs {self.coeffs.shape} have the wrong shape"
+        if not (np.all(np.isfinite(self.centre)) and np.all(np.isfinite(self.coeffs))):
+            return "centre or coefficients hold NaN or Inf"
+        if np.any(np.abs(self.centre) > 1.0):
+            return f"centre {self.centre.tolist()} lies outside the sensor"
+        if min(self.size) < 1:
+            return f"size {self.size} is empty"
+        r_max = 1.0 + float(np.hypot(*self.centre))  # the farthest corner of any raw
+        g = self.gains(np.linspace(0.0, r_max ** 2, 257))
+        if not np.all(g > 0):
+            return "gains are not positive over the sensor"
+        return None
+
+    def gains(self, r2: np.ndarray) -> np.ndarray:
+        """Gains (n_positions, *r2.shape) at squared radii ``r2``."""
+        r2 = np.asarray(r2, dtype=np.float64)
+        out = np.zeros((self.coeffs.shape[0], *r2.shape))
+        for k in range(self.coeffs.shape[1] - 1, -1, -1):  # Horner
+            out = out * r2 + self.coeffs[:, k].reshape((-1,) + (1,) * r2.ndim)
+        return out
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The table keys (``shading_*``)."""
+        return {"shading_rule": np.array(SHADING_RULE),
+                "shading_centre": self.centre.copy(),
+                "shading_coeffs": self.coeffs.copy(),
+                "shading_size": np.array(self.size, dtype=np.int64)}
+
+    @classmethod
+    def from_arrays(cls, arrs: dict[str, np.ndarray], n_positions: int) -> GainField | None:
+        """The field stored in a table's arrays, or None when it has none.
+
+        Raises
+        ------
+        TableError
+            Keys missing, another rule, wrong dtypes or shapes, non-finite or
+            non-positive gains.
+        """
+        keys = ("shading_rule", "shading_centre", "shading_coeffs", "shading_size")
+        present = [k for k in keys if k in arrs]
+        if not present:
+            return None
+        if len(present) != len(keys):
+            missing = ", ".join(k for k in keys if k not in arrs)
+            raise TableError(f"damaged table, missing keys {missing}")
+        rule = arrs["shading_rule"]
+        if rule.dtype.kind != "U" or rule.ndim or str(rule) != SHADING_RULE:
+            raise TableError(f"shading_rule {str(rule)!r} is not supported; this l3 reads "
+                             f"{SHADING_RULE!r}")
+        for k in keys[1:]:
+            if arrs[k].dtype.kind not in ("f", "i", "u"):
+                raise TableError(f"key {k!r} has dtype {arrs[k].dtype}, expected numbers")
+        coeffs = arrs["shading_coeffs"]
+        if coeffs.ndim != 2 or coeffs.shape[0] != n_positions:
+            raise TableError(f"shading_coeffs has shape {coeffs.shape}, the CFA needs "
+                             f"({n_positions}, k)")
+        size = arrs["shading_size"]
+        if size.shape != (2,):
+            raise TableError(f"shading_size has shape {size.shape}, expected (2,)")
+        return cls(arrs["shading_centre"], coeffs, (int(size[0]), int(size[1])))
+
+    def key(self) -> bytes:
+        """Bytes that identify the field (the gain-map cache's key)."""
+        return self.centre.tobytes() + self.coeffs.tobytes() + np.array(self.size).tobytes()
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_map(key: bytes, field_ref: Any, shape: tuple[int, int],
+                period: tuple[int, int]) -> np.ndarray:
+    field = field_ref[0]
+    h, w = shape
+    ph, pw = period
+    v, u = normalised_coords(h, w)
+    cy, cx = field.centre
+    out = np.empty((h, w), dtype=np.float32)
+    for y in range(ph):
+        for x in range(pw):
+            r2 = (v[y::ph, None] - cy) ** 2 + (u[None, x::pw] - cx) ** 2
+            p = y * pw + x
+            out[y::ph, x::pw] = field.gains(r2)[p]
+    out.flags.writeable = False
+    return out
+
+
+def gain_map(field: GainField, shape: tuple[int, int], period: tuple[int, int]) -> np.ndarray:
+    """The field's per-pixel gains on a full raw of ``shape`` (float32 (H, W), read-only;
+    computed once per field and size). ``period`` is the CFA's, its phase that of the
+    table (position ``p = (y % ph) * pw + x % pw``)."""
+    return _cached_map(field.key(), (field,), (int(shape[0]), int(shape[1])),
+                       (int(period[0]), int(period[1])))
+
+
+def _placement(raw: Any) -> tuple[tuple[int, int], int, int]:
+    """``(full shape, y0, x0)``: where a (possibly cropped) raw lies on its full raw."""
+    crop = raw.metadata.get("crop") if isinstance(raw.metadata, dict) else None
+    full = raw.metadata.get("full_size") if isinstance(raw.metadata, dict) else None
+    if crop is None or full is None:
+        return (int(raw.mosaic.shape[0]), int(raw.mosaic.shape[1])), 0, 0
+    return (int(full[0]), int(full[1])), int(crop[0]), int(crop[1])
+
+
+def correct_mosaic(mosaic: np.ndarray, field: GainField, cfa: Any, saturation: float, *,
+                   full_shape: tuple[int, int] | None = None, origin: tuple[int, int] = (0, 0),
+                   out: np.ndarray | None = None, name: Any = "raw") -> np.ndarray:
+    """``mosaic`` times the field's gains where it is below ``saturation`` (float32).
+
+    ``full_shape`` and ``origin`` place a cropped mosaic on its full raw. ``out`` may be
+    ``mosaic`` itself (in place). A raw of another size than the training
+    raws' is corrected in normalised coordinates, with a warning.
+    """
+    full = tuple(mosaic.shape) if full_shape is None else tuple(full_shape)
+    if full != field.size:
+        log.warning("%s: the raw is %dx%d, the table's shading gain field was learned on "
+                    "%dx%d raws; applying it in coordinates relative to the frame",
+                    name, full[1], full[0], field.size[1], field.size[0])
+    y0, x0 = origin
+    ph, pw = cfa.period
+    gmap = gain_map(field, full, (ph, pw))
+    # the map's positions are the full raw's; the crop starts at (y0, x0) of it
+    g = gmap[y0:y0 + mosaic.shape[0], x0:x0 + mosaic.shape[1]]
+    if out is None:
+        out = np.array(mosaic, dtype=np.float32, copy=True)
+    np.multiply(mosaic, g, out=out, where=mosaic < saturation)
+    return out
+
+
+def corrected(table: Any, raw: Any, *, inplace: bool = False) -> Any:
+    """The raw as the table's kernels expect it: shading-corrected when the table holds
+    a gain field (``table.shading``), else ``raw`` itself.
+
+    The one render-side call: every render path passes its raw through it
+    before the kernel runs. ``inplace`` multiplies ``raw.mosaic`` itself (for
+    callers that own the raw); otherwise a corrected copy is returned. A raw
+    corrected once is not corrected again.
+    """
+    field = getattr(table, "shading", None)
+    if field is None:
+        return raw
+    return corrected_raw(field, raw, table.definition.saturation_threshold, inplace=inplace)
+
+
+def corrected_raw(field: GainField, raw: Any, saturation: float, *,
+                  inplace: bool = False) -> Any:
+    """``raw`` corrected by ``field`` (:func:`correct_mosaic`; a cropped raw is placed on its
+    full raw by its ``crop`` and ``full_size`` metadata). Training and rendering both call it."""
+    if raw.metadata.get("shading_corrected"):
+        return raw
+    import dataclasses
+
+    full, y0, x0 = _placement(raw)
+    mosaic = correct_mosaic(raw.mosaic, field, raw.cfa, saturation,
+                            full_shape=full, origin=(y0, x0),
+                            out=raw.mosaic if inplace else None, name=raw.path or "raw")
+    meta = {**raw.metadata, "shading_corrected": True}
+    if inplace:
+        raw.metadata = meta
+        return raw
+    return dataclasses.replace(raw, mosaic=mosaic, metadata=meta)
+
+
+# ------------------------------------------------------------------- learning
+@dataclass
+class BlockSamples:
+    """One image's blocks: normalised centres, per-channel raw means, target means."""
+
+    v: np.ndarray  # float64 (n,)
+    u: np.ndarray  # float64 (n,)
+    raw: np.ndarray  # float64 (n, n_channels)
+    target: np.ndarray  # float64 (n, 3) linear
+
+
+def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.ndarray | None,
+                  *, full_shape: tuple[int, int], origin: tuple[int, int] = (0, 0),
+                  saturation: float = 0.95, block: int = 16,
+                  floor: float = 0.01) -> BlockSamples:
+    """Block means of one pair for :func:`fit_field`.
+
+    Blocks (``block`` pixels, a whole number of CFA periods) count when every
+    pixel may train (``mask``), no raw pixel reaches 0.9 x ``saturation`` and
+    every channel's mean is above ``floor``.
+    """
+    ph, pw = cfa.period
+    by = max(ph, block // ph * ph)
+    bx = max(pw, block // pw * pw)
+    h, w = mosaic.shape
+    ny, nx = h // by, w // bx
+    hh, ww = ny * by, nx * bx
+    m = np.asarray(mosaic[:hh, :ww], dtype=np.float64).reshape(ny, by, nx, bx)
+    chans = list(dict.fromkeys(cfa.channels))
+    pos = (np.arange(by)[:, None] % ph) * pw + np.arange(bx)[None, :] % pw
+    cidx = np.array([chans.index(cfa.channel_at(p // pw, p % pw)) for p in range(ph * pw)])[pos]
+    means = np.stack([(m * (cidx == c)[None, :, None, :]).sum(axis=(1, 3)) / (cidx == c).sum()
+                      for c in range(len(chans))], axis=-1)  # (ny, nx, n_ch)
+    t = np.asarray(target[:hh, :ww], dtype=np.float64).reshape(ny, by, nx, bx, -1).mean(axis=(1, 3))
+    ok = m.max(axis=(1, 3)) < 0.9 * saturation
+    ok &= np.all(means > floor, axis=-1) & np.all(np.isfinite(t), axis=-1)
+    if mask is not None:
+        ok &= np.asarray(mask[:hh, :ww]).reshape(ny, by, nx, bx).all(axis=(1, 3))
+    v, u = normalised_coords(*full_shape)
+    y0, x0 = origin
+    vc = v[y0:y0 + hh].reshape(ny, by).mean(axis=1)
+    uc = u[x0:x0 + ww].reshape(nx, bx).mean(axis=1)
+    vv, uu = np.meshgrid(vc, uc, indexing="ij")
+    return BlockSamples(vv[ok], uu[ok], means[ok], t[ok])
+
+
+def _design(s: BlockSamples, centre: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Powers r^2 .. r^(2 order) of the blocks (n, order) and their residual weights (n,)."""
+    r2 = (s.v - centre[0]) ** 2 + (s.u - centre[1]) ** 2
+    powers = np.stack([r2 ** (k + 1) for k in range(order)], axis=1)
+    return powers, 1.0 / (s.target.mean(axis=1) + 0.05)  # relative residuals
+
+
+def _projected(samples: Sequence[BlockSamples], centre: np.ndarray, a: np.ndarray
+               ) -> np.ndarray:
+    """Weighted residuals of every image with its own best matrix for the field
+    ``(centre, a)`` (variable projection: the matrices are solved, not searched)."""
+    out = []
+    for s in samples:
+        powers, wt = _design(s, centre, a.shape[1])
+        z = s.raw * (1.0 + powers @ a.T) * wt[:, None]
+        y = s.target * wt[:, None]
+        mt, *_ = np.linalg.lstsq(z, y, rcond=None)
+        out.append((y - z @ mt).ravel())
+    return np.concatenate(out)
+
+
+def _fit_samples(samples: Sequence[BlockSamples], order: int
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least squares (trust region) over the centre and the gain coefficients
+    (n_ch, order) of r^2 .. r^(2 order) (constant 1), each image's matrix solved
+    inside; returns the coefficients, the centre and the weighted sum of squares."""
+    from scipy.optimize import least_squares
+
+    n_ch = samples[0].raw.shape[1]
+
+    def residuals(x):
+        return _projected(samples, x[:2], x[2:].reshape(n_ch, order))
+
+    x0 = np.zeros(2 + n_ch * order)
+    lo, hi = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)
+    lo[:2], hi[:2] = -0.5, 0.5
+    res = least_squares(residuals, x0, bounds=(lo, hi), method="trf", x_scale=1.0,
+                        xtol=1e-8, ftol=1e-10, max_nfev=60)
+    return res.x[2:].reshape(n_ch, order), res.x[:2].copy(), float(2 * res.cost)
+
+
+def _matrix_sse(s: BlockSamples, a: np.ndarray | None, centre: np.ndarray) -> float:
+    """Weighted SSE of one image with only its matrix fitted (``a`` None: no field)."""
+    powers, wt = _design(s, centre, 1 if a is None else a.shape[1])
+    z = s.raw
+    if a is not None:
+        z = z * (1.0 + powers @ a.T)
+    z = z * wt[:, None]
+    y = s.target * wt[:, None]
+    mt, *_ = np.linalg.lstsq(z, y, rcond=None)
+    return float(np.sum((z @ mt - y) ** 2))
+
+
+def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], *,
+              order: int = ORDER, min_gain: float = 0.02) -> tuple[GainField | None, dict]:
+    """Learn a gain field from the block samples of the training pairs.
+
+    Returns
+    -------
+    field, record
+        The field (None when it does not predict held-out images better than
+        no field, or the samples are too few), and a JSON record of the fit
+        (``heldout_rms`` with and without the field, ``reason`` when none).
+    """
+    samples = [s for s in samples if s.raw.shape[0] >= 8 * (order + 3)]
+    record: dict[str, Any] = {"rule": SHADING_RULE, "images": len(samples)}
+    if not samples:
+        record["reason"] = "too few unclipped blocks"
+        return None, record
+    n_blocks = sum(s.raw.shape[0] for s in samples)
+    a, centre, _ = _fit_samples(samples, order)
+    # held out: the field of the other images on each image (its own matrix refitted)
+    if len(samples) > 1:
+        with_f = without = 0.0
+        for i, s in enumerate(samples):
+            rest = samples[:i] + samples[i + 1:]
+            ai, ci, _ = _fit_samples(rest, order)
+            with_f += _matrix_sse(s, ai, ci)
+            without += _matrix_sse(s, None, ci)
+        record["heldout_rms"] = float(np.sqrt(with_f / (3 * n_blocks)))
+        record["none_heldout_rms"] = float(np.sqrt(without / (3 * n_blocks)))
+        keep = with_f < 0.98 * without
+    else:
+        with_f = sum(_matrix_sse(s, a, centre) for s in samples)
+        without = sum(_matrix_sse(s, None, centre) for s in samples)
+        record["rms"] = float(np.sqrt(with_f / (3 * n_blocks)))
+        record["none_rms"] = float(np.sqrt(without / (3 * n_blocks)))
+        keep = with_f < 0.9 * without
+    if not keep:
+        record["reason"] = "no better than no correction on held-out images"
+        return None, record
+    chans = list(dict.fromkeys(cfa.channels))
+    ph, pw = cfa.period
+    per_pos = np.array([np.concatenate([[1.0], a[chans.index(cfa.channel_at(y, x))]])
+                        for y in range(ph) for x in range(pw)])
+    # scale so the largest gain over the training area is 1
+    v, u = normalised_coords(*size)
+    r2max = float(np.max((v[[0, 0, -1, -1]] - centre[0]) ** 2
+                         + (u[[0, -1, 0, -1]] - centre[1]) ** 2))
+    r2 = np.linspace(0.0, r2max, 513)
+    poly = np.zeros((per_pos.shape[0], r2.size))
+    for k in range(per_pos.shape[1] - 1, -1, -1):
+        poly = poly * r2 + per_pos[:, k:k + 1]
+    if poly.min() <= min_gain * poly.max():
+        record["reason"] = "the fitted gains are not positive over the sensor"
+        return None, record
+    field = GainField(centre, per_pos / poly.max(), size)
+    record.update(centre=centre.tolist(), coeffs=field.coeffs.tolist(),
+                  size=list(size), blocks=int(n_blocks))
+    return field, record
+
+
+# ------------------------------------------------------------------ DNG GainMap
+def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any]) -> np.ndarray:
+    """Apply DNG ``GainMap`` opcodes to a normalised mosaic in place, as the DNG SDK does.
+
+    Each map (:class:`l3cli.io.dng_opcodes.GainMap`) scales the pixels of its
+    area (``top``/``left``/``bottom``/``right``, every ``row_pitch``-th row and
+    ``col_pitch``-th column from the area's corner) by its gain, bilinearly
+    interpolated on the map's grid in coordinates relative to the whole
+    image (``(row - 0) / height``, clamped at the map's edges), and clips the
+    result at 1 (the white level). A mosaic has one plane: map plane 0 is used.
+    """
+    h, w = mosaic.shape
+    for gm in maps:
+        if gm.plane != 0:
+            continue  # a mosaic has one plane
+        top, left = max(gm.top, 0), max(gm.left, 0)
+        bottom, right = min(gm.bottom, h), min(gm.right, w)
+        if bottom <= top or right <= left:
+            continue
+        rows = np.arange(top, bottom, gm.row_pitch)
+        cols = np.arange(left, right, gm.col_pitch)
+        grid = gm.gains[:, :, 0].astype(np.float64)  # (points_v, points_h)
+        # a map of one point on an axis is constant along it
+        grid = np.pad(grid, ((0, grid.shape[0] == 1), (0, grid.shape[1] == 1)), mode="edge")
+        wv, iv = _interp_weights(rows / h, gm.origin_v, gm.spacing_v, gm.points_v)
+        wh, ih = _interp_weights(cols / w, gm.origin_h, gm.spacing_h, gm.points_h)
+        g = ((1 - wv)[:, None] * ((1 - wh)[None, :] * grid[iv][:, ih]
+                                  + wh[None, :] * grid[iv][:, ih + 1])
+             + wv[:, None] * ((1 - wh)[None, :] * grid[iv + 1][:, ih]
+                              + wh[None, :] * grid[iv + 1][:, ih + 1]))
+        block = mosaic[np.ix_(rows, cols)]
+        mosaic[np.ix_(rows, cols)] = np.minimum(block * g.astype(np.float32), np.float32(1.0))
+    return mosaic
+
+
+def _interp_weights(pos: np.ndarray, origin: float, spacing: float, points: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Lower grid index and fraction of ``pos`` on a map axis (clamped at its ends)."""
+    if points < 2:
+        return np.zeros(pos.size), np.zeros(pos.size, dtype=np.int64)
+    f = (pos - origin) / spacing
+    idx = np.floor(f).astype(np.int64)
+    frac = f - idx
+    low = idx < 0
+    idx[low], frac[low] = 0, 0.0
+    high = idx >= points - 1
+    idx[high], frac[high] = points - 2, 1.0
+    return frac, idx

@@ -1,0 +1,113 @@
+"""Lens shading in training (:mod:`l3cli.shading`; ``l3 train --shading``).
+
+``l3 train`` learns the gain field from the pairs before anything else, so
+that every later step (level cut points, white adaptation, tone curve,
+statistics) sees the corrected mosaics (:func:`l3cli.whitebalance.training_mosaic`
+applies ``opts.shading_field``). The field is fitted in the renders' linear
+space (sRGB decoding), then once more in the space of the learned tone curve
+when there is one (:func:`refit_in_curve_space`): the second alternation.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from collections.abc import Sequence
+
+import numpy as np
+
+from l3cli.colourspace import convert, srgb_encode
+from l3cli.pairs import Pair, load_pair
+from l3cli.shading import BlockSamples, GainField, block_samples, fit_field
+
+__all__ = ["pair_blocks", "fit_pairs_shading", "learn_shading"]
+
+log = logging.getLogger(__name__)
+
+
+def pair_blocks(pairs: Sequence[Pair], opts) -> tuple[list[BlockSamples], object, tuple | None]:
+    """Block samples of every pair (uncorrected mosaics), the full raws' CFA and size.
+
+    The size is None when the training raws differ in size or a render is a
+    resized copy (no field is learned then).
+    """
+    from l3cli.align import ScaledAlignment
+    from l3cli.train.fit import training_pixels
+    from l3cli.whitebalance import training_mosaic, training_target
+
+    plain = copy.copy(opts)
+    plain.shading_field = None
+    samples, sizes, cfa = [], set(), None
+    for i, pair in enumerate(pairs):
+        loaded = load_pair(pair, target_space=opts.target_space)
+        raw = loaded.raw
+        if isinstance(loaded.alignment, ScaledAlignment):
+            log.warning("%s: a resized render; no shading gain field is learned", pair.target)
+            return [], None, None
+        meta = raw.metadata
+        full = tuple(meta.get("full_size", raw.mosaic.shape))
+        y0, x0 = (meta.get("crop") or (0, 0))[:2]
+        sizes.add((int(full[0]), int(full[1])))
+        cfa = raw.cfa.shifted(-y0, -x0)
+        mask = training_pixels(raw.mosaic.shape, loaded.weight_mask, opts, i)
+        target = training_target(loaded.target, pair.raw, opts)
+        if opts.tone_model is not None:
+            target = opts.tone_model.linearise(srgb_encode(np.clip(target, 0.0, 1.0)))
+        elif opts.target_space in ("srgb", "lab"):  # the model needs a linear space
+            target = convert(target, opts.target_space, "linear-srgb")
+        samples.append(block_samples(training_mosaic(raw, plain), raw.cfa, target, mask,
+                                     full_shape=full, origin=(int(y0), int(x0)),
+                                     saturation=opts.saturation))
+    if len(sizes) != 1:
+        log.warning("the training raws differ in size (%s); no shading gain field is learned",
+                    ", ".join(f"{w}x{h}" for h, w in sorted(sizes)))
+        return [], cfa, None
+    return samples, cfa, sizes.pop()
+
+
+def fit_pairs_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, dict]:
+    """The gain field of the pairs (None when it does not help on held-out images).
+
+    Returns
+    -------
+    field, record
+        The record goes to the table's provenance (``shading``).
+    """
+    samples, cfa, size = pair_blocks(pairs, opts)
+    if size is None:
+        return None, {"reason": "raws of different sizes or resized renders"}
+    field, record = fit_field(samples, cfa, size)
+    if field is None:
+        log.info("shading: %s; training without a gain field", record.get("reason"))
+    else:
+        g = field.gains(np.array([0.0, 1.0]))
+        log.info("shading: gain field kept (held-out block residual %.4g vs %.4g without); "
+                 "gain at r=1 / centre per CFA position %s",
+                 record.get("heldout_rms", record.get("rms")),
+                 record.get("none_heldout_rms", record.get("none_rms")),
+                 np.round(g[:, 1] / g[:, 0], 3).tolist())
+    return field, record
+
+
+def learn_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, dict]:
+    """The gain field, learned jointly with the renders' tone curve (``opts.tone_curve``).
+
+    The field is fitted in the linear space of the tone curve (the space the
+    kernels train in); the curve is fitted on the corrected mosaics. Two
+    alternations: curve on the raws as they are, field, curve on the corrected
+    raws, field again (without a tone curve: the field once, in the sRGB
+    decoding of the renders).
+    """
+    from l3cli.train.curve import fit_pairs_curve
+
+    work = copy.copy(opts)
+    work.shading_field = None
+    field, record = None, {}
+    for _ in range(2 if opts.tone_curve else 1):
+        if opts.tone_curve:
+            work.tone_model, _ = fit_pairs_curve(pairs, work)
+        field, record = fit_pairs_shading(pairs, work)
+        if field is None:
+            break
+        work.shading_field = field
+    return field, record
