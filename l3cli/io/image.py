@@ -126,6 +126,7 @@ def write_image(
     attributes: dict[str, str] | None = None,
     compression: str | None = None,
     metadata: dict[str, Any] | None = None,
+    allow_nonfinite: bool = False,
 ) -> Path:
     """Write an image atomically; the format follows the suffix.
 
@@ -159,6 +160,10 @@ def write_image(
         Typed attributes, e.g. the shot's EXIF of
         :func:`l3cli.io.metadata.exif_attributes` (``Orientation``, ``Make``,
         ...): EXIF in JPEG/PNG/TIFF, header attributes in EXR.
+    allow_nonfinite
+        Write the values to an EXR as they are, NaN and infinity included (a
+        test's deliberately bad input). By default NaN, ±inf and (with
+        ``half``) values beyond half-float range are an :class:`OutputError`.
     """
     path = Path(path)
     fmt = format_of(path)
@@ -175,7 +180,7 @@ def write_image(
         space = check_space(space)
     _check_compression(path, fmt, compression)
     if fmt == "exr":
-        _check_finite(path, img, half)
+        _check_finite(path, img, half, allow_nonfinite)
         data = img
         typedesc = "half" if half else "float"
     else:
@@ -192,10 +197,10 @@ def write_image(
 HALF_LIMIT = 65520.0
 
 
-def _check_finite(path: Path, img: np.ndarray, half: bool) -> None:
+def _check_finite(path: Path, img: np.ndarray, half: bool, allow_nonfinite: bool = False) -> None:
     """Refuse float pixels an EXR would store as NaN or infinity (two reductions,
     no copy): NaN or ±inf, and with ``half`` values beyond half-float range."""
-    if img.size == 0:
+    if img.size == 0 or allow_nonfinite:
         return
     lo, hi = float(img.min()), float(img.max())
     if not (np.isfinite(lo) and np.isfinite(hi)):
