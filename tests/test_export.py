@@ -335,12 +335,22 @@ def test_default_model_runs_in_a_fresh_process(default_pairs_table, tmp_path):
     proc = subprocess.run([sys.executable, "-I", "-c", _FRESH, str(model), *map(str, inputs)],
                           capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode == 0, proc.stderr
+    # against the PNGs `l3 render` writes (8-bit display sRGB) and display_encode(render_raw)
+    import OpenImageIO as oiio
+
+    res = CliRunner().invoke(cli, ["render", str(default_pairs_table),
+                                   *map(str, sorted(HOLDOUT.glob("*.tif"))),
+                                   "-o", str(tmp_path / "png"), "--format", "png"])
+    assert res.exit_code == 0, res.output
     t = load_table(default_pairs_table)
     for raw, path in zip(raws, inputs, strict=True):
         got = np.load(str(path).replace(".npy", ".out.npy"))[0].transpose(1, 2, 0)
-        want = display_encode(render_raw(t, raw), t.output_space, 8)
-        assert got.shape == want.shape == (*raw.mosaic.shape, 3)
-        assert np.abs(got.astype(np.int64) - want.astype(np.int64)).max() <= 1
+        inp = oiio.ImageInput.open(str(tmp_path / "png" / f"{raw.path.stem}.png"))
+        png = inp.read_image(0, 0, 0, 3, "uint8")
+        inp.close()
+        for want in (png, display_encode(render_raw(t, raw), t.output_space, 8)):
+            assert got.shape == want.shape == (*raw.mosaic.shape, 3)
+            assert np.abs(got.astype(np.int64) - want.astype(np.int64)).max() <= 1
 
 
 def test_stages_the_export_does_not_know_are_refused():
