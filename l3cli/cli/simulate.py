@@ -53,7 +53,7 @@ def _print_list(ctx: click.Context, param: click.Parameter, value: bool) -> None
 @click.option("--illuminant", default=None, metavar="NAME",
               help="Illuminant (default: the camera's exposure.illuminant); "
                    "`l3 simulate --list` shows the names.")
-@click.option("--lux", "lux", multiple=True, type=Finite(min=0, min_open=True), metavar="LUX",
+@click.option("--lux", "lux", multiple=True, type=Finite(), metavar="LUX",
               help="Scene illuminance in lux, repeatable (default: the camera's "
                    "exposure.light_levels_lux).")
 @click.option("--size", callback=_size, default=None, metavar="WxH",
