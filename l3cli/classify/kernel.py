@@ -32,7 +32,7 @@ from l3cli.cfa import CFA  # noqa: E402
 from l3cli.classify.definition import DEFAULT_CONTRAST_EPS, ClassDefinition  # noqa: E402
 from l3cli.classify.features import ContextGuide, context_guide  # noqa: E402
 from l3cli.classify.layout import KernelTables, kernel_tables  # noqa: E402
-from l3cli.errors import InputError  # noqa: E402
+from l3cli.classify.mosaic import band_rows, check_mosaic  # noqa: E402
 from l3cli.render_rows import encode_row, render_row4, render_row_any, row_pairs  # noqa: E402
 from l3cli.startup import lean_cache  # noqa: E402
 from l3cli.tonecurve import curve_row  # noqa: E402
@@ -421,32 +421,6 @@ def _tile_kernel(S: int, PW: int):
                     curve_row(outf, o, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
 
     return kernel
-
-
-def check_mosaic(mosaic: np.ndarray, cfa: CFA, patch: int) -> np.ndarray:
-    """``mosaic`` as a C-contiguous float32 (H, W) array; raise if it cannot be classified.
-
-    Raises
-    ------
-    InputError
-        When the mosaic is not 2-D or is smaller than the CFA period or half a patch.
-    """
-    mosaic = np.asarray(mosaic)
-    if mosaic.ndim != 2:
-        raise InputError(f"a raw mosaic must be 2-D (H, W), got shape {mosaic.shape}")
-    ph, pw = cfa.period
-    if mosaic.shape[0] < max(ph, patch // 2 + 1) or mosaic.shape[1] < max(pw, patch // 2 + 1):
-        raise InputError(
-            f"raw mosaic {mosaic.shape[1]}x{mosaic.shape[0]} is too small for a "
-            f"{patch}x{patch} patch and a {pw}x{ph} CFA"
-        )
-    return np.ascontiguousarray(mosaic, dtype=np.float32)
-
-
-def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tuple[int, int]]:
-    """Row bands ``(y0, y1)`` holding at most ``max_pixels`` pixels each."""
-    step = max(1, max_pixels // max(width, 1))
-    return [(y0, min(height, y0 + step)) for y0 in range(0, height, step)]
 
 
 _NO_F32 = np.zeros((1, 1), dtype=np.float32)
