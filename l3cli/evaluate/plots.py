@@ -102,7 +102,8 @@ def plot_report(report: ImageReport, out_dir: str | os.PathLike, *, dpi: float |
         ax0.set_axis_off()
         top = max(float(np.percentile(de, 99.9)), 1e-6)  # a long tail would squash the bars
         above = int(np.count_nonzero(de > top))
-        ax1.hist(de.ravel(), bins=100, range=(0, top), color="0.3")
+        counts, _, _ = ax1.hist(de.ravel(), bins=100, range=(0, top), color="0.3")
+        ax1.set_ylim(0, 1.4 * max(float(counts.max()), 1.0))  # headroom for the legend
         ax1.axvline(report.scielab.mean, color="C3", label=f"mean {report.scielab.mean:.2f}")
         ax1.axvline(report.scielab.p90, color="C0", ls="--",
                     label=f"90th percentile {report.scielab.p90:.2f}")
@@ -112,7 +113,7 @@ def plot_report(report: ImageReport, out_dir: str | os.PathLike, *, dpi: float |
         ax1.set_xlim(0, top)
         ax1.set_xlabel("S-CIELAB ΔE*ab")
         ax1.set_ylabel("pixels")
-        ax1.legend(fontsize=8)
+        ax1.legend(fontsize=8, loc="upper right")
         ax1.set_title(scielab_title(report.scielab.samples_per_deg, dpi, distance_m)
                       + f"\n{FILTER_WORDS.get(report.scielab.version, report.scielab.version)}",
                       fontsize=10)
