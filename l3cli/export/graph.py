@@ -21,8 +21,10 @@ _END = np.iinfo(np.int64).max
 class Graph:
     """Nodes, initialisers, inputs and outputs of one ONNX graph under construction."""
 
-    def __init__(self) -> None:
+    def __init__(self, prefix: str = "") -> None:
         from onnx import helper, numpy_helper
+
+        self._prefix = prefix  # subgraphs (a Loop's body) name their tensors apart
 
         self._helper = helper
         self._numpy_helper = numpy_helper
@@ -36,7 +38,7 @@ class Graph:
     # ------------------------------------------------------------- basics
     def _name(self, hint: str) -> str:
         self._count += 1
-        return f"{hint}_{self._count}"
+        return f"{self._prefix}{hint}_{self._count}"
 
     def const(self, value, dtype=None, hint: str = "c") -> str:
         """An initialiser holding ``value`` (small scalars and index lists are shared)."""
@@ -67,6 +69,11 @@ class Graph:
         self.nodes.append(self._helper.make_node("Identity", [source], [name]))
         self.outputs.append(self._helper.make_tensor_value_info(name, elem_type, shape))
         return name
+
+    def subgraph(self, name: str):
+        """This graph as a ``GraphProto`` (a Loop's body: no opset, no check of its own)."""
+        return self._helper.make_graph(self.nodes, name, self.inputs, self.outputs,
+                                       initializer=self.initializers)
 
     def model(self, *, doc: str, metadata: dict[str, str]):
         """The finished, checked ``onnx.ModelProto``."""

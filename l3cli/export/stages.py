@@ -64,21 +64,39 @@ def affine(g: Graph, padded: str, classes: str, kernels: str | np.ndarray, patch
     """The affine kernel of each pixel's class on its patch: float32 (N, n_out, H, W).
 
     ``kernels``: float32 (q, n_out, n_classes), a constant array or a graph tensor.
+    The taps run in a ``Loop`` (one tap per iteration: the coefficients of the
+    pixels' classes by ``Gather``, times the patch value, added to the sum), so
+    only one tap's temporaries are alive at a time; as separate nodes, ONNX
+    Runtime schedules every tap's product before the first addition and holds
+    them all (~600 bytes per pixel more for a 7x7 patch).
     """
+    from onnx import helper
+
     if isinstance(kernels, np.ndarray):
-        taps = [g.const(np.ascontiguousarray(kernels[t]), hint="k") for t in range(kernels.shape[0])]
-    else:
-        taps = [g.op("Gather", kernels, g.const(t, np.int64), axis=0)
-                for t in range(patch * patch + 1)]
-    cls = g.op("Squeeze", classes, g.const([1], np.int64))  # (N, H, W)
-    acc = g.op("Gather", taps[-1], cls, axis=1)  # the constant term: (n_out, N, H, W)
-    for dy in range(patch):
-        row = g.window(padded, dy, patch, 2)
-        for dx in range(patch):
-            p = g.op("Squeeze", g.window(row, dx, patch, 3), g.const([1], np.int64))
-            w = g.op("Gather", taps[dy * patch + dx], cls, axis=1)
-            acc = g.op("Add", acc, g.op("Mul", w, p))
-    return g.op("Transpose", acc, perm=[1, 0, 2, 3])
+        kernels = g.const(np.ascontiguousarray(kernels), hint="kernels")
+    q = patch * patch
+    i64 = np.int64
+    cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, H, W)
+    hw = g.slice(g.op("Shape", cls), [1], [3], [0])  # (H, W)
+    bias = g.op("Gather", kernels, g.const(q, i64), axis=0)  # (n_out, n_classes)
+    acc0 = g.op("Gather", bias, cls, axis=1)  # the constant term: (n_out, N, H, W)
+
+    b = Graph(prefix="tap_")
+    t = b.add_input("tap_t", TensorProto.INT64, [])
+    b.add_input("tap_cond", TensorProto.BOOL, [])
+    acc = b.add_input("tap_acc", TensorProto.FLOAT, ["n_out", "N", "H", "W"])
+    s = b.const(patch, i64)
+    start = b.op("Concat", b.op("Unsqueeze", b.op("Div", t, s), b.const([0], i64)),
+                 b.op("Unsqueeze", b.op("Mod", t, s), b.const([0], i64)), axis=0)  # (dy, dx)
+    window = b.op("Slice", padded, start, b.op("Add", start, hw), b.const([2, 3], i64))
+    p = b.op("Squeeze", window, b.const([1], i64))  # (N, H, W)
+    w = b.op("Gather", b.op("Gather", kernels, t, axis=0), cls, axis=1)  # (n_out, N, H, W)
+    out = b.op("Add", acc, b.op("Mul", w, p))
+    b.outputs.append(helper.make_tensor_value_info("tap_cond_out", TensorProto.BOOL, []))
+    b.nodes.append(helper.make_node("Identity", ["tap_cond"], ["tap_cond_out"]))
+    b.add_output(out, "tap_acc_out", TensorProto.FLOAT, ["n_out", "N", "H", "W"])
+    total = g.op("Loop", g.const(q, i64), "", acc0, body=b.subgraph("taps"))
+    return g.op("Transpose", total, perm=[1, 0, 2, 3])
 
 
 def tone_curve(g: Graph, x: str, lut: np.ndarray, lo_hi: np.ndarray) -> str:
