@@ -43,35 +43,18 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import InputError
+from l3cli.io.metadata import check_gains  # re-exported (its home: the file layer)
 
 __all__ = ["WB_FEATURE", "ADAPT_SPACE", "check_gains", "parse_gains", "raw_gains", "file_gains",
            "gains_or_error", "apply_gains", "white_features", "fit_adaptation_model",
            "adaptation_matrix", "adapt_image", "fit_shot_matrix", "WhiteBalanceModel",
-           "training_gains", "training_mosaic", "training_target", "fit_white_adaptation"]
+           "training_gains", "training_mosaic", "training_target", "quick_rgb"]
 
 #: Name of the feature rule recorded in tables.
 WB_FEATURE = "log-gain-ratios-v1"
 #: Linear space in which the adaptation matrix acts, per output space.
 ADAPT_SPACE = {"xyz": "xyz", "linear-srgb": "linear-srgb", "srgb": "linear-srgb", "lab": "xyz"}
 _RGB = ("R", "G", "B")
-
-
-def check_gains(values: Any, where: str) -> np.ndarray:
-    """Validate ``[r, g, b]`` multipliers; return them normalised to green = 1.
-
-    Raises
-    ------
-    InputError
-        Not 3 finite positive numbers (the message starts with ``where``).
-    """
-    try:
-        g = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        g = np.array([])
-    if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.all(g > 0):
-        raise InputError(f"{where}: must be 3 finite positive numbers [r, g, b], "
-                         f"got {values!r}")
-    return g / g[1]
 
 
 def parse_gains(text: str) -> np.ndarray:
@@ -368,58 +351,3 @@ def quick_rgb(mosaic: np.ndarray, cfa: Any) -> np.ndarray:
         den = convolve(mask, k, mode="mirror")
         out[:, :, i] = num / np.maximum(den, 1e-6)
     return out
-
-
-def fit_white_adaptation(pairs: Sequence[Any], opts: Any
-                         ) -> tuple[WhiteBalanceModel, dict[str, list]]:
-    """The adaptation model of the training shots (an extra pass of training).
-
-    For every training pair, the 3x3 ``F_s`` that best maps a plain demosaic
-    (:func:`quick_rgb`) of the white-balanced raw onto the target in the
-    linear :data:`ADAPT_SPACE` (valid, unsaturated pixels): what the
-    converter did to this shot's colours, up to its spatial processing,
-    which all shots share. ``F`` is modelled as linear in the white's
-    features (:func:`fit_adaptation_model`), and the adaptation of a white is
-    ``A(w) = F(w) F(w_0)^-1`` relative to the mean training white ``w_0``.
-    The table is then trained on the targets with ``A(w_s)`` taken out, so
-    every shot teaches the same mapping; rendering applies ``A`` of the raw's
-    own white. When all training whites coincide the model is the identity
-    and nothing is taken out.
-
-    Returns
-    -------
-    model, adapt
-        The model, and per capture (its raw's absolute path) the inverse of
-        its modelled matrix (empty when the whites coincide).
-    """
-    from scipy.ndimage import minimum_filter
-
-    from l3cli.colourspace import convert
-    from l3cli.pairs import load_pair
-
-    space = ADAPT_SPACE[opts.target_space]
-    whites, mats, keys = [], [], []
-    for pair in pairs:
-        keys.append(_key(pair.raw))
-        loaded = load_pair(pair, target_space=opts.target_space)
-        raw, target, valid = loaded.raw, loaded.target, loaded.weight_mask
-        gains = training_gains(raw, opts)
-        whites.append(gains)
-        rgb = quick_rgb(apply_gains(raw.mosaic, raw.cfa, gains, opts.saturation), raw.cfa)
-        t = convert(target, opts.target_space, space) if opts.target_space != space else target
-        ok = minimum_filter(raw.mosaic < opts.saturation, size=5)
-        if valid is not None:
-            ok &= valid
-        mats.append(fit_shot_matrix(rgb, t, ok))
-    whites_a = np.array(whites)
-    if len({tuple(np.round(np.log(w), 3)) for w in whites_a}) < 2:
-        ident = np.eye(3).reshape(1, 9)
-        return WhiteBalanceModel(space, np.zeros(0), ident, whites_a), {}
-    f_model = fit_adaptation_model(whites_a, np.array(mats), space)
-    f0_inv = np.linalg.inv(f_model.coef[0].reshape(3, 3))
-    # A(w) = F(w) F0^-1 is linear in the features too: right-multiply every term.
-    coef = np.array([(c.reshape(3, 3) @ f0_inv).ravel() for c in f_model.coef])
-    model = WhiteBalanceModel(space, f_model.center, coef, whites_a)
-    adapt = {k: np.linalg.inv(model.matrix(w)).tolist() for k, w in zip(keys, whites_a,
-                                                                          strict=True)}
-    return model, adapt

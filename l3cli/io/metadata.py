@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["SHOT_KEYS", "LIBRAW_FLIP_TO_EXIF", "read_shot_metadata", "exif_attributes",
-           "set_spec_metadata", "dng_shot_tags", "sidecar_white_balance"]
+           "set_spec_metadata", "dng_shot_tags", "sidecar_white_balance", "check_gains"]
 
 log = logging.getLogger(__name__)
 
@@ -250,7 +250,6 @@ def sidecar_white_balance(meta: dict[str, Any], sc: Path) -> list[float] | None:
         A bad value; the message names the sidecar and the key.
     """
     from l3cli.errors import ConfigError, InputError
-    from l3cli.whitebalance import check_gains
 
     if "white_balance" not in meta:
         return None
@@ -262,3 +261,34 @@ def sidecar_white_balance(meta: dict[str, Any], sc: Path) -> list[float] | None:
         return [float(x) for x in check_gains(v, f"{sc}: white_balance")]
     except InputError as exc:
         raise ConfigError(str(exc)) from None
+
+
+def check_gains(values: Any, where: str) -> np.ndarray:
+    """Validate white-balance multipliers ``[r, g, b]``; return them normalised to green = 1.
+
+    The one check of a white balance's value, wherever it comes from (a
+    sidecar, a raw's tags, ``--white-balance``); :mod:`l3cli.whitebalance`
+    uses it too.
+
+    Raises
+    ------
+    l3cli.errors.InputError
+        Not 3 finite positive numbers (the message starts with ``where``).
+
+    Examples
+    --------
+    >>> check_gains([2.0, 1.0, 1.5], "wb").tolist()
+    [2.0, 1.0, 1.5]
+    >>> check_gains([4, 2, 3], "wb").tolist()
+    [2.0, 1.0, 1.5]
+    """
+    from l3cli.errors import InputError
+
+    try:
+        g = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        g = np.array([])
+    if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.all(g > 0):
+        raise InputError(f"{where}: must be 3 finite positive numbers [r, g, b], "
+                         f"got {values!r}")
+    return g / g[1]

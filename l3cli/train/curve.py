@@ -17,7 +17,8 @@ import numpy as np
 from l3cli.colourspace import srgb_encode
 from l3cli.pairs import Pair, load_pair
 from l3cli.table import TransformTable
-from l3cli.train.fit import NO_CURVE, TrainOptions, training_pixels
+from l3cli.train.options import NO_CURVE, TrainOptions
+from l3cli.train.pixels import training_pixels
 
 __all__ = ["curve_samples", "fit_pairs_curve", "chosen_curve", "attach_curve"]
 

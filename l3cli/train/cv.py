@@ -111,7 +111,7 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
     With ``opts.white_balance`` (raws that carry a white balance) the images
     are what ``l3 train`` trains on: mosaics normalised by their white
     balance and targets with their shot's modelled adaptation taken out
-    (:func:`l3cli.whitebalance.fit_white_adaptation`, fitted once on all the
+    (:func:`l3cli.train.adaptation.fit_white_adaptation`, fitted once on all the
     images, as the tone curve is), so a fold scores the table's colour
     mapping before the adaptation that ``l3 render`` puts back.
     """
@@ -119,7 +119,7 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
 
     wb_opts = None
     if opts.white_balance:
-        from l3cli.whitebalance import fit_white_adaptation
+        from l3cli.train.adaptation import fit_white_adaptation
 
         wb_opts = copy.copy(opts)
         wb_opts.target_space = "linear-srgb"

@@ -47,6 +47,7 @@ from l3cli.train.options import (  # re-exported: l3cli.train.fit's public names
     layout_defaults,
     pairs_kind,
 )
+from l3cli.train.pixels import sample_mask, training_pixels  # re-exported
 from l3cli.train.ridge import solve_class
 from l3cli.train.stats import ClassStats, accumulate
 
@@ -56,25 +57,6 @@ __all__ = ["pairs_kind", "layout_defaults", "default_target_space", "TrainOption
            "TONE_CURVE_SPACE", "NO_CURVE"]
 
 log = logging.getLogger(__name__)
-
-
-def sample_mask(shape: tuple[int, int], fraction: float, seed: int, index: int,
-                stream: int = 0) -> np.ndarray | None:
-    """Deterministic random pixel subset of image number ``index`` (None = all)."""
-    if fraction >= 1.0:
-        return None
-    rng = np.random.default_rng([seed, index, stream])
-    return rng.random(shape, dtype=np.float32) < fraction
-
-
-def training_pixels(shape: tuple[int, int], valid: np.ndarray | None, opts: TrainOptions,
-                    index: int) -> np.ndarray | None:
-    """The pixels of image number ``index`` that train (None = all): its valid render
-    pixels (``valid``, None = all) within ``opts.sample_fraction``'s subset."""
-    mask = sample_mask(shape, opts.sample_fraction, opts.seed, index)
-    if valid is None:
-        return mask
-    return valid if mask is None else mask & valid
 
 
 def _need_histogram(opts: TrainOptions) -> bool:
@@ -481,7 +463,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
         curve_record = None
         stats_opts = opts
         if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
-            from l3cli.whitebalance import fit_white_adaptation
+            from l3cli.train.adaptation import fit_white_adaptation
 
             model, adapt = fit_white_adaptation(pairs, opts)
             if adapt:

@@ -32,7 +32,7 @@ def pair_blocks(pairs: Sequence[Pair], opts) -> tuple[list[BlockSamples], object
     resized copy (no field is learned then).
     """
     from l3cli.align import ScaledAlignment
-    from l3cli.train.fit import training_pixels
+    from l3cli.train.pixels import training_pixels
     from l3cli.whitebalance import training_mosaic, training_target
 
     plain = copy.copy(opts)
