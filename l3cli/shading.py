@@ -12,10 +12,12 @@ The gain field (:class:`GainField`)
     ``r`` in normalised sensor coordinates (:func:`normalised_coords`: the
     image centre is 0, the half-diagonal is 1). Positions of one colour share
     their coefficients when learned. The gains are scaled so that their
-    largest value over the training raws' area is 1: a correction darkens the
-    centre rather than brightening the corners, so a pixel below the
-    saturation threshold stays below it and the saturation classes still see
-    only real clipping (pixels at or above it are left as they are).
+    smallest value over the training raws' area is 1: a correction brightens
+    the corners and keeps the centre, as a camera's does, so the mosaic keeps
+    the scale of the raw where the lens shades least, and a pixel the
+    correction lifts over the saturation threshold counts as saturated, as
+    the camera clips it after its correction. A gain below one (a raw of
+    another size) never lowers a pixel at or above the threshold.
 Learning (:func:`fit_field`, glue in :mod:`l3cli.train.shading`)
     The pairs are cut into blocks; each block's per-channel raw means ``m``
     and its target's linear means ``t`` should follow ``t = M_i (g(r) m)``
@@ -198,7 +200,8 @@ def _placement(raw: Any) -> tuple[tuple[int, int], int, int]:
 def correct_mosaic(mosaic: np.ndarray, field: GainField, cfa: Any, saturation: float, *,
                    full_shape: tuple[int, int] | None = None, origin: tuple[int, int] = (0, 0),
                    out: np.ndarray | None = None, name: Any = "raw") -> np.ndarray:
-    """``mosaic`` times the field's gains where it is below ``saturation`` (float32).
+    """``mosaic`` times the field's gains (float32); a gain below one leaves pixels at
+    or above ``saturation`` as they are.
 
     ``full_shape`` and ``origin`` place a cropped mosaic on its full raw. ``out`` may be
     ``mosaic`` itself (in place). A raw of another size than the training
@@ -216,7 +219,10 @@ def correct_mosaic(mosaic: np.ndarray, field: GainField, cfa: Any, saturation: f
     g = gmap[y0:y0 + mosaic.shape[0], x0:x0 + mosaic.shape[1]]
     if out is None:
         out = np.array(mosaic, dtype=np.float32, copy=True)
-    np.multiply(mosaic, g, out=out, where=mosaic < saturation)
+    if float(g.min()) >= 1.0:  # the usual case: every pixel brightened
+        np.multiply(mosaic, g, out=out)
+    else:  # a gain below one does not hide clipping from the saturation classes
+        np.multiply(mosaic, g, out=out, where=(mosaic < saturation) | (g >= 1.0))
     return out
 
 
@@ -395,7 +401,7 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
     ph, pw = cfa.period
     per_pos = np.array([np.concatenate([[1.0], a[chans.index(cfa.channel_at(y, x))]])
                         for y in range(ph) for x in range(pw)])
-    # scale so the largest gain over the training area is 1
+    # scale so the smallest gain over the training area is 1
     v, u = normalised_coords(*size)
     r2max = float(np.max((v[[0, 0, -1, -1]] - centre[0]) ** 2
                          + (u[[0, -1, 0, -1]] - centre[1]) ** 2))
@@ -406,44 +412,55 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
     if poly.min() <= min_gain * poly.max():
         record["reason"] = "the fitted gains are not positive over the sensor"
         return None, record
-    field = GainField(centre, per_pos / poly.max(), size)
+    field = GainField(centre, per_pos / poly.min(), size)
     record.update(centre=centre.tolist(), coeffs=field.coeffs.tolist(),
                   size=list(size), blocks=int(n_blocks))
     return field, record
 
 
 # ------------------------------------------------------------------ DNG GainMap
-def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any]) -> np.ndarray:
+def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any],
+                    planes: np.ndarray | None = None) -> np.ndarray:
     """Apply DNG ``GainMap`` opcodes to a normalised mosaic in place, as the DNG SDK does.
 
     Each map (:class:`l3cli.io.dng_opcodes.GainMap`) scales the pixels of its
     area (``top``/``left``/``bottom``/``right``, every ``row_pitch``-th row and
     ``col_pitch``-th column from the area's corner) by its gain, bilinearly
-    interpolated on the map's grid in coordinates relative to the whole
-    image (``(row - 0) / height``, clamped at the map's edges), and clips the
-    result at 1 (the white level). A mosaic has one plane: map plane 0 is used.
+    interpolated on the map's grid at the pixel centre's position relative to
+    the whole image (``(row + 0.5) / height``; clamped at the map's edges), and
+    clips the result at 1 (the white level). ``planes`` (int (H, W), or None
+    for a one-plane mosaic) gives each pixel's plane: a map acts on the
+    pixels of its ``plane .. plane + planes - 1`` with map plane
+    ``min(plane, map_planes - 1)``.
     """
     h, w = mosaic.shape
     for gm in maps:
-        if gm.plane != 0:
-            continue  # a mosaic has one plane
         top, left = max(gm.top, 0), max(gm.left, 0)
         bottom, right = min(gm.bottom, h), min(gm.right, w)
         if bottom <= top or right <= left:
             continue
         rows = np.arange(top, bottom, gm.row_pitch)
         cols = np.arange(left, right, gm.col_pitch)
-        grid = gm.gains[:, :, 0].astype(np.float64)  # (points_v, points_h)
-        # a map of one point on an axis is constant along it
-        grid = np.pad(grid, ((0, grid.shape[0] == 1), (0, grid.shape[1] == 1)), mode="edge")
-        wv, iv = _interp_weights(rows / h, gm.origin_v, gm.spacing_v, gm.points_v)
-        wh, ih = _interp_weights(cols / w, gm.origin_h, gm.spacing_h, gm.points_h)
-        g = ((1 - wv)[:, None] * ((1 - wh)[None, :] * grid[iv][:, ih]
-                                  + wh[None, :] * grid[iv][:, ih + 1])
-             + wv[:, None] * ((1 - wh)[None, :] * grid[iv + 1][:, ih]
-                              + wh[None, :] * grid[iv + 1][:, ih + 1]))
+        wv, iv = _interp_weights((rows + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
+        wh, ih = _interp_weights((cols + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
         block = mosaic[np.ix_(rows, cols)]
-        mosaic[np.ix_(rows, cols)] = np.minimum(block * g.astype(np.float32), np.float32(1.0))
+        which = np.zeros(block.shape, dtype=np.int64) if planes is None \
+            else np.asarray(planes)[np.ix_(rows, cols)]
+        for plane in range(gm.plane, gm.plane + gm.planes):
+            sel = which == plane
+            if not sel.any():
+                continue
+            grid = gm.gains[:, :, min(plane, gm.gains.shape[2] - 1)].astype(np.float64)
+            # a map of one point on an axis is constant along it
+            grid = np.pad(grid, ((0, grid.shape[0] == 1), (0, grid.shape[1] == 1)),
+                          mode="edge")
+            g = ((1 - wv)[:, None] * ((1 - wh)[None, :] * grid[iv][:, ih]
+                                      + wh[None, :] * grid[iv][:, ih + 1])
+                 + wv[:, None] * ((1 - wh)[None, :] * grid[iv + 1][:, ih]
+                                  + wh[None, :] * grid[iv + 1][:, ih + 1]))
+            block = np.where(sel, np.minimum(block * g.astype(np.float32), np.float32(1.0)),
+                             block)
+        mosaic[np.ix_(rows, cols)] = block
     return mosaic
 
 

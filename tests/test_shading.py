@@ -105,8 +105,15 @@ def test_corrected_keeps_clipping_and_is_applied_once():
     out = corrected(t, raw)
     thr = t.definition.saturation_threshold
     g = gain_map(f, (24, 32), (2, 2))
-    expect = np.where(m < thr, m * g, m)
+    assert g.min() < 1 < g.max()  # gains below one leave clipped pixels as they are
+    expect = np.where((m < thr) | (g >= 1), m * g, m)
     np.testing.assert_array_equal(out.mosaic, expect.astype(np.float32))
+    up = _field()
+    up.coeffs[:, 0] = 1.0  # gains >= 1 (a learned field): every pixel is multiplied
+    t.shading = up
+    g_up = gain_map(up, (24, 32), (2, 2))
+    np.testing.assert_array_equal(corrected(t, raw).mosaic, m * g_up)
+    t.shading = f
     np.testing.assert_array_equal(raw.mosaic, m)  # not in place: the input is kept
     assert corrected(t, out) is out  # a corrected raw is not corrected again
     inplace = corrected(t, _raw(m.copy()), inplace=True)
@@ -186,7 +193,7 @@ def test_fit_recovers_an_exact_field():
         c = chans.channels.index(chans.channel_at(p // 2, p % 2))  # block columns: this order
         want = 1 + a[c, 0] * r2 + a[c, 1] * r2 ** 2 + a[c, 2] * r2 ** 3
         np.testing.assert_allclose(got[p] / got[p][0], want, rtol=1e-4)
-    assert got.max() <= 1 + 1e-9  # scaled: no gain above one over the sensor
+    assert got.min() >= 1 - 1e-9  # scaled: the least gain over the sensor is one
 
 
 def test_fit_rejects_a_flat_field():
@@ -229,3 +236,97 @@ def test_learned_field_recovers_known_shading(tmp_path):
         q = (g * s)[chan == c]
         rms = np.sqrt(np.mean((q / q.mean() - 1) ** 2))
         assert rms < 0.02, (cfa.channels[c], rms)
+
+
+# ------------------------------------------------------------------ DNG GainMap
+def _write_dng_with_opcodes(path, dn, opcode_list2: bytes | None):
+    """A minimal RGGB DNG written by tifffile (the tags of l3cli.io.raw.write_raw), with
+    an OpcodeList2 tag (UNDEFINED bytes) when given."""
+    import tifffile
+
+    tags = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
+            (50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 3, 0, 0), True),
+            (50708, "s", 0, "l3 test", True), (50710, "B", 3, (0, 1, 2), True),
+            (50711, "H", 1, 1, True), (50713, "H", 2, (2, 2), True),
+            (50714, "I", 4, (64, 64, 64, 64), True), (50717, "I", 1, 4095, True),
+            (50721, "2i", 9, (10000, 10000, 0, 10000, 0, 10000, 0, 10000, 10000, 10000,
+                              0, 10000, 0, 10000, 0, 10000, 10000, 10000), True),
+            (50728, "2I", 3, (10000, 10000, 10000, 10000, 10000, 10000), True),
+            (50778, "H", 1, 21, True)]
+    if opcode_list2 is not None:
+        tags.append((51009, "B", len(opcode_list2), opcode_list2, True))
+    tifffile.imwrite(path, dn.astype(np.uint16), photometric=32803, planarconfig=1,
+                     compression=None, subfiletype=0, extratags=tags, metadata=None)
+    return path
+
+
+def _phone_maps(h, w):
+    """Four GainMaps, one per Bayer position (as phones write them), 5x7 points each."""
+    from l3cli.io.dng_opcodes import GainMap
+
+    rng = np.random.default_rng(7)
+    maps = []
+    for top, left in [(0, 0), (0, 1), (1, 0), (1, 1)]:
+        v = np.linspace(0, 1, 5)[:, None] - 0.5
+        u = np.linspace(0, 1, 7)[None, :] - 0.5
+        g = 1 + (1.2 + 0.3 * rng.random()) * (v ** 2 + u ** 2)
+        maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, 5, 7, 0.25, 1 / 6, 0.0, 0.0,
+                            g[:, :, None].astype(np.float32)))
+    return maps
+
+
+def test_gain_map_opcodes_round_trip_and_errors():
+    from l3cli.errors import InputError
+    from l3cli.io.dng_opcodes import encode_gain_maps, parse_opcode_list
+
+    maps = _phone_maps(40, 60)
+    back = parse_opcode_list(encode_gain_maps(maps))
+    assert len(back) == 4
+    for a, b in zip(maps, back):
+        assert (a.top, a.left, a.row_pitch, a.points_h, a.spacing_h) == \
+            (b.top, b.left, b.row_pitch, b.points_h, b.spacing_h)
+        np.testing.assert_array_equal(a.gains, b.gains)
+    data = encode_gain_maps(maps)
+    with pytest.raises(InputError, match="ends inside opcode|claims"):
+        parse_opcode_list(data[:-10], "x.dng: OpcodeList2")
+    bad = bytearray(data)
+    bad[20 + 32:24 + 32] = (0).to_bytes(4, "big")  # MapPointsV = 0
+    with pytest.raises(InputError, match="x.dng: OpcodeList2, opcode 1: GainMap"):
+        parse_opcode_list(bytes(bad), "x.dng: OpcodeList2")
+
+
+def test_dng_gain_map_is_applied_as_by_hand(tmp_path):
+    """A DNG with GainMap opcodes renders as its mosaic with the maps applied by hand
+    (bilinear interpolation at pixel centres, clamped, clipped at white), to 1e-6."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    from l3cli.io.dng_opcodes import encode_gain_maps
+    from l3cli.io.raw import read_raw
+    from l3cli.render import render_file, render_mosaic, render_raw
+
+    h, w = 40, 60
+    dn = np.random.default_rng(3).integers(64, 4096, (h, w))
+    maps = _phone_maps(h, w)
+    plain = read_raw(_write_dng_with_opcodes(tmp_path / "plain.dng", dn, None))
+    shaded = read_raw(_write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(maps)))
+    assert shaded.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
+    by_hand = plain.mosaic.astype(np.float64)
+    for m in maps:
+        f = RegularGridInterpolator((m.origin_v + m.spacing_v * np.arange(m.points_v),
+                                     m.origin_h + m.spacing_h * np.arange(m.points_h)),
+                                    m.gains[:, :, 0].astype(np.float64))
+        ys, xs = np.arange(m.top, h, 2), np.arange(m.left, w, 2)
+        pv = np.clip((ys + 0.5) / h, 0, m.origin_v + m.spacing_v * (m.points_v - 1))
+        ph = np.clip((xs + 0.5) / w, 0, m.origin_h + m.spacing_h * (m.points_h - 1))
+        g = f(np.stack(np.meshgrid(pv, ph, indexing="ij"), axis=-1))
+        by_hand[np.ix_(ys, xs)] = np.minimum(by_hand[np.ix_(ys, xs)] * g, 1.0)
+    assert np.abs(by_hand - plain.mosaic).max() > 0.05  # the maps do something
+    np.testing.assert_allclose(shaded.mosaic, by_hand, atol=1e-6, rtol=0)
+    t = make_table(patch=3)
+    t.kernels[:] = np.abs(t.kernels) * 0.05
+    expect = render_mosaic(t, by_hand.astype(np.float32))
+    np.testing.assert_allclose(render_raw(t, shaded), expect, atol=1e-6, rtol=0)
+    from l3cli.io.image import read_image
+
+    out = render_file(t, tmp_path / "gm.dng", tmp_path / "gm.exr")
+    np.testing.assert_allclose(read_image(out)[0], expect, atol=1e-6, rtol=0)

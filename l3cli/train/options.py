@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from l3cli import defaults
+from l3cli.buffers import available_memory  # re-exported
 from l3cli.classify import check_patch
 from l3cli.colourspace import check_space
 from l3cli.errors import ConfigError
@@ -60,19 +61,6 @@ def stats_bytes(n_classes: int, patch: int) -> int:
     kernels (float64 Gram matrix, cross products, sums and counts of each class)."""
     q = patch * patch + 1
     return int(n_classes) * (8 * q * q + _STATS_BYTES_PER_Q * q)
-
-
-def available_memory() -> int:
-    """Bytes of memory this process may still use (psutil's "available", else the
-    physical memory)."""
-    try:
-        import psutil
-
-        return int(psutil.virtual_memory().available)
-    except Exception:  # noqa: BLE001 - psutil absent or /proc unreadable
-        import os
-
-        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
 
 
 def check_class_budget(opts: TrainOptions, n_classes: int, *, what: str = "") -> None:

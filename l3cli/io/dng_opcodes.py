@@ -1,0 +1,203 @@
+"""DNG opcode lists: the ``GainMap`` opcodes a camera writes for its lens shading.
+
+DNG 1.3 added opcode lists, processing steps a reader applies to the raw
+data: ``OpcodeList1`` (tag 51008) to the stored values, ``OpcodeList2``
+(51009) after linearisation (black level subtracted, scaled to 0..1: l3's
+normalised mosaic), ``OpcodeList3`` (51022) after demosaicing. Phones write
+their lens-shading correction as ``GainMap`` opcodes (ID 9) in OpcodeList2,
+one per CFA position (``Top``/``Left`` 0 or 1, pitch 2).
+
+The binary layout (DNG specification 1.4, chapter 7; big-endian):
+
+* list: ``uint32 count``, then ``count`` opcodes;
+* opcode: ``uint32 id``, ``uint8[4] dng_version``, ``uint32 flags`` (bit 0:
+  optional, bit 1: preview only), ``uint32 n_bytes``, then ``n_bytes`` of
+  parameters;
+* GainMap parameters: ``uint32 Top, Left, Bottom, Right, Plane, Planes,
+  RowPitch, ColPitch, MapPointsV, MapPointsH``, ``float64 MapSpacingV,
+  MapSpacingH, MapOriginV, MapOriginH``, ``uint32 MapPlanes``, then
+  ``float32 MapGain[MapPointsV][MapPointsH][MapPlanes]``.
+
+:func:`read_gain_maps` reads them from the raw IFD of a DNG (tifffile reads
+the tags), :func:`l3cli.shading.apply_gain_maps` applies them as the DNG SDK
+does, and :func:`apply_dng_opcodes` is what :func:`l3cli.io.raw.read_raw`
+calls on every DNG. OpcodeList3's maps act on colour planes after
+demosaicing; l3 applies them to the mosaic's pixels of each plane's colour
+(the maps are smooth, so this is what the camera does up to the demosaic's
+blur of the gain). Other opcodes are left out (logged).
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from l3cli.errors import InputError
+
+__all__ = ["GAIN_MAP", "OPCODE_LIST2", "OPCODE_LIST3", "GainMap", "parse_opcode_list",
+           "encode_gain_maps", "read_gain_maps", "apply_dng_opcodes"]
+
+log = logging.getLogger(__name__)
+
+#: Opcode ID of GainMap.
+GAIN_MAP = 9
+#: TIFF tags of the opcode lists applied after linearisation and after demosaicing.
+OPCODE_LIST2, OPCODE_LIST3 = 51009, 51022
+_CFA = 32803
+_HEAD = struct.Struct(">10I4dI")  # the GainMap parameters before the gains
+
+
+@dataclass(eq=False)
+class GainMap:
+    """One ``GainMap`` opcode (field names as the DNG specification's, snake case).
+
+    ``gains`` is float32 (points_v, points_h, map_planes).
+    """
+
+    top: int
+    left: int
+    bottom: int
+    right: int
+    plane: int
+    planes: int
+    row_pitch: int
+    col_pitch: int
+    points_v: int
+    points_h: int
+    spacing_v: float
+    spacing_h: float
+    origin_v: float
+    origin_h: float
+    gains: np.ndarray
+
+    @property
+    def map_planes(self) -> int:
+        return int(self.gains.shape[2])
+
+
+def _gain_map(data: bytes, where: str) -> GainMap:
+    if len(data) < _HEAD.size:
+        raise InputError(f"{where}: GainMap opcode of {len(data)} bytes is shorter than its "
+                         f"{_HEAD.size}-byte header")
+    (top, left, bottom, right, plane, planes, row_pitch, col_pitch, pv, ph,
+     sv, sh, ov, oh, n_planes) = _HEAD.unpack_from(data)
+    if pv == 1:  # as the DNG SDK: one point on an axis is constant along it
+        sv, ov = 1.0, 0.0
+    if ph == 1:
+        sh, oh = 1.0, 0.0
+    n = pv * ph * n_planes
+    if (pv < 1 or ph < 1 or n_planes < 1 or not (sv > 0 and sh > 0)
+            or not all(np.isfinite([sv, sh, ov, oh])) or row_pitch < 1 or col_pitch < 1
+            or planes < 1 or bottom <= top or right <= left):
+        raise InputError(f"{where}: GainMap opcode has bad parameters (points {pv}x{ph}, "
+                         f"spacing {sv:g}x{sh:g}, planes {n_planes}, pitch {row_pitch}x"
+                         f"{col_pitch}, area {top},{left},{bottom},{right})")
+    if len(data) != _HEAD.size + 4 * n:
+        raise InputError(f"{where}: GainMap opcode holds {len(data)} bytes, its {pv}x{ph}x"
+                         f"{n_planes} gains need {_HEAD.size + 4 * n}")
+    gains = np.frombuffer(data, dtype=">f4", count=n, offset=_HEAD.size)
+    gains = gains.astype(np.float32).reshape(pv, ph, n_planes)
+    if not np.all(np.isfinite(gains)):
+        raise InputError(f"{where}: GainMap opcode holds NaN or Inf gains")
+    return GainMap(top, left, bottom, right, plane, planes, row_pitch, col_pitch, pv, ph,
+                   sv, sh, ov, oh, gains)
+
+
+def parse_opcode_list(data: bytes, where: str = "opcode list") -> list[GainMap]:
+    """The GainMap opcodes of an opcode list's bytes (other opcodes are skipped).
+
+    Raises
+    ------
+    InputError
+        The list is cut short or a GainMap is malformed (names ``where``).
+    """
+    data = bytes(data)
+    if len(data) < 4:
+        raise InputError(f"{where}: opcode list of {len(data)} bytes has no count")
+    (count,), pos, maps = struct.unpack_from(">I", data), 4, []
+    for i in range(count):
+        if pos + 16 > len(data):
+            raise InputError(f"{where}: opcode list ends inside opcode {i + 1} of {count}")
+        op, version, flags, n = struct.unpack_from(">I4sII", data, pos)
+        pos += 16
+        if pos + n > len(data):
+            raise InputError(f"{where}: opcode {i + 1} of {count} (ID {op}) claims {n} bytes, "
+                             f"{len(data) - pos} remain")
+        if op == GAIN_MAP:
+            maps.append(_gain_map(data[pos:pos + n], f"{where}, opcode {i + 1}"))
+        else:
+            log.info("%s: opcode %d (ID %d, flags %d) is not applied by l3", where, i + 1, op,
+                     flags)
+        pos += n
+    return maps
+
+
+def encode_gain_maps(maps: list[GainMap]) -> bytes:
+    """An opcode list (bytes, big-endian) holding ``maps``: the inverse of
+    :func:`parse_opcode_list`, for writing DNGs (flags 0, DNG version 1.3)."""
+    out = [struct.pack(">I", len(maps))]
+    for m in maps:
+        body = _HEAD.pack(m.top, m.left, m.bottom, m.right, m.plane, m.planes, m.row_pitch,
+                          m.col_pitch, m.points_v, m.points_h, m.spacing_v, m.spacing_h,
+                          m.origin_v, m.origin_h, m.map_planes)
+        body += np.ascontiguousarray(m.gains, dtype=">f4").tobytes()
+        out.append(struct.pack(">I4sII", GAIN_MAP, bytes((1, 3, 0, 0)), 0, len(body)) + body)
+    return b"".join(out)
+
+
+def read_gain_maps(path: str | Path) -> tuple[list[GainMap], list[GainMap]]:
+    """The GainMaps of a DNG's raw IFD: ``(OpcodeList2's, OpcodeList3's)``.
+
+    Raises
+    ------
+    InputError
+        A malformed opcode list (a file tifffile cannot read has none: LibRaw
+        judges it).
+    """
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tf:
+            pages = list(tf.pages) + [s for p in tf.pages for s in (p.pages or [])]
+            raws = [p for p in pages if p.photometric == _CFA and not (p.subfiletype & 1)]
+            if not raws:
+                return [], []
+            tags = raws[0].tags
+            lists = [tags.valueof(code) for code in (OPCODE_LIST2, OPCODE_LIST3)]
+    except Exception as exc:  # noqa: BLE001 - not ours to judge: LibRaw reads the file
+        log.debug("%s: DNG tags not read (%s)", path, exc)
+        return [], []
+    return tuple(  # type: ignore[return-value]
+        [] if data is None else parse_opcode_list(bytes(data), f"{path}: OpcodeList{n}")
+        for data, n in zip(lists, (2, 3)))
+
+
+def apply_dng_opcodes(raw: Any) -> Any:
+    """Apply a DNG's GainMap opcodes to its normalised mosaic, in place (returns ``raw``).
+
+    OpcodeList2's maps act on the mosaic as on the DNG's one-plane stage-2
+    image; OpcodeList3's on the pixels of each map plane's colour (planes in
+    the CFA's R, G, B order). The maps applied are recorded in
+    ``raw.metadata["gain_maps"]``.
+    """
+    from l3cli.shading import apply_gain_maps
+
+    if raw.path is None:
+        return raw
+    list2, list3 = read_gain_maps(raw.path)
+    if not (list2 or list3):
+        return raw
+    apply_gain_maps(raw.mosaic, list2)
+    if list3:
+        chans = [c for c in ("R", "G", "B") if c in raw.cfa.channels]
+        cmap = np.asarray(raw.cfa.channel_map(*raw.mosaic.shape))
+        colour = np.array([chans.index(c) if c in chans else -1 for c in raw.cfa.channels])[cmap]
+        apply_gain_maps(raw.mosaic, list3, planes=colour)
+    raw.metadata["gain_maps"] = {"OpcodeList2": len(list2), "OpcodeList3": len(list3)}
+    log.debug("%s: applied %d + %d DNG GainMap opcodes", raw.path, len(list2), len(list3))
+    return raw
