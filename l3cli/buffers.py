@@ -26,7 +26,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-__all__ = ["MAX_FREE_BYTES", "empty", "recycling", "release"]
+__all__ = ["MAX_FREE_BYTES", "available_memory", "empty", "recycling", "release"]
 
 #: Most bytes of free arrays a pool holds (a 24-MP folder to 16-bit TIFF
 #: keeps 3 mosaics and 3 outputs: 0.72 GB).
@@ -100,3 +100,16 @@ def recycling(keep: int = 8) -> Iterator[None]:
             if _depth == 0:
                 _free = None
                 _lent.clear()
+
+
+def available_memory() -> int:
+    """Bytes of memory this process may still use (psutil's "available", else the
+    physical memory)."""
+    try:
+        import psutil
+
+        return int(psutil.virtual_memory().available)
+    except Exception:  # noqa: BLE001 - psutil absent or /proc unreadable
+        import os
+
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))

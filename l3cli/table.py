@@ -84,6 +84,7 @@ import numpy as np
 from l3cli.cfa import CFA
 from l3cli.classify import ClassDefinition
 from l3cli.colourspace import SPACES
+from l3cli.conditions import MAX_KERNEL_GAIN, kernel_gain  # the limit kernels share
 from l3cli.errors import ConfigError, L3Error, TableError
 from l3cli.io.atomic import atomic_path
 
@@ -106,19 +107,6 @@ _KEYS = {
     "kernels": "f", "counts": "i", "lambdas": "f", "empty": "b", "source_class": "i",
     "output_space": "U", "provenance": "U",
 }
-
-
-#: Largest absolute sum of one class's kernel (weights and constant, per output):
-#: with raw values up to 1e8 (normalised units; far beyond any white level) every
-#: output stays below 1e38, finite in float32 (largest 3.4e38).
-MAX_KERNEL_GAIN = 1e30
-
-
-def _kernel_gain(kernels: np.ndarray) -> float:
-    """The largest absolute sum of one class's kernel over one output (float64)."""
-    if kernels.size == 0:
-        return 0.0
-    return float(np.abs(kernels, dtype=np.float64).sum(axis=-2).max())
 
 
 @dataclass(eq=False)
@@ -241,7 +229,7 @@ class TransformTable:
             return "no class is trained"
         if not np.all(np.isfinite(self.kernels)):
             return "kernels hold NaN or Inf"
-        if _kernel_gain(self.kernels) > MAX_KERNEL_GAIN:
+        if kernel_gain(self.kernels) > MAX_KERNEL_GAIN:
             return (f"kernels have an absolute sum beyond {MAX_KERNEL_GAIN:g}: their outputs "
                     "would overflow float32")
         if np.any(self.counts < 0):

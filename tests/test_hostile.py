@@ -323,9 +323,9 @@ def test_numpy_warnings_do_not_reach_the_terminal(tmp_path: Path) -> None:
 def test_simulate_size_beyond_memory_is_refused(runner, tmp_path: Path, monkeypatch) -> None:
     """A capture size whose simulation cannot fit: refused before any work, naming --size
     (it used to end in "out of memory")."""
-    import l3cli.train.options as options
+    import l3cli.buffers as buffers
 
-    monkeypatch.setattr(options, "available_memory", lambda: 1 << 30)
+    monkeypatch.setattr(buffers, "available_memory", lambda: 1 << 30)
     cam = Path(__file__).parents[1] / "sample_configs" / "bayer.toml"
     res = runner.invoke(cli, ["simulate", str(cam), "-o", str(tmp_path / "sim"),
                               "--size", "4000x3000", "--scene", "macbeth", "--lux", "100"])

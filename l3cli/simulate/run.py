@@ -362,7 +362,7 @@ def check_capture_memory(width: int, height: int, oversample: int = 1) -> None:
         Naming ``--size`` and the estimate (one capture at a time is held per
         process), instead of "out of memory" part way through.
     """
-    from l3cli.train.options import available_memory
+    from l3cli.buffers import available_memory
 
     need = int(width) * int(height) * int(oversample) ** 2 * CAPTURE_BYTES_PER_PIXEL
     have = available_memory()
