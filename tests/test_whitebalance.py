@@ -72,6 +72,18 @@ def test_apply_gains_per_channel_and_keeps_clipping():
         apply_gains(m, CFA.from_spec("RGBW/GWRB/BRWG/WBGR"), np.ones(3), 0.95)
 
 
+def test_white_features_are_log_gain_ratios():
+    # log(b / r) and the tint log(g^2 / (r b)), written out for two whites
+    np.testing.assert_allclose(white_features(np.array([2.0, 1.0, 1.25]), 2),
+                               [np.log(0.625), -np.log(2.5)], rtol=1e-15)
+    np.testing.assert_allclose(white_features(np.array([1.0, 2.0, 4.0]), 1), [np.log(4.0)],
+                               rtol=1e-15)
+    # scale-free: the same white at any overall gain
+    np.testing.assert_allclose(white_features(np.array([4.0, 2.0, 2.5]), 2),
+                               [np.log(0.625), -np.log(2.5)], rtol=1e-12)
+    assert white_features(np.ones(3), 2).tolist() == [0.0, 0.0]
+
+
 def test_adaptation_model_recovers_a_linear_law():
     rng = np.random.default_rng(3)
     whites = np.exp(rng.normal(scale=0.4, size=(6, 3)))
@@ -105,7 +117,7 @@ def test_render_normalises_and_adapts(tmp_path):
     raw = read_raw(p)
     out = render_raw(t, raw)
     g = np.array([2.0, 1.0, 1.25])
-    f = white_features(g, 1)[0]
+    f = np.log(1.25 / 2.0)  # the white's feature: log(b / r) of its gains, written out
     a = np.diag([1 + 0.1 * f, 1.0, 1 - 0.1 * f])
     expect = (apply_gains(raw.mosaic, raw.cfa, g, 0.95)[:, :, None]
               * np.diag(a)[None, None, :])
