@@ -18,10 +18,8 @@ def test_train_then_render(runner, tmp_path):
                               "--seed", "3", "--min-samples", "2"])
     assert res.exit_code == 0, res.output
     t = load_table(table)
-    from l3cli.defaults import SIMULATION_LAYOUT
-
     assert t.definition.n_levels == 4 and t.output_space == "xyz"
-    assert t.patch == SIMULATION_LAYOUT["patch"]
+    assert t.patch == 5  # the simulation layout's patch (tests/test_defaults.py)
     assert t.provenance["seed"] == 3 and len(t.provenance["inputs"]) == 2
     # empty classes exist and carry the kernel of the trained class they fall back to
     assert t.empty.any() and not t.empty[t.source_class].any()
