@@ -93,7 +93,7 @@ def test_train_bad_input_is_one_line_and_writes_nothing(runner, tmp_path, case):
         if case == "inf-target":  # the same pixel, +Inf instead of NaN
             img, space = read_image(folder / "cap1.target.exr")
             img[3, 4, 1] = np.inf
-            write_image(folder / "cap1.target.exr", img, space=space)
+            write_image(folder / "cap1.target.exr", img, space=space, allow_nonfinite=True)
         expect = ["cap1.target.exr", "NaN or Inf", "x=4, y=3"]
     elif case == "size-mismatch":
         folder = _sim_dir(tmp_path, n=2, seed=22, bad_size=True)
