@@ -375,10 +375,16 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         raise TableError(f"{path}: damaged table, version {version} "
                          + ("holds no shading_* keys" if has_shading
                             else "needs the shading_* keys"))
+    patch, kernels = _scalar(arrs, "patch", path, "i"), arrs["kernels"]
+    if kernels.ndim != 3 or kernels.shape[1] != patch * patch + 1:
+        # checked first: a patch size is also the size of the arrays the class
+        # definition builds from it
+        raise TableError(f"{path}: inconsistent table: patch {patch} does not fit kernels of "
+                         f"shape {kernels.shape} (patch x patch + 1 coefficients)")
     try:
         definition = ClassDefinition(
             cfa=CFA.from_spec(_scalar(arrs, "cfa", path, "U")),
-            patch=_scalar(arrs, "patch", path, "i"),
+            patch=patch,
             level_cuts=arrs["level_cuts"],
             level_spacing=_scalar(arrs, "level_spacing", path, "U"),
             contrast_cuts=arrs["contrast_cuts"],

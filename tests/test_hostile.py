@@ -79,6 +79,10 @@ BAD_FIELDS = {
     "negative counts": ("counts", lambda p: _first(p, "counts", -5).astype(np.int64),
                         "negative"),
     "lambda inf": ("lambdas", lambda p: _first(p, "lambdas", np.inf), "lambdas"),
+    # sizes the class definition would allocate from: checked before it does
+    "patch 2**31+1": ("patch", lambda p: np.array(2**31 + 1), "does not fit kernels"),
+    "position group 2**62": ("position_group", lambda p: np.array([0, 1, 2**62, 1]),
+                             "position groups"),
 }
 
 

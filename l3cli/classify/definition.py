@@ -152,6 +152,7 @@ class ClassDefinition:
                               "raw units)")
         grp = np.asarray(self.position_group, dtype=np.int64)
         if grp.shape != (self.cfa.n_positions,) or grp.min() != 0 or \
+                grp.max() >= self.cfa.n_positions or \
                 set(grp.tolist()) != set(range(int(grp.max()) + 1)):
             raise ConfigError(
                 f"position groups must number the {self.cfa.n_positions} CFA positions 0..G-1"
