@@ -234,3 +234,31 @@ def test_one_training_white_means_no_adaptation_step(tmp_path):
     _, raw = _raw(tmp_path)
     ks = _check(t, raw)
     assert ks.post is None and ks.adapt is None and ks.mosaic_gains is not None
+
+
+def test_white_balance_precheck_reads_dng_tags_without_decoding(tmp_path, monkeypatch):
+    """The check before any output takes a DNG's white from its tags: asking LibRaw (rawpy
+    unpacks the whole raw for it) decoded every file twice. A DNG without the tags still
+    goes to LibRaw, and contradictory tags are still named before any output."""
+    import l3cli.whitebalance as wb
+    from l3cli.render import check_white_balance
+
+    t = _table(_definition())
+    p, _ = _raw(tmp_path)
+    asked = []
+    monkeypatch.setattr(wb, "file_gains", lambda path: asked.append(path) or None)
+    check_white_balance(t, [p], None)  # no LibRaw call
+    assert asked == []
+    bare = tmp_path / "h.raw"  # not a DNG: LibRaw's (or the sidecar's) word is asked
+    np.full((16, 16), 100, np.uint8).tofile(bare)
+    (tmp_path / "h.raw.toml").write_text(
+        'width = 16\nheight = 16\ndtype = "uint8"\ncfa = "RGGB"\nblack_level = 0\n'
+        "white_level = 255\n")
+    with pytest.raises(InputError, match="no white balance"):
+        check_white_balance(t, [p, bare], None)
+    assert [str(a) for a in asked] == [str(bare)]
+    bad = write_raw(tmp_path / "bad.dng", np.full((16, 16), 900, np.uint16), "RGGB",
+                    white_level=4000, as_shot_neutral=np.array([0.5, 1.0, 0.8]),
+                    shot={"as_shot_white_xy": (0.3127, 0.3290)})
+    with pytest.raises(InputError, match="contradictory"):
+        check_white_balance(t, [bad], None)
