@@ -45,9 +45,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 KNOWN_EXCEPTIONS: frozenset[tuple[str, str]] = frozenset()
 
 #: Modules over the line limit today, with the most lines they may have until split.
-#: pairs.py grew past 600 during issue 30's round (d35832f, issue 31: the alignment memo);
-#: its split (finding pairs / loading pairs) is left to the package regrouping of issue 30.
-LONG_MODULES: dict[str, int] = {"l3cli.pairs": 624}
+LONG_MODULES: dict[str, int] = {}
 
 
 def _module_name(path: Path) -> str:

@@ -9,7 +9,7 @@ import os
 import numpy as np
 from test_pairs import pairs_dir  # noqa: F401  (fixture)
 
-from l3cli import pairs as pairs_mod
+from l3cli.pairs import load as pairs_mod  # where load_pair calls align
 from l3cli.pairs import find_pairs, load_pair
 
 

@@ -1,65 +1,15 @@
-"""The input layer: (raw, target) pairs from ``simulate`` folders and pairs folders.
+"""Loading pairs: one :class:`~l3cli.pairs.find.Pair` read into a :class:`LoadedPair`.
 
-Training (``l3 train``) and the conventional baseline (``l3 baseline``) read
-their inputs through here; one :class:`Pair` describes one capture whatever
-folder it comes from, and :func:`find_pairs` lists them:
-
-* a ``simulate`` output folder (``manifest.json`` with ``"format":
-  "l3-simulation"``): each capture's raw and its ideal, pixel-aligned target
-  (CIE XYZ EXR);
-* a *pairs directory*: raw files (any :data:`l3cli.io.raw.RAW_SUFFIXES`,
-  including headerless ``NAME.raw`` with ``NAME.raw.toml``, and l3's TIFF/PNG
-  mosaics with a ``.toml`` sidecar) each with one rendered image of the same
-  stem (:data:`RENDER_SUFFIXES`): ``a.dng`` + ``a.jpg``, ``b.raw`` +
-  ``b.raw.toml`` + ``b.png``. Training learns the mapping from the raw to the
-  render (see ``docs/real-camera.md``). Images other than EXR are display
-  sRGB; EXR carries its space in the ``l3:space`` attribute.
-
-A :class:`Pair` holds paths and small per-capture facts only (cheap and
-picklable, so distributed workers read the files themselves);
-:func:`load_pair` reads one into a :class:`LoadedPair`. A simulated target is
-pixel-aligned already. A rendered image is registered on its raw first: the
-raw is cropped to the render's area (:mod:`l3cli.align` finds the offset and
-flip and refuses renders that do not align), the render is put in the raw's
-orientation, and a weight mask marks the pixels that may train:
-
-Clipped pixels
-    A pixel of the render with any channel at or above ``clip_high``
-    (default 254.5/255) or at or below ``clip_low`` (default 0.5/255), in the
-    file's encoded values, is excluded: its true colour was lost by the
-    renderer's clipping and a regression would learn the clip, not the
-    pipeline. (Floating-point EXR renders are not clipped; only non-finite
-    values are excluded there.)
-Border margin
-    ``margin`` pixels (default 4) on every side of the render are excluded:
-    ISPs treat edges specially (the Infinite-ISP sharpening zero-pads, so its
-    outer rows and columns come out brighter), and near the crop edge the raw
-    patch would reach outside the pixels the render covers.
-Scaled renders (only with ``scaled=True``; ``l3 train --scaled-renders``)
-    A render that does not align pixel for pixel is registered as a resized
-    copy (:func:`l3cli.align.align_scaled`) and resampled onto the raw's
-    pixels (:func:`l3cli.align.scaled_pair`): the pair then trains at the
-    render's reduced resolution (the target holds no finer detail than the
-    render), on the raw's own pixel grid, so the table still renders raws at
-    full size. Clipped render pixels and the margin (in render pixels) are
-    excluded wherever they contribute to a target pixel, and ``margin`` raw
-    pixels at the crop's edges as well.
-
-References
-----------
-.. [1] Q. Tian, S. Lansel, J. E. Farrell and B. A. Wandell, "Automating the
-   design of image processing pipelines for novel color filter arrays: Local,
-   Linear, Learned (L3) method", Proc. SPIE 9023, Digital Photography X, 2014.
+See :mod:`l3cli.pairs` for the registration, clipping and margin rules.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -75,76 +25,16 @@ from l3cli.align import (
     scaled_pair,
 )
 from l3cli.errors import InputError
-from l3cli.io import manifest as _manifest
-from l3cli.io.raw import RAW_SUFFIXES, RawImage, read_raw, sidecar_path
+from l3cli.io.raw import RawImage, read_raw
+from l3cli.pairs.find import (
+    CLIP_HIGH,
+    CLIP_LOW,
+    DEFAULT_MARGIN,
+    Pair,
+    find_pairs,
+)
 
-__all__ = [
-    "RENDER_SUFFIXES",
-    "CLIP_LOW",
-    "CLIP_HIGH",
-    "DEFAULT_MARGIN",
-    "Pair",
-    "LoadedPair",
-    "is_pairs_dir",
-    "is_raw_file",
-    "raw_files",
-    "is_simulation_dir",
-    "manifest_path",
-    "read_simulation_manifest",
-    "find_pairs",
-    "load_pair",
-    "iter_pairs",
-    "weight_mask",
-]
-
-log = logging.getLogger(__name__)
-
-#: Suffixes of rendered images (lower case), in order of preference (training
-#: and evaluation alike).
-RENDER_SUFFIXES: tuple[str, ...] = (".exr", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
-#: Encoded values at or below this are treated as clipped to black.
-CLIP_LOW = 0.5 / 255
-#: Encoded values at or above this are treated as clipped to white.
-CLIP_HIGH = 254.5 / 255
-#: Default border excluded from training, pixels.
-DEFAULT_MARGIN = 4
-
-
-@dataclass(frozen=True)
-class Pair:
-    """One capture to train on: a raw file and its target image (paths only).
-
-    Attributes
-    ----------
-    name
-        Name of the capture (the simulation stem, or the common file stem).
-    raw
-        Raw file path.
-    target
-        Target image path: a simulation's ideal target, or a rendered image.
-    space
-        Colour space of the target file's values, or ``None`` to take it from
-        the file (EXR attribute / display sRGB).
-    align
-        True for pairs-folder renders: :func:`load_pair` registers the render
-        on the raw (crop, flips) and masks clipped pixels and the border.
-    scaled
-        For pairs-folder renders: a render that is a resized copy of the raw
-        is accepted and trained at its reduced resolution.
-    metadata
-        Per-capture facts that are not pixels, read when the pair is found
-        (from a simulation manifest: ``scene``, ``illuminant``, ``lux``,
-        ``exposure_s``). The place for white balance, ISO, exposure and
-        orientation read from raw files; not compared between pairs.
-    """
-
-    name: str
-    raw: Path
-    target: Path
-    space: str | None = None
-    align: bool = False
-    scaled: bool = False
-    metadata: Mapping[str, Any] = field(default_factory=dict, compare=False)
+log = logging.getLogger("l3cli.pairs")  # one logger name for the package
 
 
 @dataclass
@@ -182,179 +72,6 @@ class LoadedPair:
     alignment: Alignment | ScaledAlignment | None
     space: str
     pair: Pair
-
-
-def is_raw_file(path: str | os.PathLike) -> bool:
-    """True for a raw file: a raw suffix, or an image with a raw sidecar (``X.tif`` + ``X.tif.toml``).
-
-    Examples
-    --------
-    >>> is_raw_file("a.dng"), is_raw_file("no_sidecar_here.png")
-    (True, False)
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix in RAW_SUFFIXES:
-        return True
-    # l3's own mosaics for CFAs DNG cannot describe: NAME.tif + NAME.tif.toml
-    return suffix in (".tif", ".tiff", ".png") and sidecar_path(path).exists()
-
-
-def is_pairs_dir(path: str | os.PathLike) -> bool:
-    """True for a folder without a simulation ``manifest.json`` holding at least one raw file."""
-    p = Path(path)
-    if not p.is_dir() or is_simulation_dir(p):
-        return False
-    return any(f.is_file() and is_raw_file(f) for f in p.iterdir())
-
-
-def _render_for(raw: Path) -> Path:
-    stem = raw.stem
-    found = [f for f in raw.parent.iterdir()
-             if f.is_file() and f != raw and f.suffix.lower() in RENDER_SUFFIXES
-             and f.stem == stem and not sidecar_path(f).exists()]
-    if not found:
-        allowed = "/".join(s.lstrip(".") for s in RENDER_SUFFIXES)
-        raise InputError(
-            f"{raw}: no rendered image with the same stem ({stem}.{{{allowed}}}) in {raw.parent}"
-        )
-    if len(found) > 1:
-        names = ", ".join(sorted(f.name for f in found))
-        raise InputError(f"{raw}: several rendered images with the same stem ({names}); keep one")
-    return found[0]
-
-
-#: What a simulation manifest tells of each capture beside its files (:attr:`Pair.metadata`).
-_CAPTURE_FACTS = ("scene", "illuminant", "lux", "exposure_s")
-
-
-def is_simulation_dir(path: str | os.PathLike) -> bool:
-    """True for a folder with a simulation manifest (an ``l3 simulate`` output)."""
-    return Path(path).is_dir() and _manifest.is_simulation_dir(path)
-
-
-#: The versioned, validated reader (:func:`l3cli.io.manifest.read_manifest`).
-read_simulation_manifest = _manifest.read_manifest
-manifest_path = _manifest.manifest_path
-
-
-def _simulation_pairs(folder: Path) -> list[Pair]:
-    """The captures of a ``simulate`` folder, in manifest order."""
-    from l3cli.colourspace import check_space
-
-    manifest = read_simulation_manifest(folder)  # validated: each capture has raw, target, stem
-    space = check_space(manifest["target"]["space"])
-    pairs = []
-    for cap in manifest["captures"]:
-        facts = {k: cap[k] for k in _CAPTURE_FACTS if k in cap}
-        pairs.append(Pair(cap["stem"], folder / cap["raw"], folder / cap["target"], space,
-                          metadata=facts))
-    return pairs
-
-
-def raw_files(paths: Iterable[str | os.PathLike]) -> tuple[list[Path], bool]:
-    """The raw files named by ``paths``: files as given, folders expanded.
-
-    A ``simulate`` folder gives its captures' raws (manifest order), any other
-    folder its raw files (:func:`is_raw_file`, sorted by name).
-
-    Returns
-    -------
-    raws, any_folder
-        The raw paths, and whether a folder was among ``paths`` (its outputs
-        then go to a folder, however many raws it holds).
-
-    Raises
-    ------
-    InputError
-        A folder without raws.
-    """
-    out: list[Path] = []
-    any_folder = False
-    for p in map(Path, paths):
-        if not p.is_dir():
-            out.append(p)
-            continue
-        any_folder = True
-        if is_simulation_dir(p):
-            found = [pair.raw for pair in _simulation_pairs(p)]
-        else:
-            found = sorted(f for f in p.iterdir() if f.is_file() and is_raw_file(f))
-        if not found:
-            allowed = ", ".join(sorted(RAW_SUFFIXES))
-            raise InputError(f"{p}: no raw files in the folder ({allowed}, or an image with a "
-                             "raw .toml sidecar)")
-        out.extend(found)
-    return out, any_folder
-
-
-def _rendered_pairs(p: Path, seen: dict[str, Path], scaled: bool) -> list[Pair]:
-    """The (raw, render) pairs of a pairs directory, or of one raw file."""
-    if p.is_dir():
-        raws = sorted(f for f in p.iterdir() if f.is_file() and is_raw_file(f))
-        if not raws:
-            allowed = ", ".join(sorted(RAW_SUFFIXES))
-            raise InputError(
-                f"{p}: no training pairs: no manifest.json and no raw files in this folder "
-                f"(a pairs folder holds raw files [{allowed}] each with a rendered image of "
-                "the same stem)"
-            )
-        renders = {f for f in p.iterdir() if f.is_file() and f.suffix.lower() in RENDER_SUFFIXES}
-    elif is_raw_file(p):
-        raws, renders = [p], set()
-    else:
-        raise InputError(f"{p}: not a simulate folder, a pairs folder or a raw file")
-    out = []
-    for raw in raws:
-        render = _render_for(raw)
-        renders.discard(render)
-        name = render.stem
-        if name in seen:
-            raise InputError(f"{raw}: pair name {name!r} also comes from {seen[name]}")
-        seen[name] = raw
-        out.append(Pair(name, raw, render, None, align=True, scaled=scaled))
-    for extra in sorted(renders):
-        if not sidecar_path(extra).exists():
-            log.warning("%s: rendered image without a raw file of the same stem; ignored", extra)
-    return out
-
-
-def find_pairs(paths: Iterable[str | os.PathLike], *,
-               scaled_renders: bool = False) -> list[Pair]:
-    """List the pairs of ``simulate`` folders, pairs directories and raw files.
-
-    Parameters
-    ----------
-    paths
-        ``simulate`` output folders, pairs directories, or raw files whose
-        render lies next to them.
-    scaled_renders
-        Accept renders that are resized copies of their raws (see
-        :attr:`Pair.scaled`).
-
-    Returns
-    -------
-    list of Pair
-        Captures in manifest order, rendered pairs sorted by name within each
-        directory; inputs in the order given.
-
-    Raises
-    ------
-    InputError
-        A path is missing, a folder holds no pairs, a raw has no render (or
-        several), or a rendered pair's name occurs twice.
-    """
-    out: list[Pair] = []
-    seen: dict[str, Path] = {}
-    for item in paths:
-        p = Path(item)
-        if not p.exists():
-            raise InputError(f"{p}: no such file or folder")
-        if is_simulation_dir(p):
-            out.extend(_simulation_pairs(p))
-        else:
-            out.extend(_rendered_pairs(p, seen, scaled_renders))
-    return out
 
 
 def weight_mask(encoded: np.ndarray, *, margin: int = DEFAULT_MARGIN,
