@@ -290,30 +290,56 @@ def test_default_table_from_simulate_folder(tmp_path):
         _check(t, raw.mosaic[:-3, :-1])  # bottom/right crop: phase kept, odd size
 
 
+#: As-shot white balance written into copies of the bundled frames' sidecars (LibRaw-style
+#: multipliers), so that ``l3 train``'s defaults include white balance and its adaptation.
+_SHOT_GAINS = {"Indoor1_crop": "1.8, 1.0, 1.5", "Outdoor1_crop": "2.1, 1.0, 1.3",
+               "Outdoor2_crop": "1.6, 1.0, 1.8", "Outdoor3_crop": "1.9, 1.0, 1.45",
+               "Outdoor4_crop": "2.0, 1.0, 1.35"}
+
+
 @pytest.fixture(scope="module")
 def default_pairs_table(tmp_path_factory):
-    """``l3 train`` with every default on the bundled Infinite-ISP pairs (patch 7, tone curve)."""
-    out = tmp_path_factory.mktemp("pairs") / "default.npz"
-    res = CliRunner().invoke(cli, ["train", str(FRAMES), "-o", str(out)])
+    """``l3 train`` with every default on the bundled Infinite-ISP pairs, given an as-shot
+    white balance: patch 7, tone curve, white balance and its adaptation.
+
+    Returns the table and the folder of the holdout raws (copies with that white balance).
+    """
+    import shutil
+
+    work = tmp_path_factory.mktemp("pairs")
+    for src in (FRAMES, HOLDOUT):
+        dst = work / src.name
+        shutil.copytree(src, dst)
+        for toml in dst.glob("*.tif.toml"):
+            stem = toml.name.removesuffix(".tif.toml")
+            with open(toml, "a") as fh:
+                fh.write(f"white_balance = [{_SHOT_GAINS[stem]}]\n")
+    out = work / "default.npz"
+    res = CliRunner().invoke(cli, ["train", str(work / "frames"), "-o", str(out)])
     assert res.exit_code == 0, res.output
-    return out
+    return out, work / "holdout"
 
 
 @pytest.mark.slow
 def test_default_pairs_table_renders_holdout_frames(default_pairs_table):
-    t = load_table(default_pairs_table)
-    assert t.tone_lut is not None and t.patch == 7
-    for path in sorted(HOLDOUT.glob("*.tif")):
-        raw = read_raw(path)
-        _check(t, raw.mosaic[:301, :203])
+    from l3cli.whitebalance import raw_gains
+
+    path, holdout = default_pairs_table
+    t = load_table(path)
+    assert t.tone_lut is not None and t.white_balance is not None and t.patch == 7
+    for raw_path in sorted(holdout.glob("*.tif")):
+        raw = read_raw(raw_path)
+        mosaic = raw.mosaic[:301, :203]
+        _check(t, mosaic, gains=raw_gains(raw))
 
 
 _FRESH = r"""
 import sys, numpy as np, onnxruntime as ort
 s = ort.InferenceSession(sys.argv[1], providers=["CPUExecutionProvider"])
-for i, path in enumerate(sys.argv[2:]):
+for path in sys.argv[2:]:
     m = np.load(path)
-    out = s.run(None, {"mosaic": m[None, None]})[0]
+    gains = np.load(path.replace(".npy", ".gains.npy"))
+    out = s.run(None, {"mosaic": m[None, None], "wb_gains": gains[None]})[0]
     np.save(path.replace(".npy", ".out.npy"), out)
 bad = sorted(m for m in sys.modules if m.split(".")[0] in ("l3cli", "numba", "onnx", "scipy"))
 assert not bad, bad
@@ -322,27 +348,29 @@ assert not bad, bad
 
 @pytest.mark.slow
 def test_default_model_runs_in_a_fresh_process(default_pairs_table, tmp_path):
-    """numpy and onnxruntime only: python -I (no PYTHONPATH, no user site), no l3 import."""
+    """numpy and onnxruntime only: python -I (no PYTHONPATH, no user site), no l3 import;
+    the holdout frames as ``l3 render`` writes them to PNG, within one code value."""
+    import OpenImageIO as oiio
+
+    from l3cli.whitebalance import raw_gains
+
+    table, holdout = default_pairs_table
     model = tmp_path / "pipeline.onnx"
-    res = CliRunner().invoke(cli, ["export", str(default_pairs_table), "-o", str(model),
-                                   "--display"])
+    res = CliRunner().invoke(cli, ["export", str(table), "-o", str(model), "--display"])
     assert res.exit_code == 0, res.output
     raws, inputs = [], []
-    for path in sorted(HOLDOUT.glob("*.tif")):
+    for path in sorted(holdout.glob("*.tif")):
         raws.append(read_raw(path))
         inputs.append(tmp_path / f"{path.stem}.npy")
         np.save(inputs[-1], raws[-1].mosaic)
+        np.save(tmp_path / f"{path.stem}.gains.npy", raw_gains(raws[-1]).astype(np.float32))
     proc = subprocess.run([sys.executable, "-I", "-c", _FRESH, str(model), *map(str, inputs)],
                           capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    # against the PNGs `l3 render` writes (8-bit display sRGB) and display_encode(render_raw)
-    import OpenImageIO as oiio
-
-    res = CliRunner().invoke(cli, ["render", str(default_pairs_table),
-                                   *map(str, sorted(HOLDOUT.glob("*.tif"))),
+    res = CliRunner().invoke(cli, ["render", str(table), *map(str, sorted(holdout.glob("*.tif"))),
                                    "-o", str(tmp_path / "png"), "--format", "png"])
     assert res.exit_code == 0, res.output
-    t = load_table(default_pairs_table)
+    t = load_table(table)
     for raw, path in zip(raws, inputs, strict=True):
         got = np.load(str(path).replace(".npy", ".out.npy"))[0].transpose(1, 2, 0)
         inp = oiio.ImageInput.open(str(tmp_path / "png" / f"{raw.path.stem}.png"))
