@@ -240,6 +240,20 @@ def test_refused_features_give_one_line(tmp_path, table_kw, options, words):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.npz"]
 
 
+def test_cli_bad_arguments_give_one_line(tmp_path):
+    table = _save(tmp_path, _table())
+    r = CliRunner()
+    for args, code, word in ((["export", str(tmp_path / "none.npz"), "-o", "p.onnx"], 1,
+                               "no such table"),
+                              (["export", table, "-o", str(tmp_path / "p.png")], 1, ".onnx"),
+                              (["export", table, "-o", str(tmp_path / "p.onnx"), "--bits", "16"],
+                               2, "--display")):
+        res = r.invoke(cli, args)
+        assert res.exit_code == code, res.output
+        assert word in res.output and "Traceback" not in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.npz"]
+
+
 def test_cli_export_and_inspect(tmp_path):
     table = _save(tmp_path, _table(tone=True, wb=True))
     out = tmp_path / "p.onnx"

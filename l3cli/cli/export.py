@@ -13,9 +13,9 @@ from l3cli.cli.options import output_opt
 @click.option("--display", "display", is_flag=True,
               help="The graph ends in the display encoding (sRGB integers for 3-channel "
                    "tables, as TIFF/PNG hold) instead of float values in the table's space.")
-@click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
-              help="Display integers: uint8 or uint16 (with --display).")
-def export(table_path: str, output: str, display: bool, bits: str) -> None:
+@click.option("--bits", type=click.Choice(["8", "16"]), default=None,
+              help="Display integers: uint8 or uint16 (with --display)  [default: 8].")
+def export(table_path: str, output: str, display: bool, bits: str | None) -> None:
     """Write TABLE.npz as an ONNX model (-o PIPELINE.onnx) of standard operators.
 
     The model takes a normalised float32 mosaic (N, 1, H, W) in the table's
@@ -26,6 +26,8 @@ def export(table_path: str, output: str, display: bool, bits: str) -> None:
     """
     from l3cli.export import export_table
 
+    if bits is not None and not display:
+        raise click.UsageError("--bits applies to display output only; add --display")
     path = export_table(table_path, output, output="display" if display else "linear",
-                        bits=int(bits))
+                        bits=int(bits or 8))
     click.echo(f"wrote {path}", err=True)
