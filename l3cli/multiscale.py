@@ -20,6 +20,14 @@ training data). Flat noisy regions learn ``A ~ 0`` (take the low-pass), edges
 and texture ``A ~ I`` (keep the detail). ``A = I`` for every band gives
 ``out = y`` exactly.
 
+Tables that render linear light (``xyz``, ``linear-srgb``) are blended in a
+perceptual coding: the stage encodes the render with the sRGB transfer curve
+(extended as an odd function beyond [0, 1]: :func:`encode`), blends, and
+decodes (:func:`decode`); so the least-squares fit weighs errors in the
+shadows as the eye (and S-CIELAB) does, not by their linear size (measured:
+linear blending lost 4 % held-out S-CIELAB on the bundled frames).
+``srgb`` and ``lab`` tables are blended as they are (``transfer = "none"``).
+
 The blend is fitted after the L3 table by per-class ridge regression of
 ``target - lp_n`` on the bands (:func:`accumulate`, :func:`solve`;
 :mod:`l3cli.train.multiscale` renders the training raws). It is stored in
@@ -36,14 +44,44 @@ import numpy as np
 
 from l3cli.errors import TableError
 
-__all__ = ["MULTISCALE_RULE", "Multiscale", "MultiscaleStats", "accumulate", "apply",
-           "apply_stage", "bands", "classes", "energy", "level", "lowpass", "place_cuts",
-           "solve"]
+__all__ = ["MULTISCALE_RULE", "TRANSFERS", "Multiscale", "MultiscaleStats", "accumulate",
+           "apply", "apply_stage", "bands", "classes", "decode", "default_transfer", "encode",
+           "energy", "level", "lowpass", "place_cuts", "solve"]
 
 #: The rule the stage's arrays follow (stored in the table; a reader refuses others).
 MULTISCALE_RULE = "gauss-bands-v1"
 #: Gaussian support in standard deviations (scipy's ``truncate``).
 TRUNCATE = 3.0
+#: The codings the stage blends in: ``"none"`` (the table's values) or ``"srgb"``.
+TRANSFERS = ("none", "srgb")
+
+
+def encode(v: np.ndarray, transfer: str) -> np.ndarray:
+    """The stage's coding of ``v`` (float32): the sRGB transfer curve (IEC 61966-2-1)
+    extended to an odd function on all reals for ``"srgb"``, ``v`` itself for ``"none"``."""
+    v = np.asarray(v, dtype=np.float32)
+    if transfer == "none":
+        return v
+    a = np.abs(v)
+    out = np.where(a <= np.float32(0.0031308), np.float32(12.92) * a,
+                   np.float32(1.055) * np.power(a, np.float32(1 / 2.4)) - np.float32(0.055))
+    return np.copysign(out, v).astype(np.float32, copy=False)
+
+
+def decode(u: np.ndarray, transfer: str) -> np.ndarray:
+    """The inverse of :func:`encode`."""
+    u = np.asarray(u, dtype=np.float32)
+    if transfer == "none":
+        return u
+    a = np.abs(u)
+    out = np.where(a <= np.float32(0.04045), a / np.float32(12.92),
+                   np.power((a + np.float32(0.055)) / np.float32(1.055), np.float32(2.4)))
+    return np.copysign(out, u).astype(np.float32, copy=False)
+
+
+def default_transfer(output_space: str) -> str:
+    """The coding a table of ``output_space`` is blended in: ``"srgb"`` for linear light."""
+    return "srgb" if output_space in ("xyz", "linear-srgb") else "none"
 
 
 def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
@@ -159,6 +197,8 @@ class Multiscale:
         (``n_classes = n_levels * n_energy``).
     counts
         int64 (n_classes,) training pixels per class.
+    transfer
+        The coding the stage works in (:data:`TRANSFERS`, :func:`encode`).
     """
 
     sigmas: np.ndarray
@@ -166,6 +206,7 @@ class Multiscale:
     energy_cuts: np.ndarray
     blend: np.ndarray
     counts: np.ndarray
+    transfer: str = "none"
 
     def __post_init__(self) -> None:
         self.sigmas = np.asarray(self.sigmas, dtype=np.float64).reshape(-1)
@@ -196,6 +237,8 @@ class Multiscale:
             return "blend holds NaN or Inf"
         if self.counts.shape != (n_classes,) or np.any(self.counts < 0):
             return f"counts have shape {self.counts.shape} or negative values"
+        if self.transfer not in TRANSFERS:
+            return f"transfer {self.transfer!r} is not one of {', '.join(TRANSFERS)}"
         return None
 
     @property
@@ -209,17 +252,19 @@ class Multiscale:
         return int(self.blend.shape[0])
 
     @classmethod
-    def identity(cls, n_out: int, sigmas=(2.0,), level_cuts=(), energy_cuts=None) -> Multiscale:
+    def identity(cls, n_out: int, sigmas=(2.0,), level_cuts=(), energy_cuts=None,
+                 transfer: str = "none") -> Multiscale:
         """A stage that changes nothing (``A = I`` for every band and class)."""
         lc = np.asarray(level_cuts, dtype=np.float64)
         ec = np.zeros((lc.size + 1, 0)) if energy_cuts is None else np.asarray(energy_cuts)
         nc = ec.shape[0] * (ec.shape[1] + 1)
         eye = np.tile(np.eye(n_out, dtype=np.float32), (len(sigmas), 1))
         return cls(np.asarray(sigmas), lc, ec, np.repeat(eye[None], nc, axis=0),
-                   np.zeros(nc, np.int64))
+                   np.zeros(nc, np.int64), transfer)
 
     def features(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(stack, coarse, classes)`` of a rendered image (:func:`bands`, :func:`classes`)."""
+        """``(stack, coarse, classes)`` of an image in the stage's coding
+        (``encode(render, transfer)``; :func:`bands`, :func:`classes`)."""
         stack, coarse = bands(y, self.sigmas)
         cls = classes(level(coarse), energy(y, coarse, self.sigmas[0]), self.level_cuts,
                       self.energy_cuts)
@@ -232,7 +277,8 @@ class Multiscale:
                 "multiscale_level_cuts": self.level_cuts,
                 "multiscale_energy_cuts": self.energy_cuts,
                 "multiscale_blend": self.blend,
-                "multiscale_counts": self.counts}
+                "multiscale_counts": self.counts,
+                "multiscale_transfer": np.array(self.transfer)}
 
     @classmethod
     def from_arrays(cls, arrs: dict) -> Multiscale | None:
@@ -244,7 +290,8 @@ class Multiscale:
             Missing keys, another rule, wrong dtypes or inconsistent shapes.
         """
         keys = ("multiscale_rule", "multiscale_sigmas", "multiscale_level_cuts",
-                "multiscale_energy_cuts", "multiscale_blend", "multiscale_counts")
+                "multiscale_energy_cuts", "multiscale_blend", "multiscale_counts",
+                "multiscale_transfer")
         present = [k for k in keys if k in arrs]
         if not present:
             return None
@@ -260,9 +307,12 @@ class Multiscale:
                 raise TableError(f"key {k!r} has dtype {arrs[k].dtype}, expected floating point")
         if arrs["multiscale_counts"].dtype.kind not in "iu":
             raise TableError("key 'multiscale_counts' must hold integers")
+        transfer = arrs["multiscale_transfer"]
+        if transfer.dtype.kind != "U" or transfer.ndim != 0:
+            raise TableError("key 'multiscale_transfer' must be a string")
         return cls(arrs["multiscale_sigmas"], arrs["multiscale_level_cuts"],
                    arrs["multiscale_energy_cuts"], arrs["multiscale_blend"],
-                   arrs["multiscale_counts"])
+                   arrs["multiscale_counts"], str(transfer))
 
 
 def apply_stage(stage: Multiscale, y: np.ndarray) -> np.ndarray:
@@ -271,8 +321,8 @@ def apply_stage(stage: Multiscale, y: np.ndarray) -> np.ndarray:
     if y.ndim != 3 or y.shape[2] != stage.n_out:
         raise ValueError(f"the multiscale stage takes (H, W, {stage.n_out}) images, "
                          f"got {y.shape}")
-    stack, coarse, cls = stage.features(y)
-    return _blend(stack, coarse, cls, stage.blend)
+    stack, coarse, cls = stage.features(encode(y, stage.transfer))
+    return decode(_blend(stack, coarse, cls, stage.blend), stage.transfer)
 
 
 def _blend(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,

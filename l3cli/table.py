@@ -63,8 +63,9 @@ holds the optional keys ``multiscale_rule`` (str, ``"gauss-bands-v1"``),
 ``multiscale_sigmas`` (float64 (n_scales,)), ``multiscale_level_cuts`` (float64
 (n_levels - 1,)), ``multiscale_energy_cuts`` (float64 (n_levels, n_energy - 1)),
 ``multiscale_blend`` (float32 (n_levels * n_energy, n_scales * n_out, n_out)) and
-``multiscale_counts`` (int64) and is written as version 3, so that an l3 that
-cannot apply the stage refuses the table.
+``multiscale_counts`` (int64), ``multiscale_transfer`` (str, ``"none"`` or ``"srgb"``:
+the coding it blends in) and is written as version 3, so that an l3 that cannot apply
+the stage refuses the table.
 
 Class index ``= ((group * 2**n_channels + sat) * n_levels + level) * n_contrast
 + contrast``.

@@ -30,13 +30,30 @@ def _gauss_taps(sigma: float) -> np.ndarray:
     return g / g.sum()
 
 
-def test_identity_blend_returns_the_render():
+@pytest.mark.parametrize("transfer", ["none", "srgb"])
+def test_identity_blend_returns_the_render(transfer):
     rng = np.random.default_rng(0)
-    y = rng.random((40, 56, 3), dtype=np.float32)
-    stage = Multiscale.identity(3, (1.5, 4.0), [0.3, 0.6], np.array([[0.01, 0.1]] * 3))
+    y = rng.random((40, 56, 3), dtype=np.float32) * 1.2 - 0.05  # below 0 and above 1 too
+    stage = Multiscale.identity(3, (1.5, 4.0), [0.3, 0.6], np.array([[0.01, 0.1]] * 3),
+                                transfer=transfer)
     out = apply_stage(stage, y)
     assert out.shape == y.shape and out.dtype == np.float32
-    np.testing.assert_allclose(out, y, atol=2e-6)
+    np.testing.assert_allclose(out, y, atol=1e-5)
+
+
+def test_srgb_coding_is_the_iec_curve_and_inverts():
+    import colour
+
+    from l3cli.multiscale import decode, encode
+
+    v = np.linspace(0, 1, 1001, dtype=np.float32)
+    np.testing.assert_allclose(encode(v, "srgb"), colour.cctf_encoding(v.astype(np.float64),
+                                                                        function="sRGB"),
+                               atol=2e-6)
+    w = np.linspace(-3, 3, 2001, dtype=np.float32)
+    np.testing.assert_allclose(encode(-w, "srgb"), -encode(w, "srgb"), atol=0)
+    np.testing.assert_allclose(decode(encode(w, "srgb"), "srgb"), w, rtol=1e-5, atol=1e-7)
+    assert encode(w, "none") is not None and np.array_equal(encode(w, "none"), w)
 
 
 def test_zero_blend_returns_the_coarsest_lowpass():
@@ -115,11 +132,12 @@ def test_table_round_trip_and_refusals(tmp_path):
     rng = np.random.default_rng(3)
     stage = Multiscale(np.array([2.0, 6.0]), np.array([0.1, 0.3]),
                        np.array([[0.01, 0.02], [0.01, 0.03], [0.02, 0.05]]),
-                       rng.normal(size=(9, 6, 3)), np.arange(9))
+                       rng.normal(size=(9, 6, 3)), np.arange(9), "srgb")
     t = TransformTable(d, np.zeros((n, d.n_coeffs, 3)), np.full(n, 100), np.zeros((n, 3)),
                        np.zeros(n, bool), np.arange(n), multiscale=stage)
     path = save_table(tmp_path / "t.npz", t)
     back = load_table(path)
+    assert back.multiscale.transfer == "srgb"
     for name in ("sigmas", "level_cuts", "energy_cuts", "blend", "counts"):
         np.testing.assert_array_equal(getattr(back.multiscale, name), getattr(stage, name))
     with np.load(path, allow_pickle=False) as z:
@@ -142,6 +160,7 @@ def test_table_round_trip_and_refusals(tmp_path):
     refused(lambda a: a.update(version=np.array(1)), "holds multiscale_")
     refused(lambda a: a.update(multiscale_rule=np.array("gauss-bands-v9")), "not supported")
     refused(lambda a: a.update(multiscale_sigmas=np.array([6.0, 2.0])), "increasing")
+    refused(lambda a: a.update(multiscale_transfer=np.array("gamma")), "transfer 'gamma'")
     refused(lambda a: [a.pop(k) for k in list(a) if k.startswith("multiscale_")],
             "needs the multiscale_")
     with pytest.raises(TableError, match="takes 1 channels"):
@@ -168,6 +187,7 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
     assert load_table(tmp_path / "plain.npz").multiscale is None
     assert table.multiscale is not None and table.multiscale.counts.sum() == 96 * 64
     assert table.provenance["multiscale"]["sigmas"] == [2.0, 6.0]
+    assert table.multiscale.transfer == "srgb"  # an xyz table blends in the sRGB coding
     raw_path = next(sim.glob("*.dng"))
     raw = read_raw(raw_path)
     ks = prepare_kernels(table, raw)

@@ -10,8 +10,9 @@ tone curve and adaptation as ``l3 render`` does them) and split into bands;
    are summed over the images (the pixels that train: a pairs folder's
    weight mask) and solved by ridge regression shrunk towards ``A = I``.
 
-The targets are read in the table's output space, so the stage learns what
-the render still misses in the space it is applied in.
+The targets are read in the table's output space and coded as the stage
+codes the render (:func:`l3cli.multiscale.default_transfer`), so the stage
+learns what the render still misses in the coding it is applied in.
 """
 
 from __future__ import annotations
@@ -24,7 +25,17 @@ import numpy as np
 
 from l3cli import defaults
 from l3cli.errors import InputError
-from l3cli.multiscale import Multiscale, MultiscaleStats, accumulate, place_cuts, solve
+from l3cli.multiscale import (
+    Multiscale,
+    MultiscaleStats,
+    accumulate,
+    default_transfer,
+    encode,
+    energy,
+    level,
+    place_cuts,
+    solve,
+)
 from l3cli.pairs import Pair, load_pair
 
 __all__ = ["fit_multiscale", "attach_multiscale"]
@@ -36,7 +47,8 @@ _CUT_SAMPLES = 200_000
 
 
 def _rendered(table, pair: Pair):
-    """The render of ``pair``'s raw by ``table`` (without a stage), its target and mask."""
+    """The render of ``pair``'s raw by ``table`` (without a stage) and its target, both in
+    the stage's coding (:func:`l3cli.multiscale.default_transfer`), and the mask."""
     from l3cli.kernelset import render_raw
 
     loaded = load_pair(pair, target_space=table.output_space)
@@ -44,7 +56,8 @@ def _rendered(table, pair: Pair):
         raise InputError(f"{pair.raw}: CFA {loaded.raw.cfa.spec} differs from the table's "
                          f"{table.cfa.spec}")
     y = render_raw(table, loaded.raw, table_name="the trained table")
-    return y, loaded.target, loaded.weight_mask
+    transfer = default_transfer(table.output_space)
+    return encode(y, transfer), encode(loaded.target, transfer), loaded.weight_mask
 
 
 def fit_multiscale(table, pairs: Sequence[Pair], *, sigmas=defaults.MULTISCALE_SIGMAS,
@@ -85,8 +98,6 @@ def fit_multiscale(table, pairs: Sequence[Pair], *, sigmas=defaults.MULTISCALE_S
     for pair in progress(pairs, label="multiscale cuts", enabled=show_progress):
         y, _, mask = _rendered(table, pair)
         stack, coarse, _ = probe.features(y)
-        from l3cli.multiscale import energy, level
-
         lev, en = level(coarse), energy(y, coarse, sigmas[0])
         idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(lev.size)
         if idx.size > _CUT_SAMPLES:
@@ -105,7 +116,8 @@ def fit_multiscale(table, pairs: Sequence[Pair], *, sigmas=defaults.MULTISCALE_S
         accumulate(stats, stack, coarse, cls, target, mask)
     blend = solve(stats, ridge, table.n_out)
     log.info("multiscale stage: %d classes from %d pixels", n_classes, int(stats.n.sum()))
-    return Multiscale(np.asarray(sigmas), lcuts, ecuts, blend, stats.n)
+    return Multiscale(np.asarray(sigmas), lcuts, ecuts, blend, stats.n,
+                      default_transfer(table.output_space))
 
 
 def attach_multiscale(table, pairs: Sequence[Pair], **options) -> None:
@@ -116,4 +128,4 @@ def attach_multiscale(table, pairs: Sequence[Pair], **options) -> None:
         "sigmas": stage.sigmas.tolist(), "levels": int(stage.level_cuts.size + 1),
         "energy_bins": int(stage.energy_cuts.shape[1] + 1),
         "ridge": float(options.get("ridge", defaults.MULTISCALE_RIDGE)),
-        "pixels": int(stage.counts.sum())}
+        "transfer": stage.transfer, "pixels": int(stage.counts.sum())}
