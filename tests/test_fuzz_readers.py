@@ -388,3 +388,140 @@ def test_fuzz_check_outputs(tmp_path_factory, out, ins, absolute):
     # a file name may itself hold a line break (the CLI escapes it: test_paths)
     _either_result_or_l3error(check_outputs, [(base / out, "-o")], [base / i for i in ins],
                               one_line=not any("\n" in p or "\r" in p for p in (out, *ins)))
+
+
+# ----------------------------------------------------------------------------- table fields
+def _feature_table_arrays() -> dict[str, np.ndarray]:
+    """A table with every optional feature whose fields are numbers (orientation,
+    context, highlights, a tone curve)."""
+    from l3cli.classify import ClassDefinition
+    from l3cli.table import TransformTable
+
+    d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.05, 0.2], contrast_cuts=0.3,
+                              orientation_bins=2, coherence_threshold=0.3, context_block=4,
+                              context_cuts=[0.1], highlight_bins=2, highlight_fraction=0.5)
+    nc, q = d.n_classes, d.n_coeffs
+    k = np.zeros((nc, q, 3), np.float32)
+    k[:, q // 2, :] = 1.0  # the centre pixel
+    lut = np.linspace(0.0, 1.0, 16, dtype=np.float32)[:, None].repeat(3, axis=1)
+    rng = np.array([[0.0] * 3, [1.0] * 3], np.float32)
+    t = TransformTable(definition=d, kernels=k, counts=np.full(nc, 10),
+                       lambdas=np.full((nc, 3), 1e-3), empty=np.zeros(nc, bool),
+                       source_class=np.arange(nc), provenance={"seed": 1}, tone_lut=(lut, rng))
+    return t.to_arrays()
+
+
+_FTABLE = _feature_table_arrays()
+_NUMERIC_KEYS = sorted(k for k, v in _FTABLE.items() if v.dtype.kind in "fiu" and k != "version")
+_field_values = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0.0, -0.0, -1e-4, 1e-45, 1e-38, 3.4e38, 3.5e38, 1e39, 1e300, 65504.0,
+                     65520.0, -1.0, 0.5, 1.0, 1.5, 2.0, 1e30, 1e31]),
+    st.integers(-(2**63), 2**63 - 1))
+_MOSAIC = np.random.default_rng(5).random((24, 28)).astype(np.float32)
+
+
+@given(edits=st.lists(st.tuples(st.sampled_from(_NUMERIC_KEYS), st.integers(0, 10**6),
+                                _field_values, st.booleans()), min_size=1, max_size=3))
+def test_fuzz_table_fields(tmp_path_factory, edits):
+    """Any numeric table field set to any value (NaN, inf, negative, beyond float32 or
+    half range), one element or all: the table is refused with an L3Error, or it
+    renders finite values."""
+    from l3cli.render import render_mosaic
+    from l3cli.table import load_table
+
+    _count("table fields")
+    arrays = {k: v.copy() for k, v in _FTABLE.items()}
+    for key, index, value, whole in edits:
+        a = arrays[key]
+        with np.errstate(all="ignore"):
+            if whole or a.ndim == 0:
+                arrays[key] = np.full(a.shape, value).astype(a.dtype) if a.dtype.kind != "f" \
+                    else np.full(a.shape, value, dtype=np.float64).astype(a.dtype)
+            elif a.size:
+                a.flat[index % a.size] = (value if a.dtype.kind == "f"
+                                          else np.array(value).astype(a.dtype))
+    path = tmp_path_factory.mktemp("tabf") / "t.npz"
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+    t = _either_result_or_l3error(load_table, path)
+    if t is not None:
+        out = render_mosaic(t, _MOSAIC)
+        assert np.all(np.isfinite(out)), edits
+
+
+# ----------------------------------------------------------------------------- numeric options
+_option_values = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.sampled_from(["nan", "NaN", "inf", "-inf", "+inf", "infinity", "1e-9", "1e-300",
+                     "1e300", "0", "-0", "-1", "1", "2", "0.5", "1.5", "100000000",
+                     "1e8", "9" * 30, "", "x", "0x10", "1_000"]),
+    st.integers(-(2**63), 2**63).map(str))
+_TRAIN_FLOATS = ["--saturation", "--sample-fraction", "--min-samples", "--coherence",
+                 "--highlight-fraction", "--contrast-threshold"]
+_TRAIN_INTS = ["--levels", "--contrast-bins", "--patch", "--orientation-bins",
+               "--context-block", "--context-bins", "--seed"]
+
+
+@given(opts=st.lists(st.tuples(st.sampled_from(_TRAIN_FLOATS + _TRAIN_INTS + ["--level-range"]),
+                               _option_values, _option_values), min_size=1, max_size=3))
+def test_fuzz_train_options(tmp_path_factory, opts):
+    """Any value of ``l3 train``'s numeric options: a usage error or an L3Error naming
+    the problem, or options that are finite and in range (no work is started)."""
+    from l3cli.cli.train import train
+    from l3cli.train import TrainOptions
+
+    _count("train options")
+    args = ["IN", "-o", "t.npz"]
+    for name, a, b in opts:
+        args += [name, a, b] if name == "--level-range" else [name, a]
+    try:
+        ctx = train.make_context("train", args)
+    except click.ClickException:
+        return
+    p = ctx.params
+    kw = {k: p[k] for k in ("saturation", "sample_fraction", "min_samples_factor", "seed",
+                            "coherence", "highlight_fraction", "context_block", "context_bins")}
+    for k in ("patch", "levels", "contrast_bins"):
+        if p[k] is not None:
+            kw[k] = p[k]
+    kw["orientation_bins"] = p["orientation_bins"]
+    if p["level_range"] is not None:
+        kw["level_range"] = tuple(p["level_range"])
+    if p["contrast_threshold"] not in (None, "quantile"):
+        kw["contrast_threshold"] = p["contrast_threshold"]
+    o = _either_result_or_l3error(TrainOptions, **kw)
+    if o is not None:
+        for v in (o.saturation, o.sample_fraction, o.min_samples_factor, o.coherence,
+                  o.highlight_fraction, *(o.level_range or ()), o.contrast_threshold or 1.0):
+            assert math.isfinite(v), opts
+        assert 0 < o.sample_fraction <= 1 and o.min_samples_factor > 1
+
+
+_OTHER = [("simulate", ["CAM", "-o", "out"], ["--lux", "--exposure", "--oversample"]),
+          ("evaluate", ["R", "--reference", "R"], ["--dpi", "--distance", "--pixel-pitch",
+                                                   "--exclude-border"]),
+          ("render", ["T", "R", "-o", "o"], ["--quality"])]
+
+
+@given(which=st.integers(0, len(_OTHER) - 1), picks=st.lists(
+    st.tuples(st.integers(0, 3), _option_values), min_size=1, max_size=3))
+def test_fuzz_other_numeric_options(which, picks):
+    """The numeric options of simulate, evaluate and render: NaN and infinity never
+    pass (a usage error), whatever else is given."""
+    import importlib
+
+    _count("options")
+    name, base, names = _OTHER[which]
+    cmd = getattr(importlib.import_module(f"l3cli.cli.{name}"), name)
+    args = list(base)
+    for i, v in picks:
+        args += [names[i % len(names)], v]
+    try:
+        ctx = cmd.make_context(name, args)
+    except click.ClickException:
+        return
+    for k, v in ctx.params.items():
+        for x in (v if isinstance(v, (tuple, list)) else [v]):
+            if isinstance(x, float):
+                assert math.isfinite(x), (k, x, args)
