@@ -271,10 +271,14 @@ def test_same_folder_twice_is_refused_by_train_as_by_render(runner, sim: Path,
     assert not (sim.parent / "t.npz").exists()
 
 
-def test_same_raw_twice_is_refused_by_render(runner, work: Path, monkeypatch) -> None:
+def test_same_raw_twice_is_refused_by_render_and_info(runner, work: Path, monkeypatch) -> None:
     monkeypatch.chdir(work)
     res = runner.invoke(cli, ["render", "table.npz", "good.dng", "./good.dng", "-o", "out"])
     assert_one_line_error(res, "given twice", "good.dng")
+    os.symlink("good.dng", "alias.dng")
+    res = runner.invoke(cli, ["info", "good.dng", "alias.dng", "--planes", "planes"])
+    assert_one_line_error(res, "given twice", "alias.dng")
+    assert not (work / "planes").exists()
 
 
 @pytest.mark.parametrize("command", ["render", "smooth", "train"])

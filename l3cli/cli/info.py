@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from l3cli.cli.options import InputPath
+from l3cli.cli.options import InputPath, distinct_inputs
 
 
 @click.command(short_help="Describe raw files; write CFA planes and a quick preview.")
@@ -33,6 +33,7 @@ def info(raws: tuple[str, ...], as_json: bool, preview: str | None, planes: str 
         raise click.BadParameter("--preview takes exactly one input raw", param_hint="--preview")
     plane_plan = plan_folder(planes, "--planes")
     check_outputs([(preview, "--preview")], raws)
+    distinct_inputs(raws, "a raw")
     summaries = []
     for path in raws:
         raw = read_raw(path)
