@@ -130,6 +130,9 @@ FEATURES = {  # name: table keywords
     "3x2-cfa": dict(spec="RGB/GBR", patch=3),
     "orientation": dict(orientation_bins=4),
     "orientation-highlight": dict(patch=7, orientation_bins=8, highlight_bins=2),
+    "context-mean": dict(context_block=8, context_cuts=[0.05, 0.2]),
+    "context-ratio-all": dict(patch=7, orientation_bins=4, context_block=6,
+                              context_cuts=[0.8, 1.25], context_rule="ratio", highlight_bins=2),
     "tone-curve": dict(tone=True, patch=7),
     "white-balance": dict(wb=True),
     "white-balance-tone-xyz": dict(wb=True, tone=True, space="xyz", spec="GRBG"),
@@ -146,8 +149,10 @@ def test_export_matches_render(name):
     gains = GAINS if kw.get("wb") else None
     ph, pw = t.cfa.period
     # odd sizes (not multiples of the period), and the smallest l3 renders
-    smallest = (max(ph, t.patch), max(pw, t.patch))
-    for (h, w), seed in (((37, 45), 1), (smallest, 2)):
+    sizes = [(37, 45), (max(ph, t.patch), max(pw, t.patch))]
+    if t.definition.context_block:  # l3's block_means fails where a last block holds
+        sizes = [(38, 47), (23, 29)]  # fewer rows or columns than the period: not those
+    for (h, w), seed in zip(sizes, (1, 2), strict=True):
         _check(t, _mosaic(h, w, seed), gains=gains, bits=(8, 16) if name == "plain" else (8,))
 
 
@@ -162,6 +167,9 @@ def test_condition_bins_match_render():
     ("RGGB", 5, {}), ("GRBG", 7, {"contrast_cuts": [0.1, 0.3]}),
     ("RGBW/GWRB/BRWG/WBGR", 5, {}), ("RGB/GBR", 3, {}),
     ("RGGB", 7, {"orientation_bins": 8, "highlight_bins": 2}),
+    ("RGGB", 5, {"context_block": 8, "context_cuts": [0.05, 0.2]}),
+    ("RGBW/GWRB/BRWG/WBGR", 5, {"context_block": 12, "context_cuts": [0.9, 1.1],
+                                "context_rule": "ratio"}),
 ])
 def test_classes_are_the_tile_kernels(spec, patch, features):
     """The graph's class index equals :func:`l3cli.classify.classify` at every pixel."""
@@ -177,7 +185,8 @@ def test_classes_are_the_tile_kernels(spec, patch, features):
     x = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
     g.add_output(classify_nodes(g, d, x).index, "cls", TensorProto.INT64, ["N", 1, "H", "W"])
     sess = _session(g.model(doc="", metadata={}))
-    for h, w in ((37, 53), (64, 129)):
+    # (not 1 row or column into a last context block: l3's block_means fails there)
+    for h, w in ((40, 53), (64, 126)):
         m = _mosaic(h, w, h)
         want = classify(m, d)
         got = sess.run(None, {"mosaic": m[None, None]})[0][0, 0]
@@ -225,7 +234,6 @@ def _save(tmp_path, table, name="t.npz"):
 
 
 @pytest.mark.parametrize("table_kw, options, words", [
-    (dict(context_block=8, context_cuts=[0.1]), [], ["context bins"]),
     (dict(space="srgb", wb=True), [], ["white-balance adaptation", "srgb"]),
     (dict(space="lab"), ["--display"], ["display output of a lab table"]),
 ])

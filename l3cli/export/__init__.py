@@ -4,7 +4,7 @@
 ``onnx.ModelProto`` of standard ``ai.onnx`` operators (opset
 :data:`~l3cli.export.graph.OPSET`) that renders a normalised mosaic as
 ``l3 render`` does: the classifier (:mod:`l3cli.export.classify`, bit for
-bit the tile kernel's classes), the per-class affine kernels, the learned
+bit the tile kernel's classes, context bins included), the per-class affine kernels, the learned
 tone curve, the white-balance gains and adaptation, condition-bin kernels,
 and optionally the display encoding (:mod:`l3cli.export.stages`). Borders
 are padded by the CFA-phase mirror of :func:`l3cli.classify.mirror_indices`,
@@ -64,14 +64,10 @@ def require_onnx() -> None:
 
 def check_exportable(table: TransformTable, output: str = "linear") -> None:
     """Raise :class:`ConfigError` naming the first table feature the export cannot express."""
-    d = table.definition
     if output not in OUTPUTS:
         raise ConfigError(f"output {output!r} is not known; use one of {', '.join(OUTPUTS)}")
     for name in _unknown_features(table):
         raise ConfigError(f"the table's {_NAMES.get(name, name)} cannot be exported yet")
-    if d.context_block:
-        raise ConfigError("the table's context bins (--context-block) cannot be exported yet; "
-                          "train without them to export")
     if table.white_balance is not None:
         from l3cli.whitebalance import ADAPT_SPACE, WhiteBalanceModel
 
@@ -165,6 +161,8 @@ def _features(table: TransformTable) -> list[str]:
     out = [f"levels {d.n_levels}", f"contrast bins {d.n_contrast}", "saturation"]
     if d.orientation_bins:
         out.append(f"orientation bins {d.orientation_bins}")
+    if d.context_block:
+        out.append(f"context bins ({d.context_rule}, block {d.context_block}, {d.n_context})")
     if d.highlight_bins:
         out.append("highlight bins")
     if table.conditions is not None:

@@ -33,7 +33,7 @@ from l3cli.export.graph import Graph
 
 __all__ = ["Classes", "classify_nodes"]
 
-F32, I64 = TensorProto.FLOAT, TensorProto.INT64
+F32, F64, I64 = TensorProto.FLOAT, TensorProto.DOUBLE, TensorProto.INT64
 
 
 class Classes(NamedTuple):
@@ -99,10 +99,75 @@ def _orientation(g: Graph, d: ClassDefinition, padded: str) -> str:
                 g.const(0, np.int64))
 
 
+def _axis_weights(g: Graph, n: str, nb: str, block: int) -> tuple[str, str, str]:
+    """Lower and upper block index and float32 weight of each pixel along one axis
+    (:func:`l3cli.classify.features._interp_weights`, in float64 as there)."""
+    f64 = np.float64
+    k = g.op("Range", g.const(0.0), g.cast(n, F64), g.const(1.0))
+    f = g.op("Sub", g.op("Div", g.op("Add", k, g.const(0.5)), g.const(f64(block))),
+             g.const(0.5))
+    last = g.op("Sub", nb, g.const(1, np.int64))
+    f = g.op("Clip", f, g.const(0.0), g.cast(last, F64))
+    i0f = g.op("Floor", f)
+    i0 = g.cast(i0f, I64)
+    i1 = g.op("Min", g.op("Add", i0, g.const(1, np.int64)), last)
+    return i0, i1, g.cast(g.op("Sub", f, i0f), F32)
+
+
+def _context(g: Graph, d: ClassDefinition, mosaic: str, lev: str) -> str:
+    """int64 context bin of every pixel: the guide of :func:`l3cli.classify.features.context_map`
+    (block means in float64, bilinear in float32), or the level over it (``ratio``)."""
+    t = kernel_tables(d)
+    blk = d.context_block
+    i64 = np.int64
+    hw = g.dims(mosaic)
+    h = g.op("Squeeze", g.slice(hw, [0], [1], [0]), g.const([0], i64))
+    w = g.op("Squeeze", g.slice(hw, [1], [2], [0]), g.const([0], i64))
+    b = g.const(blk, i64)
+    nby, nbx = (g.op("Div", g.op("Add", v, g.const(blk - 1, i64)), b) for v in (h, w))
+    pad_y, pad_x = (g.op("Sub", g.op("Mul", nb, b), v) for nb, v in ((nby, h), (nbx, w)))
+    zero = g.const([0], i64)
+    pads = g.op("Concat", zero, zero, zero, zero, zero, zero,
+                *(g.op("Unsqueeze", v, zero) for v in (pad_y, pad_x)), axis=0)
+    shape = g.op("Concat", g.const([0, 1, -1, blk], i64), g.op("Unsqueeze", nbx, zero),
+                 g.const([blk], i64), axis=0)  # (N, 1, nby, B, nbx, B)
+
+    def blocks(x: str) -> str:
+        return g.op("ReduceSum", g.op("Reshape", g.op("Pad", x, pads), shape),
+                    g.const([3, 5], i64), keepdims=0)
+
+    x64 = g.cast(mosaic, F64)
+    total = present = None
+    for c in range(d.cfa.n_channels):
+        mask = g.periodic((t.idx_pattern == c).astype(np.float64), mosaic, dtype=np.float64)
+        sums, counts = blocks(g.op("Mul", x64, mask)), blocks(mask)
+        mean = g.op("Div", sums, g.op("Max", counts, g.const(1.0)))
+        has = g.cast(g.op("Greater", counts, g.const(0.0)), F64)
+        total = mean if total is None else g.op("Add", total, mean)
+        present = has if present is None else g.op("Add", present, has)
+    grid = g.cast(g.op("Div", total, g.op("Max", present, g.const(1.0))), F32)
+    r0, r1, wy = _axis_weights(g, h, nby, blk)
+    c0, c1, wx = _axis_weights(g, w, nbx, blk)
+    one = g.const(np.float32(1.0))
+    wy = g.op("Unsqueeze", wy, g.const([1], i64))  # (H, 1)
+    rows = g.op("Add", g.op("Mul", g.op("Gather", grid, r0, axis=2), g.op("Sub", one, wy)),
+                g.op("Mul", g.op("Gather", grid, r1, axis=2), wy))
+    guide = g.op("Add", g.op("Mul", g.op("Gather", rows, c0, axis=3), g.op("Sub", one, wx)),
+                 g.op("Mul", g.op("Gather", rows, c1, axis=3), wx))
+    if d.context_rule == "ratio":
+        zero32 = g.const(np.float32(0.0))
+        guide = g.op("Div", g.op("Max", lev, zero32),
+                     g.op("Add", g.op("Max", guide, zero32), g.const(t.ctx_eps)))
+    out = None
+    for cut in t.xcuts:
+        hit = g.cast(g.op("GreaterOrEqual", guide, g.const(np.float32(cut))), I64)
+        out = hit if out is None else g.op("Add", out, hit)
+    return out
+
+
 def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
     """Add the classification of (N, 1, H, W) float32 ``mosaic`` to ``g``.
 
-    Context features are not built here (the caller refuses them).
     """
     t = kernel_tables(d)
     s, r = d.patch, d.patch // 2
@@ -153,6 +218,9 @@ def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
     n_ext = d.n_orientation * d.n_context * d.n_highlight
     if n_ext > 1:
         ext = _orientation(g, d, padded) if d.orientation_bins else g.const(0, np.int64)
+        if d.context_block:
+            ext = g.op("Add", g.op("Mul", ext, g.const(d.n_context, np.int64)),
+                       _context(g, d, mosaic, lev))
         if d.highlight_bins:
             ones = g.const(np.ones((1, 1, s, s), f32))
             count = g.op("Conv", g.cast(saturated, F32), ones)  # 0/1 sums: exact
