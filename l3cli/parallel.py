@@ -337,7 +337,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
                 # closing is l3's own decision: a busy worker that the nanny must
                 # kill to close ("still alive after 4 s") is not news for the user
                 if root > logging.DEBUG:
-                    dlog.setLevel(logging.ERROR)
+                    dlog.setLevel(max(dlog.level, logging.ERROR))
                 cluster.close()
         finally:
             if workers is not None and scheduler is None:
