@@ -82,12 +82,15 @@ MIN_SAMPLES_FACTOR = 3.0
 #: Fit the multi-scale stage after the table (off: docs/training.md, "Noise reduction
 #: beyond the patch").
 MULTISCALE = False
-#: Increasing Gaussian low-pass standard deviations of the stage's bands, pixels.
-MULTISCALE_SIGMAS = (2.0, 6.0)
+#: Increasing Gaussian low-pass standard deviations of the stage's bands, pixels. Measured on
+#: simulated ISO 3200 captures (scripts/measure_multiscale.py; S-CIELAB, flat-patch noise):
+#: (1, 3, 9) 1.651, 0.45x; (2, 6) 1.687, 0.34x; (3,) 1.786, 0.39x (no stage 1.817).
+MULTISCALE_SIGMAS = (1.0, 3.0, 9.0)
 #: Coarse-level bins of the stage's classes (quantiles of the training renders).
-MULTISCALE_LEVELS = 8
-#: Band-energy bins per level of the stage's classes.
-MULTISCALE_ENERGY_BINS = 6
+MULTISCALE_LEVELS = 12
+#: Band-energy bins per level of the stage's classes (12 x 8 classes: 1.687 against 8 x 6's
+#: 1.706 and 4 x 4's 1.773 with sigmas (2, 6)).
+MULTISCALE_ENERGY_BINS = 8
 #: Ridge shrinkage of each class's blend towards the identity (relative to its band power).
 MULTISCALE_RIDGE = 1e-3
 

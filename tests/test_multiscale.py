@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from l3cli import defaults
 from l3cli.errors import TableError
 from l3cli.multiscale import (
     TRUNCATE,
@@ -172,7 +173,7 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
     from l3cli.cli.main import cli
     from l3cli.io.image import read_image
     from l3cli.io.raw import read_raw
-    from l3cli.kernelset import render_mosaic, prepare_kernels
+    from l3cli.kernelset import prepare_kernels, render_mosaic
     from l3cli.table import load_table
 
     sim = tmp_path / "sim"
@@ -186,7 +187,7 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
     table = load_table(tmp_path / "ms.npz")
     assert load_table(tmp_path / "plain.npz").multiscale is None
     assert table.multiscale is not None and table.multiscale.counts.sum() == 96 * 64
-    assert table.provenance["multiscale"]["sigmas"] == [2.0, 6.0]
+    assert table.provenance["multiscale"]["sigmas"] == list(defaults.MULTISCALE_SIGMAS)
     assert table.multiscale.transfer == "srgb"  # an xyz table blends in the sRGB coding
     raw_path = next(sim.glob("*.dng"))
     raw = read_raw(raw_path)
@@ -205,4 +206,4 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
 
             codes = display_encode(expected, table.output_space, 16).astype(np.int64)
             assert np.abs(np.round(img * 65535).astype(np.int64) - codes).max() <= 1
-    assert json.loads(json.dumps(table.provenance["multiscale"]))["levels"] == 8
+    assert json.loads(json.dumps(table.provenance["multiscale"]))["levels"] == defaults.MULTISCALE_LEVELS
