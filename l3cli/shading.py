@@ -14,10 +14,11 @@ The gain field (:class:`GainField`)
     their coefficients when learned. The gains are scaled so that their
     smallest value over the training raws' area is 1: a correction brightens
     the corners and keeps the centre, as a camera's does, so the mosaic keeps
-    the scale of the raw where the lens shades least, and a pixel the
-    correction lifts over the saturation threshold counts as saturated, as
-    the camera clips it after its correction. A gain below one (a raw of
-    another size) never lowers a pixel at or above the threshold.
+    the scale of the raw where the lens shades least. As the camera (and the
+    DNG SDK's ``GainMap``) clips at the white level after its correction, a
+    corrected pixel is not lifted above 1, so clipped pixels stay at 1 and
+    the saturation classes see the camera's clipping. A gain below one (a raw
+    of another size) never lowers a pixel at or above the threshold.
 Learning (:func:`fit_field`, glue in :mod:`l3cli.train.shading`)
     The pairs are cut into blocks; each block's per-channel raw means ``m``
     and its target's linear means ``t`` should follow ``t = M_i (g(r) m)``
@@ -200,8 +201,9 @@ def _placement(raw: Any) -> tuple[tuple[int, int], int, int]:
 def correct_mosaic(mosaic: np.ndarray, field: GainField, cfa: Any, saturation: float, *,
                    full_shape: tuple[int, int] | None = None, origin: tuple[int, int] = (0, 0),
                    out: np.ndarray | None = None, name: Any = "raw") -> np.ndarray:
-    """``mosaic`` times the field's gains (float32); a gain below one leaves pixels at
-    or above ``saturation`` as they are.
+    """``mosaic`` times the field's gains (float32), clipped at the white level (1) as a
+    camera clips after its correction (a pixel already above 1 is not lowered); a gain
+    below one leaves pixels at or above ``saturation`` as they are.
 
     ``full_shape`` and ``origin`` place a cropped mosaic on its full raw. ``out`` may be
     ``mosaic`` itself (in place). A raw of another size than the training
@@ -219,8 +221,9 @@ def correct_mosaic(mosaic: np.ndarray, field: GainField, cfa: Any, saturation: f
     g = gmap[y0:y0 + mosaic.shape[0], x0:x0 + mosaic.shape[1]]
     if out is None:
         out = np.array(mosaic, dtype=np.float32, copy=True)
-    if float(g.min()) >= 1.0:  # the usual case: every pixel brightened
+    if float(g.min()) >= 1.0:  # the usual case: every pixel brightened, up to white
         np.multiply(mosaic, g, out=out)
+        np.minimum(out, np.maximum(mosaic, np.float32(1.0)), out=out)
     else:  # a gain below one does not hide clipping from the saturation classes
         np.multiply(mosaic, g, out=out, where=(mosaic < saturation) | (g >= 1.0))
     return out

@@ -6,8 +6,9 @@
 Writes ``OUT_DIR/frames`` and ``OUT_DIR/holdout``: every raw of
 ``examples/infinite_isp`` darkened by a known per-channel radial fall-off
 (:func:`shading_map`, a cos^4-like law about an off-centre optical centre,
-different per colour), requantised to its 8 bits (pixels clipped in the
-source stay clipped); the renders (the targets) are copied unchanged. A camera that corrects its lens shading before
+different per colour), written with 8 more bits (:data:`SCALE`; pixels
+clipped in the source stay clipped); the renders (the targets) are copied
+unchanged. A camera that corrects its lens shading before
 rendering looks like this: its raws are shaded, its renders are not.
 
 ``docs/training.md`` ("Lens shading") measures ``l3 train --shading`` on it;
@@ -41,25 +42,38 @@ def shading_map(height: int, width: int, cfa) -> np.ndarray:
     return (1.0 + k * r2) ** -2
 
 
+#: The shaded raws keep 8 more bits than the 8-bit source (16-bit TIFFs, levels x 256):
+#: the lens darkens the light before a real sensor quantises it, so its corners are
+#: quantised as finely as its centre relative to their signal; requantising the
+#: darkened 8-bit values to 8 bits would add noise that no camera has and that the
+#: renders (made from the unshaded raws) do not show.
+SCALE = 256
+
+
 def shade(src: Path, dst: Path) -> None:
-    """Write a shaded copy of the raw ``src`` (TIFF + sidecar) at ``dst``."""
+    """Write a shaded copy of the raw ``src`` (16-bit TIFF + sidecar) at ``dst``."""
     import tifffile
+    import tomllib
 
     from l3cli.io.raw import read_raw
 
     raw = read_raw(src)
-    stored = tifffile.imread(src)
-    dn = stored.astype(np.float64)
+    dn = tifffile.imread(src).astype(np.float64)
     black = raw.black_level.reshape(raw.cfa.period)
     bl = np.tile(black, (dn.shape[0] // black.shape[0] + 1,
                          dn.shape[1] // black.shape[1] + 1))[:dn.shape[0], :dn.shape[1]]
-    out = bl + (dn - bl) * shading_map(*dn.shape, raw.cfa)
+    out = SCALE * (bl + (dn - bl) * shading_map(*dn.shape, raw.cfa))
     # a pixel clipped in the source stays clipped: its light was at least the white
     # level, so the shaded sensor's value is unknown, not a shaded copy of the clip
-    out = np.where(dn >= raw.white_level, dn, out)
-    out = np.clip(np.round(out), 0, np.iinfo(stored.dtype).max)
-    tifffile.imwrite(dst, out.astype(stored.dtype), compression="zlib")
-    shutil.copyfile(Path(str(src) + ".toml"), Path(str(dst) + ".toml"))
+    out = np.where(dn >= raw.white_level, SCALE * dn, out)
+    tifffile.imwrite(dst, np.clip(np.round(out), 0, 65535).astype(np.uint16),
+                     compression="zlib")
+    side = tomllib.loads(Path(str(src) + ".toml").read_text())
+    lines = [f'cfa = "{side["cfa"]}"', f"black_level = {SCALE * side['black_level']}",
+             f"white_level = {SCALE * side['white_level']}", "bit_depth = 16",
+             f'description = "{side.get("description", "")}, lens shading of '
+             f'scripts/make_shaded_examples.py"']
+    Path(str(dst) + ".toml").write_text("\n".join(lines) + "\n")
 
 
 def main(out_dir: str) -> None:
