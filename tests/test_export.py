@@ -419,3 +419,16 @@ def test_stages_the_export_does_not_know_are_refused():
         setattr(t, name, object())
         with pytest.raises(ConfigError, match="cannot be exported"):
             check_exportable(t)
+
+
+def test_without_onnx_the_error_says_what_to_install(monkeypatch, tmp_path):
+    from l3cli.errors import ConfigError
+    from l3cli.export import require_onnx
+
+    monkeypatch.setitem(sys.modules, "onnx", None)  # import onnx raises ImportError
+    with pytest.raises(ConfigError, match=r"pip install 'l3cli\[export\]'"):
+        require_onnx()
+    table = _save(tmp_path, _table())
+    res = CliRunner().invoke(cli, ["export", table, "-o", str(tmp_path / "p.onnx")])
+    assert res.exit_code == 1 and "l3cli[export]" in res.output
+    assert not (tmp_path / "p.onnx").exists()
