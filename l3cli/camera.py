@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from dataclasses import MISSING, asdict, dataclass, fields
+from dataclasses import MISSING, asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -60,12 +60,21 @@ class Optics:
         Lens transmittance (0, 1], spectrally flat.
     cos4
         Apply off-axis cos⁴ irradiance fall-off.
+    shading_corrected
+        The camera corrects its lens shading: cos⁴ acts on the raw only and the
+        target is the unshaded image (False: on both, as an uncorrected camera).
+    relative_illumination
+        None, or a measured per-channel fall-off of the raw (``{"radius": [...],
+        channel: [...]}``, relative to the centre, linear in the normalised
+        radius of :func:`l3cli.shading.normalised_coords`): acts on the raw only.
     """
 
     f_number: float = 4.0
     focal_length_mm: float = 4.0
     transmittance: float = 1.0
     cos4: bool = False
+    shading_corrected: bool = False
+    relative_illumination: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -486,6 +495,46 @@ def _exposure(sec: _Section) -> Exposure:
     )
 
 
+def _relative_illumination(value: Any, cfa: CFAConfig, file: str) -> dict:
+    """``[optics.relative_illumination]``: ``radius`` (increasing, from 0, at most 1.5) and
+    per CFA channel a list of the same length with values in (0, 1.5] (1 at radius 0)."""
+    where = f"{file}: optics.relative_illumination"
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where} must be a table (radius = [...], one list per channel)")
+    channels = list(cfa.cfa.channels)
+    unknown = sorted(set(value) - {"radius", *channels})
+    if unknown:
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r}; allowed: radius, "
+                          f"{', '.join(channels)} (the CFA's channels)")
+
+    def numbers(k: str) -> list[float]:
+        v = value.get(k)
+        if not isinstance(v, list) or not v or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in v):
+            raise ConfigError(f"{where}.{k} must be a list of finite numbers, got {v!r}")
+        return [float(x) for x in v]
+
+    radius = numbers("radius")
+    if len(radius) < 2 or radius[0] != 0 or np.any(np.diff(radius) <= 0) or radius[-1] > 1.5:
+        raise ConfigError(f"{where}.radius = {radius} must increase from 0 in at least 2 "
+                          "steps, to at most 1.5 (1 = the half-diagonal)")
+    out: dict[str, list[float]] = {"radius": radius}
+    for c in channels:
+        if c not in value:
+            continue
+        v = numbers(c)
+        if len(v) != len(radius):
+            raise ConfigError(f"{where}.{c} has {len(v)} values, radius {len(radius)}")
+        if min(v) <= 0 or max(v) > 1.5:
+            raise ConfigError(f"{where}.{c} = {v} must lie in (0, 1.5]")
+        out[c] = v
+    if len(out) == 1:
+        raise ConfigError(f"{where} gives no channel; add a list for one of "
+                          f"{', '.join(channels)}")
+    return out
+
+
 def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera>") -> Camera:
     """Validate a parsed camera description (the TOML's tables as dicts).
 
@@ -509,7 +558,9 @@ def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera
         focal_length_mm=s.number("focal_length_mm", _default(Optics, "focal_length_mm"), lo=0.0, hi=5000.0, lo_open=True),
         transmittance=s.number("transmittance", _default(Optics, "transmittance"), lo=0.0, hi=1.0, lo_open=True),
         cos4=s.boolean("cos4", _default(Optics, "cos4")),
+        shading_corrected=s.boolean("shading_corrected", _default(Optics, "shading_corrected")),
     )
+    ri = s.raw("relative_illumination")
     s.finish()
     s = _sub(top, "pixel")
     pixel = _pixel(s)
@@ -528,6 +579,8 @@ def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera
     s = _sub(top, "cfa")
     cfa = _cfa(s, base)
     s.finish()
+    if ri is not None:
+        optics = replace(optics, relative_illumination=_relative_illumination(ri, cfa, fname))
     s = _sub(top, "spectrum")
     spectrum = _spectrum(s, cfa)
     s.finish()

@@ -331,3 +331,69 @@ def test_dng_gain_map_is_applied_as_by_hand(tmp_path):
 
     out = render_file(t, tmp_path / "gm.dng", tmp_path / "gm.exr")
     np.testing.assert_allclose(read_image(out)[0], expect, atol=1e-6, rtol=0)
+
+
+# ------------------------------------------------- l3 simulate: relative illumination
+def _rgb_camera(**optics):
+    import dataclasses
+    import tomllib
+
+    from l3cli.camera import camera_from_dict
+    from tests.test_camera import MINIMAL
+
+    data = tomllib.loads(MINIMAL)
+    data["optics"] = optics
+    cam = camera_from_dict(data, file="cam.toml")
+    return cam, dataclasses
+
+
+RI = {"radius": [0.0, 0.5, 1.0], "R": [1.0, 0.9, 0.6], "B": [1.0, 0.8, 0.5]}
+
+
+@pytest.mark.parametrize(("ri", "msg"), [
+    ({"radius": [0.1, 1.0], "R": [1, 0.5]}, "must increase from 0"),
+    ({"radius": [0.0, 1.0], "R": [1, 0.5, 0.2]}, "R has 3 values, radius 2"),
+    ({"radius": [0.0, 1.0], "NIR": [1, 0.5]}, "unknown key 'NIR'"),
+    ({"radius": [0.0, 1.0], "G": [1, 0.0]}, "must lie in (0, 1.5]"),
+    ({"radius": [0.0, 1.0]}, "gives no channel"),
+    ("cos4", "must be a table"),
+])
+def test_relative_illumination_is_validated(ri, msg):
+    from l3cli.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        _rgb_camera(relative_illumination=ri)
+    assert "cam.toml: optics.relative_illumination" in str(err.value)
+    assert msg in str(err.value)
+
+
+def test_simulated_raw_carries_the_relative_illumination_and_the_target_not():
+    """The measured per-channel fall-off (and cos^4 of a camera that corrects its
+    shading) multiply the raw's signal only: raw ratio = the table interpolated at each
+    pixel's normalised radius; the target is the unshaded camera's."""
+    from l3cli.simulate import prepare_camera, simulate_capture
+    from l3cli.simulate.optics import cos4_falloff
+    from tests.test_simulate_physics import uniform_scene
+
+    plain, dc = _rgb_camera()
+    shaded, _ = _rgb_camera(relative_illumination=RI, cos4=True, shading_corrected=True,
+                            focal_length_mm=0.3)
+    h, w = 40, 60
+    caps = []
+    for cam in (plain, shaded):
+        model = prepare_camera(cam)
+        caps.append(simulate_capture(model, uniform_scene(h, w, model.wavelengths),
+                                     illuminant="D65", lux=100, seed=0, noise=False,
+                                     blur=False, exposure_s=0.001))
+    np.testing.assert_array_equal(caps[0].target, caps[1].target)  # the target is unshaded
+    ratio = caps[1].noise_free / caps[0].noise_free
+    v, u = normalised_coords(h, w)
+    r = np.hypot(v[:, None], u[None, :])
+    cos4 = cos4_falloff(h, w, plain.pixel.pitch_um * 1e-3, 0.3)
+    cfa = plain.cfa.cfa
+    chan = np.asarray(cfa.channel_map(h, w))
+    for i, name in enumerate(cfa.channels):
+        want = np.interp(r, RI["radius"], RI[name]) if name in RI else np.ones_like(r)
+        sel = chan == i
+        np.testing.assert_allclose(ratio[sel], (want * cos4)[sel], rtol=1e-5)
+    assert ratio.min() < 0.5

@@ -61,7 +61,13 @@ import numpy as np
 from l3cli import spectral
 from l3cli.camera import Camera
 from l3cli.errors import ConfigError
-from l3cli.simulate.optics import airy_otf, cos4_falloff, irradiance_factor, radial_frequency
+from l3cli.simulate.optics import (
+    airy_otf,
+    cos4_falloff,
+    irradiance_factor,
+    radial_frequency,
+    raw_shading,
+)
 from l3cli.simulate.scenes import Scene
 
 __all__ = [
@@ -238,7 +244,7 @@ def render_planes(model: CameraModel, scene: Scene, weights: np.ndarray, *,
     outs = list(range(spectra_w.shape[0])) if outputs is None else list(outputs)
     pitch_mm = cam.pixel.pitch_um * 1e-3 / s
     falloff = (cos4_falloff(h, w, pitch_mm, cam.optics.focal_length_mm)
-               if cam.optics.cos4 else None)
+               if cam.optics.cos4 and not cam.optics.shading_corrected else None)
     if not blur:
         planes = np.empty((len(outs), h, w), dtype=np.float32)
         wsum = spectra_w.sum(axis=2)  # (O, K)
@@ -473,6 +479,9 @@ def simulate_capture(model: CameraModel, scene: Scene, *, illuminant: str, lux: 
     c = len(model.channels)
     planes = render_planes(model, scene, weights, blur=blur, workers=workers)
     rate = _mosaic_select(planes[:c], cam.cfa.cfa.index_pattern)  # photo-electrons / s
+    shading = raw_shading(cam, *rate.shape)  # the raw's alone: the target stays unshaded
+    if shading is not None:
+        rate *= shading
     xyz_rate = planes[c:]
     del planes
     px, ro = cam.pixel, cam.readout

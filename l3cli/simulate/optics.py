@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["airy_otf", "radial_frequency", "cos4_falloff", "irradiance_factor"]
+__all__ = ["airy_otf", "radial_frequency", "cos4_falloff", "irradiance_factor", "raw_shading"]
 
 
 def airy_otf(freq_cy_per_mm: np.ndarray, wavelength_nm: float | np.ndarray, f_number: float) -> np.ndarray:
@@ -66,3 +66,31 @@ def cos4_falloff(height: int, width: int, pitch_mm: float, focal_length_mm: floa
     x = (np.arange(width, dtype=np.float64) - (width - 1) / 2) * pitch_mm
     r2 = y[:, None] ** 2 + x[None, :] ** 2
     return (1.0 / (1.0 + r2 / focal_length_mm**2) ** 2).astype(np.float32)
+
+
+
+def raw_shading(camera, height: int, width: int) -> np.ndarray | None:
+    """What multiplies the raw's signal alone (float32 (H, W)), or None: the measured
+    per-channel relative illumination (``[optics.relative_illumination]``, linear in
+    the normalised radius, held beyond its last radius) and, for a camera that corrects
+    its shading (``shading_corrected``), the cos⁴ fall-off, which then leaves the
+    target unshaded."""
+    from l3cli.shading import normalised_coords
+
+    optics = camera.optics
+    out = None
+    if optics.cos4 and optics.shading_corrected:
+        out = cos4_falloff(height, width, camera.pixel.pitch_um * 1e-3, optics.focal_length_mm)
+    table = optics.relative_illumination
+    if table:
+        v, u = normalised_coords(height, width)
+        r = np.sqrt(v[:, None] ** 2 + u[None, :] ** 2)
+        cfa = camera.cfa.cfa
+        chan = cfa.channel_map(height, width)
+        ri = np.ones((height, width), dtype=np.float32)
+        for i, name in enumerate(cfa.channels):
+            if name in table:
+                sel = chan == i
+                ri[sel] = np.interp(r[sel], table["radius"], table[name])
+        out = ri if out is None else out * ri
+    return out
