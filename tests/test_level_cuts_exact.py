@@ -72,3 +72,22 @@ def test_every_cut_hit_exactly_with_many_cuts():
         on = lev == c
         assert on.any()
         assert np.all(level_bin[on] == k + 1)
+
+
+def test_contrast_on_a_cut_goes_to_the_bin_above():
+    # the same rule for the contrast thresholds (``contrast >= cut``): cuts taken
+    # from the kernel's own float32 contrasts, so those pixels sit exactly on one
+    rng = np.random.default_rng(31)
+    m = (rng.random((30, 36)) * 0.5 + 0.2).astype(np.float32)
+    lev, con, _ = patch_features(m, "RGGB", patch=5)
+    c0 = np.float32(np.median(con))
+    c0 = con.ravel()[np.argmin(np.abs(con.ravel() - c0))]  # a contrast that occurs
+    d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.01, 0.9], contrast_cuts=float(c0),
+                              merge_positions=False)
+    assert np.all((lev > 0.01) & (lev < 0.9))  # one level bin: the middle one
+    group, sat, level, contrast = d.class_tuple(classify(m, d))
+    assert np.all(level == 1) and not sat.any()
+    on = con == c0
+    assert on.any()
+    assert np.all(contrast[on] == 1)
+    np.testing.assert_array_equal(contrast, (con >= c0).astype(contrast.dtype))
