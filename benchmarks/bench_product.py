@@ -215,31 +215,52 @@ def uncompressed_dng(dng: Path, path: Path, w: int = 4000, h: int = 3000) -> Pat
 
 
 # ------------------------------------------------------------------ timings
-def kernel_times(tables: dict, raw_path: Path, repeat: int) -> dict[str, float]:
-    """Seconds of the render stage per table (best of ``repeat`` interleaved rounds)."""
+def kernel_times(tables: dict, raw_path: Path, repeat: int,
+                 rounds: list[dict[str, float]] | None = None) -> dict[str, float]:
+    """Seconds of the render stage per table (best of ``repeat`` interleaved rounds; each
+    round's times appended to ``rounds`` when given)."""
     from l3cli import buffers
     from l3cli.io.raw import read_raw
     from l3cli.kernelset import prepare_kernels, render_display
 
     raw = read_raw(raw_path)
-    src = raw.mosaic.copy()
+    raws = {name: _phase(raw, t.cfa) for name, t in tables.items()}
+    srcs = {name: r.mosaic.copy() for name, r in raws.items()}
     best = {name: np.inf for name in tables}
 
-    def once(t):
-        np.copyto(raw.mosaic, src)  # the decode's mosaic, fresh (not timed)
+    def once(name):
+        r, t = raws[name], tables[name]
+        np.copyto(r.mosaic, srcs[name])  # the decode's mosaic, fresh (not timed)
         t0 = time.perf_counter()
-        ks = prepare_kernels(t, raw)
-        m = ks.prepare_mosaic(raw.mosaic, inplace=True)
+        ks = prepare_kernels(t, r)
+        m = ks.prepare_mosaic(r.mosaic, inplace=True)
         buffers.release(render_display(ks, m, 8))
         return time.perf_counter() - t0
 
     with buffers.recycling():
-        for t in tables.values():  # load the kernels (numba's cache) and the encoder tables
-            once(t)
+        for name in tables:  # load the kernels (numba's cache) and the encoder tables
+            once(name)
         for _ in range(repeat):
-            for name, t in tables.items():
-                best[name] = min(best[name], once(t))
+            times = {name: once(name) for name in tables}
+            best = {name: min(best[name], times[name]) for name in tables}
+            if rounds is not None:
+                rounds.append(times)
     return best
+
+
+def _phase(raw, cfa):
+    """``raw`` cropped by at most one CFA period so that its CFA is ``cfa`` (a GRBG table
+    times on an RGGB raw one column in)."""
+    import dataclasses
+
+    ph, pw = raw.cfa.period
+    for dy in range(ph):
+        for dx in range(pw):
+            if raw.cfa.shifted(dy, dx).spec == cfa.spec:
+                h, w = raw.mosaic.shape
+                m = np.ascontiguousarray(raw.mosaic[dy:h - ph + dy, dx:w - pw + dx])
+                return dataclasses.replace(raw, mosaic=m, cfa=raw.cfa.shifted(dy, dx))
+    raise SystemExit(f"no crop of {raw.path} has the CFA {cfa.spec}")
 
 
 def _kernel_child(table_dir: str, raw_path: str, repeat: int) -> None:
@@ -271,9 +292,15 @@ def feature_table(tables: dict, files: list[str], raw: Path, tmp: Path,
                           capture_output=True, text=True, check=True)
     sec = dict((ln.split("\t")[0], float(ln.split("\t")[1]))
                for ln in proc.stdout.strip().splitlines())
+    from l3cli.io.raw import read_raw
+    from l3cli.table import load_table
+
+    spec = read_raw(raw).cfa.spec
     whole = {name: np.inf for name in tables}
     for _ in range(repeat):
         for name, p in paths.items():
+            if load_table(p).cfa.spec != spec:
+                continue  # a table of another CFA phase: no file of its phase here
             out = _fresh(tmp / "out")
             dt, _, _ = _run([*_l3_cmd(), "-q", "render", str(p), *files, "-o", str(out),
                              "--format", "jpg"])
@@ -289,10 +316,12 @@ def feature_table(tables: dict, files: list[str], raw: Path, tmp: Path,
     from l3cli.table import load_table
 
     for name in tables:
-        nc = load_table(paths[name]).definition.n_classes
+        t = load_table(paths[name])
         k = sec[stem[name]]
-        lines.append(f"| {name} | {nc} | {k:.3f} | {1e3 * k / mp:.1f} | {k / k0:.2f}x "
-                     f"| {whole[name]:.2f} | {whole[name] / w0:.2f}x |")
+        w = (f"{whole[name]:.2f} | {whole[name] / w0:.2f}x" if np.isfinite(whole[name])
+             else f"— ({t.cfa.spec} table, {spec} files) | —")
+        lines.append(f"| {name} | {t.definition.n_classes} | {k:.3f} | {1e3 * k / mp:.1f} "
+                     f"| {k / k0:.2f}x | {w} |")
     return lines
 
 
@@ -386,15 +415,19 @@ def main() -> None:
             print(f"\n(skipped the LibRaw tables: {dng} is not here; it is in the shared data "
                   "set — pass --dng PATH)", flush=True)
             return
+        from l3cli.table import save_table
+
+        peers = {PLAIN: save_table(tmp / "plain.npz", feature_tables()[PLAIN]),
+                 **{k: v for k, v in trained.items() if "Blackmagic" in k}}
         big = _fresh(tmp / "uncompressed")
         first = uncompressed_dng(dng, big / "big01.dng")
         unc = [str(first)] + [str(shutil.copyfile(first, big / f"big{i + 1:02d}.dng"))
                               for i in range(1, a.copies)]
         print("", flush=True)
-        libraw_table(trained, {f"{a.copies} x 9-MP lossy DNG": lossy,
+        libraw_table(peers, {f"{a.copies} x 9-MP lossy DNG": lossy,
                                        f"{a.copies} x 12-MP uncompressed DNG": unc},
                              tmp, a.repeat)
-        print("\n".join(one_file_table(trained, lossy[0], tmp, a.repeat)), flush=True)
+        print("\n".join(one_file_table(peers, lossy[0], tmp, a.repeat)), flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

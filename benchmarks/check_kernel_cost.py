@@ -19,9 +19,10 @@ file between decode and write) with
   (``bench_product.trained_table``);
 
 and fails (exit 1) when the default table's time per megapixel exceeds the
-plain table's by more than ``--limit``. Both are measured on the same raw in
-the same process, so the ratio holds on a loaded machine where the seconds
-do not. It also prints the default table with its tone curve and white
+plain table's by more than ``--limit``: the median over the rounds of the
+ratio of the two tables' times in that round. Both are measured on the same
+raw in the same process, back to back, so the ratio holds on a loaded
+machine where the seconds do not. It also prints the default table with its tone curve and white
 balance taken out, which separates the cost of the patch size from that of
 the per-raw features.
 """
@@ -34,6 +35,8 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
@@ -72,13 +75,18 @@ def main() -> int:
     stripped = dataclasses.replace(default, tone_lut=None, white_balance=None)
     tables = {"plain 5x5 (synthetic)": photo_table(), name: default,
               f"{name}, no tone curve or white balance": stripped}
-    sec = kernel_times(tables, raw, a.repeat)
+    rounds: list[dict[str, float]] = []
+    sec = kernel_times(tables, raw, a.repeat, rounds)
     plain = sec["plain 5x5 (synthetic)"]
     print(f"render stage of `{raw.name}`, one process, best of {a.repeat} interleaved rounds; "
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     for label, s in sec.items():
-        print(f"  {label}: {s:.3f} s ({s / plain:.2f}x plain)")
-    ratio = sec[name] / plain
+        per_round = np.median([r[label] / r["plain 5x5 (synthetic)"] for r in rounds])
+        print(f"  {label}: {s:.3f} s ({s / plain:.2f}x plain; median of the rounds' "
+              f"ratios {per_round:.2f}x)")
+    # the median of the rounds' ratios: the two tables of one round run back to back under
+    # about the same load, and one slow round (another job's burst) does not decide it
+    ratio = float(np.median([r[name] / r["plain 5x5 (synthetic)"] for r in rounds]))
     ok = ratio <= a.limit
     print(f"{'OK' if ok else 'FAILED'}: default / plain = {ratio:.2f} (limit {a.limit:.2f})")
     return 0 if ok else 1
