@@ -52,8 +52,9 @@ SCALE = 256
 
 def shade(src: Path, dst: Path) -> None:
     """Write a shaded copy of the raw ``src`` (16-bit TIFF + sidecar) at ``dst``."""
-    import tifffile
     import tomllib
+
+    import tifffile
 
     from l3cli.io.raw import read_raw
 

@@ -283,7 +283,7 @@ def test_gain_map_opcodes_round_trip_and_errors():
     maps = _phone_maps(40, 60)
     back = parse_opcode_list(encode_gain_maps(maps))
     assert len(back) == 4
-    for a, b in zip(maps, back):
+    for a, b in zip(maps, back, strict=True):
         assert (a.top, a.left, a.row_pitch, a.points_h, a.spacing_h) == \
             (b.top, b.left, b.row_pitch, b.points_h, b.spacing_h)
         np.testing.assert_array_equal(a.gains, b.gains)

@@ -174,7 +174,7 @@ def read_gain_maps(path: str | Path) -> tuple[list[GainMap], list[GainMap]]:
         return [], []
     return tuple(  # type: ignore[return-value]
         [] if data is None else parse_opcode_list(bytes(data), f"{path}: OpcodeList{n}")
-        for data, n in zip(lists, (2, 3)))
+        for data, n in zip(lists, (2, 3), strict=True))
 
 
 def apply_dng_opcodes(raw: Any) -> Any:
