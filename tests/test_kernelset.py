@@ -122,7 +122,8 @@ FEATURES = {  # name: (definition features, table keywords)
 }
 
 
-@pytest.mark.parametrize("name", list(FEATURES))
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if "patch 9" in n
+                                  else n for n in FEATURES])  # patch 9: a kernel compile
 def test_kernel_set_renders_as_the_whole_image_path(tmp_path, name):
     features, kw = FEATURES[name]
     patch = features.pop("patch", 5) if "patch" in features else 5
