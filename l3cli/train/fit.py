@@ -450,7 +450,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
 
         groups = group_pairs(pairs, opts.by)
     shading_record = None
-    if opts.shading and pairs_kind(pairs) == "pairs":  # lens shading: corrected in every pass
+    if opts.shading:  # lens shading (on for pairs folders): corrected in every pass
         from l3cli.train.shading import learn_shading
 
         field, shading_record = learn_shading(pairs, opts)
