@@ -38,6 +38,7 @@ command then exits ``128 + n`` (:func:`interrupt_status`).
 from __future__ import annotations
 
 import atexit
+import contextlib
 import gc
 import logging
 import os
@@ -48,7 +49,7 @@ import time
 from typing import Any, NoReturn
 
 __all__ = ["Interrupted", "arm_exit_now", "exit_now", "handle_signals", "interrupt_status",
-           "lean_cache", "pause_gc", "resume_gc", "single_threaded_blas"]
+           "lean_cache", "pause_gc", "resume_gc", "signals_deferred", "single_threaded_blas"]
 
 log = logging.getLogger(__name__)
 
@@ -76,7 +77,37 @@ class Interrupted(KeyboardInterrupt):
         self.signum = int(signum)
 
 
+_deferred: list[int] = []  # depth of signals_deferred blocks in the main thread, signum
+_defer_depth = [0]
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """Hold a signal (:func:`handle_signals`) back until the block ends, then raise it.
+
+    For the few lines that create a temporary and record it (:mod:`l3cli.io.atomic`):
+    the :class:`Interrupted` comes after the record, so the cleanup finds it.
+    Only in the main thread (elsewhere the block changes nothing).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _defer_depth[0] += 1
+    try:
+        yield
+    finally:
+        _defer_depth[0] -= 1
+    if _defer_depth[0] == 0 and _deferred:
+        signum = _deferred.pop()
+        _first_signal.extend((time.monotonic(), signum))
+        raise Interrupted(signum)
+
+
 def _on_signal(signum: int, frame: Any) -> None:
+    if _defer_depth[0] and not _first_signal:  # inside signals_deferred: at its end
+        if not _deferred:
+            _deferred.append(int(signum))
+        return
     if _first_signal:  # already unwinding: let the cleanup finish
         if time.monotonic() - _first_signal[0] < REPEAT_GRACE_S:
             return

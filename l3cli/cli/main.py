@@ -108,6 +108,9 @@ class _LazyGroup(click.Group):
             where = f"{name if len(name) < 100 else name[:60] + '...'}: " if name else ""
             raise click.ClickException(f"{where}{exc.strerror or exc}") from exc
         except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (startup.handle_signals)
+            atomic = sys.modules.get("l3cli.io.atomic")
+            if atomic is not None:  # temporaries whose own cleanup the signal cut short
+                atomic.remove_live_temporaries()
             click.echo("Aborted.", err=True)
             sys.exit(startup.interrupt_status(exc))
         except (click.ClickException, click.exceptions.Exit, click.Abort):

@@ -25,7 +25,8 @@ from pathlib import Path
 from l3cli.errors import OutputError
 
 __all__ = ["atomic_path", "check_writable_dir", "check_free_space", "clean_stale",
-           "make_temp_dir", "write_error", "TMP_PREFIX"]
+           "forget_temporary", "make_temp_dir", "remove_live_temporaries", "write_error",
+           "TMP_PREFIX"]
 
 #: Prefix of every temporary file or folder l3 creates next to an output.
 TMP_PREFIX = ".l3-tmp-"
@@ -169,11 +170,47 @@ def _tmp_prefix(name: str) -> str:
     return f"{TMP_PREFIX}{os.getpid()}-{name[:40]}-"
 
 
+#: This process's temporaries not yet renamed or removed: what an interrupted run
+#: removes on its way out (:func:`remove_live_temporaries`) wherever the signal came.
+_LIVE: set[str] = set()
+
+
+def remove_live_temporaries() -> list[str]:
+    """Remove this process's temporary files and folders that still exist (the CLI
+    calls it when a run is interrupted). Returns what was removed."""
+    removed = []
+    for p in sorted(_LIVE, key=len, reverse=True):
+        _LIVE.discard(p)
+        try:
+            if os.path.isdir(p) and not os.path.islink(p):
+                shutil.rmtree(p)
+            else:
+                os.unlink(p)
+            removed.append(p)
+        except OSError:
+            continue
+    return removed
+
+
+def forget_temporary(path: str | os.PathLike) -> None:
+    """The temporary at ``path`` was renamed into place or removed."""
+    _LIVE.discard(os.fspath(path))
+
+
 def make_temp_dir(parent: str | os.PathLike, name: str) -> Path:
-    """A new temporary folder in ``parent`` named for this process (stale ones cleaned)."""
+    """A new temporary folder in ``parent`` named for this process (stale ones cleaned).
+
+    Recorded until :func:`forget_temporary`: an interrupted run removes it
+    whenever the signal arrives (:func:`remove_live_temporaries`).
+    """
+    from l3cli.startup import signals_deferred
+
     _clean_once(parent)
     try:
-        return Path(tempfile.mkdtemp(prefix=_tmp_prefix(name), dir=parent))
+        with signals_deferred():
+            tmp = tempfile.mkdtemp(prefix=_tmp_prefix(name), dir=parent)
+            _LIVE.add(tmp)
+        return Path(tmp)
     except OSError as exc:
         raise write_error(Path(parent) / name, exc) from exc
 
@@ -224,8 +261,13 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
                           "choose another output")
     suffix = path.suffix if suffix is None else suffix
     _clean_once(folder)
+    from l3cli.startup import signals_deferred
+
     try:
-        fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.stem), suffix=suffix, dir=folder)
+        with signals_deferred():
+            fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.stem), suffix=suffix,
+                                       dir=folder)
+            _LIVE.add(tmp)
         os.close(fd)
     except OSError as exc:
         raise write_error(path, exc) from exc
@@ -239,6 +281,7 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
             # mkstemp makes the file private (0600); give it the mode a plain open() would.
             os.chmod(tmp_path, 0o666 & ~_umask())
             os.replace(tmp_path, path)
+            _LIVE.discard(tmp)
         except OSError as exc:
             if exc.errno in WRITE_ERRNOS:
                 raise write_error(path, exc) from exc
@@ -248,4 +291,5 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     except BaseException:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
+            _LIVE.discard(tmp)
         raise

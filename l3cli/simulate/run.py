@@ -23,7 +23,7 @@ import numpy as np
 from l3cli import spectral
 from l3cli.camera import Camera
 from l3cli.errors import ConfigError, OutputError
-from l3cli.io.atomic import make_temp_dir
+from l3cli.io.atomic import forget_temporary, make_temp_dir
 from l3cli.io.manifest import MANIFEST_FORMAT, MANIFEST_NAME, MANIFEST_VERSION, write_manifest
 from l3cli.parallel import map_reduce
 from l3cli.simulate.core import (
@@ -341,6 +341,7 @@ def run_simulation(
         }
         write_manifest(tmp, manifest)
         _commit(tmp, out_dir)
+        forget_temporary(tmp)
     except BaseException:
         _remove_folder(tmp)
         raise
