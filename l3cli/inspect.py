@@ -236,6 +236,10 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "smoothing": table.provenance.get("smoothing"),
         "white_balance": table.white_balance is not None,
         "tone_curve": None if table.tone_lut is None else int(table.tone_lut[0].shape[0]),
+        "multiscale": None if table.multiscale is None else {
+            "sigmas": table.multiscale.sigmas.tolist(), "classes": table.multiscale.n_classes,
+            "levels": int(table.multiscale.level_cuts.size + 1),
+            "transfer": table.multiscale.transfer},
         "conditions": None if table.conditions is None else {
             "by": table.conditions.by,
             "bins": [{"value": float(v), "samples": int(c.sum()),
@@ -304,6 +308,12 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
     if s.get("tone_curve"):
         out.append(f"output: the kernels render the renders' learned tone-curve space, mapped "
                    f"back by a {s['tone_curve']}-entry look-up table per channel")
+    if s.get("multiscale"):
+        ms = s["multiscale"]
+        out.append(f"multiscale stage (--multiscale): bands of Gaussian low-passes sigma "
+                   f"{', '.join(f'{v:g}' for v in ms['sigmas'])} px blended per "
+                   f"{ms['classes']} coarse classes ({ms['levels']} levels x band energy), "
+                   f"coding {ms['transfer']}")
     if s.get("white_balance"):
         out.append("input: white-balanced by each raw's as-shot white balance, output adapted "
                    "to its white")

@@ -189,6 +189,11 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
     assert table.multiscale is not None and table.multiscale.counts.sum() == 96 * 64
     assert table.provenance["multiscale"]["sigmas"] == list(defaults.MULTISCALE_SIGMAS)
     assert table.multiscale.transfer == "srgb"  # an xyz table blends in the sRGB coding
+    res = runner.invoke(cli, ["inspect", str(tmp_path / "ms.npz")])
+    assert res.exit_code == 0 and "multiscale stage (--multiscale): bands of Gaussian " \
+        "low-passes sigma 1, 3, 9 px blended per 96 coarse classes" in res.output, res.output
+    res = runner.invoke(cli, ["inspect", str(tmp_path / "plain.npz")])
+    assert res.exit_code == 0 and "multiscale stage" not in res.output
     raw_path = next(sim.glob("*.dng"))
     raw = read_raw(raw_path)
     ks = prepare_kernels(table, raw)
