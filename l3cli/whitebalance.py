@@ -194,6 +194,12 @@ def white_features(gains: np.ndarray, n_features: int) -> np.ndarray:
     return np.array([b - r, 2 * g - r - b])[:n_features]
 
 
+#: Largest magnitude of an adaptation coefficient a table may hold (the 3x3
+#: matrices between whites are near the identity; this keeps a table's outputs
+#: finite in float32 with the kernels' bound, :data:`l3cli.table.MAX_KERNEL_GAIN`).
+MAX_ADAPTATION = 1e6
+
+
 class WhiteBalanceModel:
     """The record a white-balancing table keeps (JSON in the table's ``white_balance`` key).
 
@@ -216,6 +222,8 @@ class WhiteBalanceModel:
         self.whites = np.asarray(whites, dtype=np.float64).reshape(-1, 3)
         if self.coef.shape[0] != 1 + self.center.size or not np.all(np.isfinite(self.coef)):
             raise ValueError("white-balance model: coefficients do not fit the features")
+        if np.abs(self.coef).max(initial=0.0) > MAX_ADAPTATION:
+            raise ValueError(f"white-balance model: coefficients beyond ±{MAX_ADAPTATION:g}")
         if not np.all(np.isfinite(self.center)):
             raise ValueError("white-balance model: feature centre holds NaN or Inf")
         if not np.all(np.isfinite(self.whites)) or not np.all(self.whites > 0):

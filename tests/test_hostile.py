@@ -339,3 +339,31 @@ def test_simulate_size_beyond_memory_is_refused(runner, tmp_path: Path, monkeypa
                               "--size", "4000x3000", "--scene", "macbeth", "--lux", "100"])
     assert_one_line_error(res, "--size 4000x3000", "GiB")
     assert not (tmp_path / "sim").exists()
+
+
+def test_absurd_worker_count_is_refused_before_starting_any(runner, sim: Path) -> None:
+    """--workers 100000 would start a process per worker: refused, naming the option."""
+    import psutil
+
+    before = {p.pid for p in psutil.Process().children(recursive=True)}
+    res = runner.invoke(cli, ["-q", "train", str(sim), "-o", str(sim.parent / "t.npz"),
+                              "--levels", "4", "--workers", "100000"])
+    assert_one_line_error(res, "--workers 100000", "memory")
+    assert {p.pid for p in psutil.Process().children(recursive=True)} <= before
+
+
+def test_negative_seed_is_a_usage_error(runner, sim: Path) -> None:
+    """It was "internal error: ValueError" from numpy's generator."""
+    res = runner.invoke(cli, ["-q", "train", str(sim), "-o", str(sim.parent / "t.npz"),
+                              "--seed", "-1"])
+    assert res.exit_code == 2 and "--seed" in res.output and "Traceback" not in res.output
+
+
+def test_white_balance_coefficients_are_bounded(work: Path) -> None:
+    from l3cli.whitebalance import WB_FEATURE
+
+    coef = (np.eye(3).reshape(1, 9) * 1e7).tolist() + [[0.0] * 9]
+    bad = _with(work / "table.npz", work / "bad.npz",
+                white_balance=np.array(_wb_record(feature=WB_FEATURE, coef=coef)))
+    with pytest.raises(TableError, match="white_balance"):
+        load_table(bad)

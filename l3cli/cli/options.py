@@ -113,7 +113,7 @@ output_opt = click.option(
 
 #: ``--seed`` for bit-identical runs.
 seed_opt = click.option(
-    "--seed", type=int, default=defaults.SEED, show_default=True,
+    "--seed", type=click.IntRange(0, 2**63 - 1), default=defaults.SEED, show_default=True,
     help="Random seed; the same seed gives bit-identical results.",
 )
 
