@@ -495,46 +495,6 @@ def _exposure(sec: _Section) -> Exposure:
     )
 
 
-def _relative_illumination(value: Any, cfa: CFAConfig, file: str) -> dict:
-    """``[optics.relative_illumination]``: ``radius`` (increasing, from 0, at most 1.5) and
-    per CFA channel a list of the same length with values in (0, 1.5] (1 at radius 0)."""
-    where = f"{file}: optics.relative_illumination"
-    if not isinstance(value, dict):
-        raise ConfigError(f"{where} must be a table (radius = [...], one list per channel)")
-    channels = list(cfa.cfa.channels)
-    unknown = sorted(set(value) - {"radius", *channels})
-    if unknown:
-        raise ConfigError(f"{where}: unknown key {unknown[0]!r}; allowed: radius, "
-                          f"{', '.join(channels)} (the CFA's channels)")
-
-    def numbers(k: str) -> list[float]:
-        v = value.get(k)
-        if not isinstance(v, list) or not v or not all(
-                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-                for x in v):
-            raise ConfigError(f"{where}.{k} must be a list of finite numbers, got {v!r}")
-        return [float(x) for x in v]
-
-    radius = numbers("radius")
-    if len(radius) < 2 or radius[0] != 0 or np.any(np.diff(radius) <= 0) or radius[-1] > 1.5:
-        raise ConfigError(f"{where}.radius = {radius} must increase from 0 in at least 2 "
-                          "steps, to at most 1.5 (1 = the half-diagonal)")
-    out: dict[str, list[float]] = {"radius": radius}
-    for c in channels:
-        if c not in value:
-            continue
-        v = numbers(c)
-        if len(v) != len(radius):
-            raise ConfigError(f"{where}.{c} has {len(v)} values, radius {len(radius)}")
-        if min(v) <= 0 or max(v) > 1.5:
-            raise ConfigError(f"{where}.{c} = {v} must lie in (0, 1.5]")
-        out[c] = v
-    if len(out) == 1:
-        raise ConfigError(f"{where} gives no channel; add a list for one of "
-                          f"{', '.join(channels)}")
-    return out
-
-
 def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera>") -> Camera:
     """Validate a parsed camera description (the TOML's tables as dicts).
 
@@ -580,7 +540,10 @@ def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera
     cfa = _cfa(s, base)
     s.finish()
     if ri is not None:
-        optics = replace(optics, relative_illumination=_relative_illumination(ri, cfa, fname))
+        from l3cli.simulate.optics import check_relative_illumination
+
+        optics = replace(optics, relative_illumination=check_relative_illumination(
+            ri, list(cfa.cfa.channels), f"{fname}: optics.relative_illumination"))
     s = _sub(top, "spectrum")
     spectrum = _spectrum(s, cfa)
     s.finish()

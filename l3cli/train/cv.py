@@ -131,6 +131,8 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
         if wb_opts is not None:
             raw.mosaic = training_mosaic(raw, wb_opts)
             lin = training_target(lin, pair.raw, wb_opts)
+        elif getattr(opts, "shading_field", None) is not None:  # lens shading corrected
+            raw.mosaic = training_mosaic(raw, opts)
         targets = np.empty(lin.shape[:2] + (3 * len(CV_SPACES),), dtype=np.float32)
         for k, space in enumerate(CV_SPACES):
             targets[:, :, 3 * k:3 * k + 3] = convert(lin, "linear-srgb", space)

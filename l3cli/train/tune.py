@@ -223,6 +223,14 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     pairs = list(pairs)
     if not pairs:
         raise InputError("no training pairs")
+    shading_record = None
+    if base.shading:  # the lens-shading field first: every candidate sees corrected mosaics
+        import copy
+
+        from l3cli.train.shading import learn_shading
+
+        base = copy.copy(base)
+        base.shading_field, shading_record = learn_shading(pairs, base)
     images = load_cv_images(pairs, base, opponent=opponent)
     units = make_units(images)
     folds = make_folds(units, grid.folds)
@@ -292,6 +300,9 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
         if opts.tone_curve:
             attach_curve(table, images[0].curve)
+    if shading_record is not None:
+        table.shading = base.shading_field
+        table.provenance["shading"] = shading_record
     return TuneResult(results, best, opts, table, names, folds, seconds, record)
 
 
