@@ -46,7 +46,7 @@ from l3cli.errors import TableError
 
 __all__ = ["MULTISCALE_RULE", "TRANSFERS", "Multiscale", "MultiscaleStats", "accumulate",
            "apply", "apply_stage", "bands", "classes", "decode", "default_transfer", "encode",
-           "energy", "level", "lowpass", "place_cuts", "solve"]
+           "energy", "level", "lowpass", "place_cuts", "radius", "solve"]
 
 #: The rule the stage's arrays follow (stored in the table; a reader refuses others).
 MULTISCALE_RULE = "gauss-bands-v1"
@@ -315,14 +315,38 @@ class Multiscale:
                    arrs["multiscale_counts"], str(transfer))
 
 
-def apply_stage(stage: Multiscale, y: np.ndarray) -> np.ndarray:
-    """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new array)."""
+#: Output rows of one band of :func:`apply_stage` (bounds its temporaries: the band
+#: stack alone is n_scales * C floats per pixel).
+BAND_ROWS = 256
+
+
+def radius(sigma: float) -> int:
+    """Rows (or columns) a Gaussian low-pass of ``sigma`` reaches on each side."""
+    return int(TRUNCATE * float(sigma) + 0.5)
+
+
+def apply_stage(stage: Multiscale, y: np.ndarray, *, band_rows: int = BAND_ROWS) -> np.ndarray:
+    """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new array).
+
+    The image is processed in bands of ``band_rows`` output rows, each with the
+    rows its low-passes and band energy reach (``radius(sigma_1) +
+    radius(sigma_n)`` above and below): the result is the whole image's, bit
+    for bit, with temporaries of one band.
+    """
     y = np.asarray(y, dtype=np.float32)
     if y.ndim != 3 or y.shape[2] != stage.n_out:
         raise ValueError(f"the multiscale stage takes (H, W, {stage.n_out}) images, "
                          f"got {y.shape}")
-    stack, coarse, cls = stage.features(encode(y, stage.transfer))
-    return decode(_blend(stack, coarse, cls, stage.blend), stage.transfer)
+    h = y.shape[0]
+    halo = radius(stage.sigmas[0]) + radius(stage.sigmas[-1])
+    out = np.empty_like(y)
+    for b0 in range(0, h, max(1, int(band_rows))):
+        b1 = min(h, b0 + max(1, int(band_rows)))
+        a0, a1 = max(0, b0 - halo), min(h, b1 + halo)
+        stack, coarse, cls = stage.features(encode(y[a0:a1], stage.transfer))
+        part = _blend(stack, coarse, cls, stage.blend)
+        out[b0:b1] = decode(part[b0 - a0:b1 - a0], stage.transfer)
+    return out
 
 
 def _blend(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,

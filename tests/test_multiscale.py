@@ -212,3 +212,15 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
             codes = display_encode(expected, table.output_space, 16).astype(np.int64)
             assert np.abs(np.round(img * 65535).astype(np.int64) - codes).max() <= 1
     assert json.loads(json.dumps(table.provenance["multiscale"]))["levels"] == defaults.MULTISCALE_LEVELS
+
+
+def test_bands_of_rows_give_the_whole_image_bit_for_bit():
+    rng = np.random.default_rng(4)
+    y = rng.random((157, 64, 3), dtype=np.float32) * 1.1
+    stage = Multiscale(np.array([1.0, 3.0, 9.0]), np.array([0.4, 0.6]),
+                       np.array([[0.05, 0.1], [0.05, 0.1], [0.05, 0.2]]),
+                       rng.normal(size=(9, 9, 3)), np.ones(9, np.int64), "srgb")
+    whole = apply_stage(stage, y, band_rows=10_000)
+    for rows in (1, 17, 64, 156):
+        np.testing.assert_array_equal(apply_stage(stage, y, band_rows=rows), whole)
+    assert not np.allclose(whole, y, atol=1e-3)  # the blend did change the image
