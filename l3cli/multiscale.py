@@ -317,7 +317,7 @@ class Multiscale:
 
 #: Output rows of one band of :func:`apply_stage` (bounds its temporaries: the band
 #: stack alone is n_scales * C floats per pixel).
-BAND_ROWS = 256
+BAND_ROWS = 512
 
 
 def radius(sigma: float) -> int:
