@@ -118,7 +118,7 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
 
         with plots.writing():
             for r in reports:
-                plot_report(r, plots_dir)
+                plot_report(r, plots_dir, dpi=dpi, distance_m=distance)
     if json_path:  # last: a failed run leaves no complete-looking report
         write_report(json_path, report)
     click.echo(format_table(reports, summary))

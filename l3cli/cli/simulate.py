@@ -57,7 +57,7 @@ def _print_list(ctx: click.Context, param: click.Parameter, value: bool) -> None
               help="Scene illuminance in lux, repeatable (default: the camera's "
                    "exposure.light_levels_lux).")
 @click.option("--size", callback=_size, default=None, metavar="WxH",
-              help="Image size in pixels  [default: 480x320]")
+              help="Image size in pixels [default: 480x320].")
 @click.option("--exposure", "exposure_s", type=Finite(min=0, min_open=True), default=None,
               metavar="SECONDS",
               help="Fixed exposure time in seconds (overrides the camera's exposure mode).")
