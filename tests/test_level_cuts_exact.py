@@ -91,3 +91,13 @@ def test_contrast_on_a_cut_goes_to_the_bin_above():
     assert on.any()
     assert np.all(contrast[on] == 1)
     np.testing.assert_array_equal(contrast, (con >= c0).astype(contrast.dtype))
+
+
+def test_cut_points_written_out():
+    from l3cli.classify import level_cuts_between
+
+    # n_levels - 1 cuts; one cut: the geometric mean for log spacing, the midpoint for linear
+    np.testing.assert_allclose(level_cuts_between(0.01, 0.04, 2), [0.02], rtol=1e-15)
+    np.testing.assert_allclose(level_cuts_between(0.01, 0.04, 2, "linear"), [0.025], rtol=1e-15)
+    np.testing.assert_allclose(level_cuts_between(0.001, 1.0, 5), [0.001, 0.01, 0.1, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(level_cuts_between(0.1, 0.4, 5, "linear"), [0.1, 0.2, 0.3, 0.4], rtol=1e-12)
