@@ -1,0 +1,37 @@
+"""The table reader refuses what its checks are for (issue 30: mutants that survived).
+
+A targeted mutation run (``scripts/mutants.py``, ``tests/README.md``) showed two
+checks of :func:`l3cli.table.load_table` that no test exercised: scalar keys
+stored as arrays, and a tone curve's lookup table without its range.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from l3cli.errors import TableError
+from l3cli.table import load_table, save_table
+from tests.test_table import _rewrite, make_table
+
+
+@pytest.mark.parametrize(("key", "value"), [("patch", np.array([5])), ("cfa", np.array(["RGGB"])),
+                                            ("saturation_threshold", np.array([0.95]))])
+def test_a_scalar_key_stored_as_an_array_is_refused(tmp_path, key, value):
+    path = save_table(tmp_path / "t.npz", make_table())
+    _rewrite(path, **{key: value})
+    with pytest.raises(TableError, match=rf"t\.npz: key '{key}' must be a scalar, has shape \(1,\)"):
+        load_table(path)
+
+
+@pytest.mark.parametrize("present", ["tone_lut", "tone_range"])
+def test_half_a_tone_curve_is_refused(tmp_path, present):
+    path = save_table(tmp_path / "t.npz", make_table())
+    arrays = {"tone_lut": np.linspace(0, 1, 16, dtype=np.float32)[:, None].repeat(3, 1),
+              "tone_range": np.array([[0.0] * 3, [1.0] * 3], np.float32)}
+    _rewrite(path, **{present: arrays[present]})
+    with pytest.raises(TableError, match="tone_lut and tone_range come together"):
+        load_table(path)
+    _rewrite(path, **arrays)  # both: a table with a tone curve
+    t = load_table(path)
+    assert t.tone_lut is not None and t.tone_lut[0].shape == (16, 3)
