@@ -1,8 +1,8 @@
 """The table reader refuses what its checks are for (issue 30: mutants that survived).
 
-A targeted mutation run (``scripts/mutants.py``, ``tests/README.md``) showed two
+A targeted mutation run (``scripts/mutants.py``, ``tests/README.md``) showed three
 checks of :func:`l3cli.table.load_table` that no test exercised: scalar keys
-stored as arrays, and a tone curve's lookup table without its range.
+stored as arrays, a tone curve's lookup table without its range, an empty range.
 """
 
 from __future__ import annotations
@@ -35,3 +35,11 @@ def test_half_a_tone_curve_is_refused(tmp_path, present):
     _rewrite(path, **arrays)  # both: a table with a tone curve
     t = load_table(path)
     assert t.tone_lut is not None and t.tone_lut[0].shape == (16, 3)
+
+
+def test_an_empty_tone_range_is_refused(tmp_path):
+    path = save_table(tmp_path / "t.npz", make_table())
+    lut = np.linspace(0, 1, 16, dtype=np.float32)[:, None].repeat(3, 1)
+    _rewrite(path, tone_lut=lut, tone_range=np.array([[0.0, 0.0, 0.5], [1.0, 1.0, 0.5]], np.float32))
+    with pytest.raises(TableError, match="empty range"):
+        load_table(path)
