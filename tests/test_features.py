@@ -175,6 +175,20 @@ def test_context_map_equals_numpy():
     np.testing.assert_array_equal(context_map(m, cfa, 16, rows=(10, 30)), got[10:30])
 
 
+@pytest.mark.parametrize("shape", [(9, 9), (17, 16), (16, 17), (33, 25)])
+def test_context_of_sizes_whose_last_block_misses_a_cfa_row(shape):
+    """9 rows in blocks of 8: the last block holds only row 8, CFA phase 0 (it raised
+    IndexError in numpy's reduceat); the guide equals the numpy reference, and the
+    classifier runs on such sizes."""
+    rng = np.random.default_rng(3)
+    m = rng.random(shape).astype(np.float32)
+    cfa = CFA.from_spec("RGGB")
+    np.testing.assert_allclose(context_map(m, cfa, 8), _numpy_context(m, cfa, 8), rtol=1e-5, atol=1e-6)
+    d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.01, 0.1], context_block=8,
+                              context_cuts=[0.3, 0.6], context_rule="mean")
+    assert classify(m, d).shape == shape
+
+
 def test_uniform_image_has_one_context_bin():
     d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.01, 0.1], context_block=16,
                               context_cuts=[0.05, 0.3], context_rule="mean")

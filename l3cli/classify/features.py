@@ -114,9 +114,12 @@ def block_means(mosaic: np.ndarray, cfa: CFA, block: int) -> np.ndarray:
             xs = (np.arange(0, w, block) - px + pw - 1) // pw
             n_y = np.diff(np.append(ys, plane.shape[0]))
             n_x = np.diff(np.append(xs, plane.shape[1]))
+            # a last, partial block may hold no pixel of this position (9 rows, block 8,
+            # period 2: row 8 is phase 0 only); reduceat takes only in-range starts
+            ky, kx = int(np.sum(n_y > 0)), int(np.sum(n_x > 0))
             c = pat[py, px]
-            sums[c] += np.add.reduceat(np.add.reduceat(plane, ys, axis=0, dtype=np.float64), xs,
-                                       axis=1)
+            sums[c, :ky, :kx] += np.add.reduceat(
+                np.add.reduceat(plane, ys[:ky], axis=0, dtype=np.float64), xs[:kx], axis=1)
             counts[c] += n_y[:, None] * n_x[None, :]
     means = sums / np.maximum(counts, 1)
     return (means.sum(axis=0) / np.maximum((counts > 0).sum(axis=0), 1)).astype(np.float32)
