@@ -1,8 +1,9 @@
 """The table reader refuses what its checks are for (issue 30: mutants that survived).
 
-A targeted mutation run (``scripts/mutants.py``, ``tests/README.md``) showed three
+A targeted mutation run (``scripts/mutants.py``, ``tests/README.md``) showed four
 checks of :func:`l3cli.table.load_table` that no test exercised: scalar keys
-stored as arrays, a tone curve's lookup table without its range, an empty range.
+stored as arrays, a tone curve's lookup table without its range, an empty range, a
+fallback class one past the last.
 """
 
 from __future__ import annotations
@@ -43,3 +44,19 @@ def test_an_empty_tone_range_is_refused(tmp_path):
     _rewrite(path, tone_lut=lut, tone_range=np.array([[0.0, 0.0, 0.5], [1.0, 1.0, 0.5]], np.float32))
     with pytest.raises(TableError, match="empty range"):
         load_table(path)
+
+
+def test_a_fallback_class_past_the_last_is_refused(tmp_path):
+    t = make_table()
+    path = save_table(tmp_path / "t.npz", t)
+    nc = t.definition.n_classes
+    last = int(np.flatnonzero(~t.empty)[-1])  # the last trained class: a valid fallback
+    for value, ok in ((last, True), (nc, False)):  # nc: one past the last class
+        src = t.source_class.copy()
+        src[0] = value
+        _rewrite(path, source_class=src)
+        if ok:
+            assert load_table(path).source_class[0] == last
+        else:
+            with pytest.raises(TableError, match="source_class holds indices outside the classes"):
+                load_table(path)
