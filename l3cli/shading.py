@@ -8,7 +8,8 @@ parts: a gain field that corrects the raw first, then the table.
 
 The gain field (:class:`GainField`)
     Per CFA position ``p``, a polynomial in the squared radius about an optical
-    centre ``(cy, cx)``: ``g_p(r) = c_p0 + c_p1 r^2 + c_p2 r^4 + c_p3 r^6``, with
+    centre ``(cy, cx)``: ``g_p(r) = c_p0 + c_p1 r^2 + c_p2 r^4 (+ c_p3 r^6``: the order that predicts
+    held-out images best), with
     ``r`` in normalised sensor coordinates (:func:`normalised_coords`: the
     image centre is 0, the half-diagonal is 1). Positions of one colour share
     their coefficients when learned. The gains are scaled so that their
@@ -56,8 +57,9 @@ log = logging.getLogger(__name__)
 
 #: Name of the gain-field rule recorded in tables.
 SHADING_RULE = "radial-poly-r2-v1"
-#: Powers of r^2 in the polynomial (0 .. ORDER).
-ORDER = 3
+#: Polynomial orders tried (powers of r^2 beyond the constant): the one that predicts
+#: held-out images best is kept (:func:`fit_field`).
+ORDERS = (2, 3)
 
 
 def normalised_coords(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -78,7 +80,7 @@ class GainField:
     centre
         float64 (2,): optical centre ``(cy, cx)`` in normalised coordinates.
     coeffs
-        float64 (n_positions, ORDER + 1): ``g_p(r) = sum_k coeffs[p, k] r^(2k)``.
+        float64 (n_positions, k): ``g_p(r) = sum_j coeffs[p, j] r^(2j)``.
     size
         ``(height, width)`` of the training raws.
     """
@@ -362,9 +364,30 @@ def _matrix_sse(s: BlockSamples, a: np.ndarray | None, centre: np.ndarray) -> fl
     return float(np.sum((z @ mt - y) ** 2))
 
 
+def _scores(samples: Sequence[BlockSamples], order: int, n_blocks: int) -> tuple[float, float]:
+    """RMS block residual with a field of ``order`` and without one: held out (each
+    image by the field of the others, its own matrix refitted) when there are several
+    images, else in-sample."""
+    if len(samples) == 1:
+        a, centre, _ = _fit_samples(samples, order)
+        with_f, without = _matrix_sse(samples[0], a, centre), _matrix_sse(samples[0], None, centre)
+    else:
+        with_f = without = 0.0
+        for i, s in enumerate(samples):
+            ai, ci, _ = _fit_samples(samples[:i] + samples[i + 1:], order)
+            with_f += _matrix_sse(s, ai, ci)
+            without += _matrix_sse(s, None, ci)
+    return float(np.sqrt(with_f / (3 * n_blocks))), float(np.sqrt(without / (3 * n_blocks)))
+
+
 def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], *,
-              order: int = ORDER, min_gain: float = 0.02) -> tuple[GainField | None, dict]:
+              orders: Sequence[int] = ORDERS, min_gain: float = 0.02
+              ) -> tuple[GainField | None, dict]:
     """Learn a gain field from the block samples of the training pairs.
+
+    Each polynomial order of ``orders`` (powers of r² beyond the constant) is
+    scored on held-out images; the lowest order within 1 % of the best score
+    is fitted to all the images.
 
     Returns
     -------
@@ -373,30 +396,21 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
         no field, or the samples are too few), and a JSON record of the fit
         (``heldout_rms`` with and without the field, ``reason`` when none).
     """
-    samples = [s for s in samples if s.raw.shape[0] >= 8 * (order + 3)]
+    samples = [s for s in samples if s.raw.shape[0] >= 8 * (max(orders) + 3)]
     record: dict[str, Any] = {"rule": SHADING_RULE, "images": len(samples)}
     if not samples:
         record["reason"] = "too few unclipped blocks"
         return None, record
     n_blocks = sum(s.raw.shape[0] for s in samples)
+    scores = {o: _scores(samples, o, n_blocks) for o in orders}
+    best = min(v[0] for v in scores.values())
+    order = min(o for o in orders if scores[o][0] <= 1.01 * best)
+    with_f, without = scores[order]
+    key = "heldout_rms" if len(samples) > 1 else "rms"
+    record.update({key: with_f, "none_" + key: without, "order": order,
+                   "order_" + key: {str(o): v[0] for o, v in scores.items()}})
+    keep = with_f < (0.98 if len(samples) > 1 else 0.9) * without
     a, centre, _ = _fit_samples(samples, order)
-    # held out: the field of the other images on each image (its own matrix refitted)
-    if len(samples) > 1:
-        with_f = without = 0.0
-        for i, s in enumerate(samples):
-            rest = samples[:i] + samples[i + 1:]
-            ai, ci, _ = _fit_samples(rest, order)
-            with_f += _matrix_sse(s, ai, ci)
-            without += _matrix_sse(s, None, ci)
-        record["heldout_rms"] = float(np.sqrt(with_f / (3 * n_blocks)))
-        record["none_heldout_rms"] = float(np.sqrt(without / (3 * n_blocks)))
-        keep = with_f < 0.98 * without
-    else:
-        with_f = sum(_matrix_sse(s, a, centre) for s in samples)
-        without = sum(_matrix_sse(s, None, centre) for s in samples)
-        record["rms"] = float(np.sqrt(with_f / (3 * n_blocks)))
-        record["none_rms"] = float(np.sqrt(without / (3 * n_blocks)))
-        keep = with_f < 0.9 * without
     if not keep:
         record["reason"] = "no better than no correction on held-out images"
         return None, record

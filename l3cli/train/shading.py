@@ -24,6 +24,9 @@ __all__ = ["pair_blocks", "fit_pairs_shading", "learn_shading"]
 
 log = logging.getLogger(__name__)
 
+#: Alternations of tone curve and gain field (:func:`learn_shading`).
+ALTERNATIONS = 2
+
 
 def pair_blocks(pairs: Sequence[Pair], opts) -> tuple[list[BlockSamples], object, tuple | None]:
     """Block samples of every pair (uncorrected mosaics), the full raws' CFA and size.
@@ -103,7 +106,7 @@ def learn_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, dict]:
     work = copy.copy(opts)
     work.shading_field = None
     field, record = None, {}
-    for _ in range(2 if opts.tone_curve else 1):
+    for _ in range(ALTERNATIONS if opts.tone_curve else 1):
         if opts.tone_curve:
             work.tone_model, _ = fit_pairs_curve(pairs, work)
         field, record = fit_pairs_shading(pairs, work)
