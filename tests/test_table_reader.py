@@ -1,9 +1,9 @@
 """The table reader refuses what its checks are for (issue 30: mutants that survived).
 
-A targeted mutation run (``scripts/mutants.py``, ``tests/README.md``) showed four
+A targeted mutation run (``scripts/mutants.py``, ``tests/README.md``) showed five
 checks of :func:`l3cli.table.load_table` that no test exercised: scalar keys
 stored as arrays, a tone curve's lookup table without its range, an empty range, a
-fallback class one past the last.
+fallback class one past the last, a pickled array.
 """
 
 from __future__ import annotations
@@ -60,3 +60,12 @@ def test_a_fallback_class_past_the_last_is_refused(tmp_path):
         else:
             with pytest.raises(TableError, match="source_class holds indices outside the classes"):
                 load_table(path)
+
+
+def test_a_pickled_array_is_never_loaded(tmp_path):
+    # NPZ loads with allow_pickle=False: an object array (a pickle, which could run
+    # code when loaded) makes the table unreadable instead of being unpickled
+    path = save_table(tmp_path / "t.npz", make_table())
+    _rewrite(path, extra=np.array([{"pickled": True}], dtype=object))
+    with pytest.raises(TableError, match=r"t\.npz: not an NPZ table or damaged \(.*allow_pickle"):
+        load_table(path)
