@@ -64,6 +64,13 @@ def test_table_round_trip_and_version(tmp_path):
         arrs = {k: z[k] for k in z.files}
     assert int(arrs["version"]) == SHADING_VERSION
     back = load_table(p)
+    from l3cli.inspect import format_summary, table_summary
+
+    summary = table_summary(back)
+    want = t.shading.gains(np.array([1.0]))[:, 0] / t.shading.gains(np.array([0.0]))[:, 0]
+    np.testing.assert_allclose(summary["shading"]["gain_at_r1"], want, atol=1e-4)
+    assert "lens shading corrected first (gain field learned on 32x24 raws" in \
+        format_summary(summary)
     np.testing.assert_array_equal(back.shading.coeffs, t.shading.coeffs)
     np.testing.assert_array_equal(back.shading.centre, t.shading.centre)
     assert back.shading.size == (24, 32)
