@@ -152,7 +152,7 @@ def check_worker_count(n: int) -> None:
     ParallelError
         Naming the option and the most workers that fit.
     """
-    from l3cli.train.options import available_memory
+    from l3cli.buffers import available_memory
 
     most = max(1, available_memory() // WORKER_BYTES)
     if n > most:
