@@ -195,6 +195,16 @@ class TrainOptions:
         self.sample_weight = check_weight(sample_weight)
         self.shading = bool(shading)  # learn a lens-shading gain field (l3cli.shading)
         self.shading_field = None  # the fitted l3cli.shading.GainField (set by train())
+        # the smallest class layout these options can make (one CFA position group,
+        # one channel): refused now if even its statistics cannot fit in memory
+        check_class_budget(self, self.min_classes(), what="at least")
+
+    def min_classes(self) -> int:
+        """The fewest classes these options make (one position group, one channel)."""
+        n = 2 * self.levels * self.contrast_bins
+        n *= self.orientation_bins + 1 if self.orientation_bins else 1
+        n *= self.context_bins if self.context_block else 1
+        return n * (self.highlight_bins or 1)
 
     def as_dict(self) -> dict:
         """The options as a JSON-serialisable dict (recorded in the table's provenance).
