@@ -9,8 +9,8 @@ import os
 import numpy as np
 from test_pairs import pairs_dir  # noqa: F401  (fixture)
 
-from l3cli.pairs import load as pairs_mod  # where load_pair calls align
 from l3cli.pairs import find_pairs, load_pair
+from l3cli.pairs import load as pairs_mod  # where load_pair calls align
 
 
 def test_second_load_reuses_the_alignment_and_logs_it_once(pairs_dir, caplog,  # noqa: F811

@@ -79,7 +79,7 @@ def test_samples_per_degree_rejects_bad_values(bad):
 @pytest.mark.parametrize("version", sorted(SCIELAB_FILTER_PARAMETERS))
 @pytest.mark.parametrize("spd", [23, 66, 100])
 def test_filters_have_unit_sum_and_odd_support(version, spd):
-    for k, parts in zip(scielab_filters(spd, version=version), scielab_filter_1d(spd, version=version)):
+    for k, parts in zip(scielab_filters(spd, version=version), scielab_filter_1d(spd, version=version), strict=True):
         assert k.shape == (filter_support(spd),) * 2
         assert k.shape[0] % 2 == 1
         np.testing.assert_allclose(k.sum(), 1.0, atol=1e-12)
@@ -118,9 +118,9 @@ def test_filters_equal_isetcams_construction(version, spd):
     n = spd if spd % 2 else spd - 1
     x = np.arange(1, n + 1) - math.floor(n / 2 + 0.5)
     xx, yy = np.meshgrid(x, x)
-    for k, channel in zip(scielab_filters(spd, version=version), PUBLISHED_FILTERS[version]):
+    for k, channel in zip(scielab_filters(spd, version=version), PUBLISHED_FILTERS[version], strict=True):
         want = np.zeros((n, n))
-        for hwhm, w in zip(channel[0::2], channel[1::2]):
+        for hwhm, w in zip(channel[0::2], channel[1::2], strict=True):
             sd = hwhm * spd / math.sqrt(2 * math.log(2))
             g = np.exp(-0.5 * (xx**2 + yy**2) / sd**2)
             want += w * g / g.sum()
@@ -316,7 +316,7 @@ def _independent_scielab(ref_xyz, test_xyz, spd, version, opponent="xyz10", edge
     kernels = []
     for channel in PUBLISHED_FILTERS[version]:
         k = np.zeros((n, n))
-        for hwhm_deg, weight in zip(channel[0::2], channel[1::2]):
+        for hwhm_deg, weight in zip(channel[0::2], channel[1::2], strict=True):
             sd = hwhm_deg * spd / math.sqrt(2 * math.log(2))
             g = np.exp(-0.5 * (xx**2 + yy**2) / sd**2)
             k += weight * g / g.sum()

@@ -129,7 +129,6 @@ def plan_outputs(inputs: Sequence[str | os.PathLike], output: str | os.PathLike,
         A file where a folder is needed; an output that is or aliases an input.
     """
     from l3cli.errors import OutputError
-
     from l3cli.io.paths import check_name_length
 
     ins = [Path(p) for p in inputs]
