@@ -210,7 +210,7 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
     return {
         "name": name,
         "format": table.format,
-        "version": table.version,
+        "version": table.file_version,
         "output_space": table.output_space,
         "n_out": table.n_out,
         "cfa": {"spec": cfa.spec, "period": list(cfa.period), "channels": list(cfa.channels)},

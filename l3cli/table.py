@@ -254,12 +254,18 @@ class TransformTable:
         """Patch size S (odd)."""
         return self.definition.patch
 
+    @property
+    def file_version(self) -> int:
+        """The version the table is written as: the oldest that holds its stages."""
+        if self.multiscale is not None:
+            return MULTISCALE_VERSION
+        return SHADING_VERSION if self.shading is not None else self.version
+
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The NPZ content."""
         out = {
             "format": np.array(self.format),
-            "version": np.array(SHADING_VERSION if self.shading is not None else self.version,
-                                dtype=np.int64),
+            "version": np.array(self.file_version, dtype=np.int64),
             **self.definition.to_dict(),
             "kernels": self.kernels,
             "counts": self.counts,
@@ -279,7 +285,6 @@ class TransformTable:
             out.update(self.shading.to_arrays())
         if self.multiscale is not None:  # version 3: an l3 without the stage refuses it
             out.update(self.multiscale.to_arrays())
-            out["version"] = np.array(MULTISCALE_VERSION, dtype=np.int64)
         return out
 
 

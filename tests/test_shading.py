@@ -67,6 +67,8 @@ def test_table_round_trip_and_version(tmp_path):
     from l3cli.inspect import format_summary, table_summary
 
     summary = table_summary(back)
+    assert summary["version"] == SHADING_VERSION and back.file_version == SHADING_VERSION
+    assert f" v{SHADING_VERSION}, " in format_summary(summary)  # the header names the file's version
     want = t.shading.gains(np.array([1.0]))[:, 0] / t.shading.gains(np.array([0.0]))[:, 0]
     np.testing.assert_allclose(summary["shading"]["gain_at_r1"], want, atol=1e-4)
     assert "lens shading corrected first (gain field learned on 32x24 raws" in \
