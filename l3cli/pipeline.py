@@ -282,11 +282,10 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     ``turn`` is held around the render stage (the pipeline's
     :meth:`RenderTurns.turn`).
     """
-    from l3cli import multiscale
+    from l3cli import multiscale, shading
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
-    from l3cli import shading
     from l3cli.kernelset import check_fits, prepare_kernels, render_mosaic
 
     fmt = format_of(out_path)
