@@ -192,34 +192,12 @@ class KernelSet:
         """
         if self.mosaic_gains is None:
             return mosaic
+        from l3cli.whitebalance import multiply_gains
+
         m = check_mosaic(mosaic, self.definition.cfa, self.definition.patch)
         if not (inplace and m is mosaic):
             m = m.copy()
-        sat = np.float32(self.saturation)
-        ph, pw = self.mosaic_gains.shape
-        for y in range(ph):
-            for x in range(pw):
-                g = np.float32(self.mosaic_gains[y, x])
-                if g == 1:
-                    continue
-                v = m[y::ph, x::pw]
-                if g > 1:  # the product of a pixel >= 0 is not below it: no clipping to keep
-                    np.multiply(v, g, out=v)
-                else:
-                    np.multiply(v, g, out=v, where=~(v >= sat))
-        return m
-
-
-def _gain_map(cfa: Any, gains: np.ndarray) -> np.ndarray:
-    other = [c for c in cfa.channels if c not in _RGB]
-    if other:
-        raise InputError(f"white balance needs an R, G, B CFA; {cfa.spec} has {', '.join(other)}")
-    ph, pw = cfa.period
-    gmap = np.empty((ph, pw), dtype=np.float32)
-    for y in range(ph):
-        for x in range(pw):
-            gmap[y, x] = gains[_RGB.index(cfa.channel_at(y, x))]
-    return gmap
+        return multiply_gains(m, self.mosaic_gains, self.saturation)
 
 
 def prepare_kernels(table: TransformTable, raw: RawImage | None = None, *,
@@ -263,10 +241,10 @@ def prepare_kernels(table: TransformTable, raw: RawImage | None = None, *,
         kernels = kernels_for(table, value)
     if table.white_balance is None:
         return KernelSet.plain(table, kernels)
-    from l3cli.whitebalance import WhiteBalanceModel, gains_or_error
+    from l3cli.whitebalance import WhiteBalanceModel, gain_pattern, gains_or_error
 
     gains = gains_or_error(raw, white_balance)
-    gmap = _gain_map(raw.cfa, gains)
+    gmap = gain_pattern(raw.cfa, gains)
     model = WhiteBalanceModel.from_dict(table.white_balance)
     matrix = model.matrix(gains)
     if np.array_equal(matrix, np.eye(3)):  # one training white: no adaptation (exactly)
@@ -321,6 +299,22 @@ def _post_rows(ks: KernelSet, part: np.ndarray) -> None:
 DISPLAY_BAND_PIXELS = 1 << 20
 
 
+def _render_args(table: TransformTable | KernelSet, mosaic: np.ndarray,
+                 rows: tuple[int, int] | None, out: np.ndarray | None, dtype: Any
+                 ) -> tuple[KernelSet, np.ndarray, tuple[int, int], np.ndarray]:
+    """The kernel set, the checked mosaic, the rows and the output buffer of a render."""
+    ks = _kernel_set(table)
+    mosaic = check_mosaic(mosaic, ks.definition.cfa, ks.definition.patch)
+    h, w = mosaic.shape
+    y0, y1 = rows if rows is not None else (0, h)
+    shape = (y1 - y0, w, ks.n_out)
+    if out is None:
+        out = buffers.empty(shape, dtype)
+    elif out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous {np.dtype(dtype)} array of shape {shape}")
+    return ks, mosaic, (y0, y1), out
+
+
 def render_mosaic(table: TransformTable | KernelSet, mosaic: np.ndarray, *,
                   out: np.ndarray | None = None,
                   rows: tuple[int, int] | None = None) -> np.ndarray:
@@ -345,16 +339,8 @@ def render_mosaic(table: TransformTable | KernelSet, mosaic: np.ndarray, *,
     numpy.ndarray
         float32 (H, W, n_out) in ``table.output_space``.
     """
-    ks = _kernel_set(table)
-    d = ks.definition
-    mosaic = check_mosaic(mosaic, d.cfa, d.patch)
-    h, w = mosaic.shape
-    y0, y1 = rows if rows is not None else (0, h)
-    shape = (y1 - y0, w, ks.n_out)
-    if out is None:
-        out = buffers.empty(shape, np.float32)
-    elif out.shape != shape or out.dtype != np.float32 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous float32 array of shape {shape}")
+    ks, mosaic, (y0, y1), out = _render_args(table, mosaic, rows, out, np.float32)
+    d, w = ks.definition, mosaic.shape[1]
     run_tiles(mosaic, d, MODE_RENDER, rows=(y0, y1), kernels=ks.kernels,
               n_out=ks.n_out, out=out, curve=ks.curve)
     if ks.post is not None or ks.adapt is not None:
@@ -408,17 +394,9 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
 
     if bits not in (8, 16):
         raise ValueError(f"bits must be 8 or 16, got {bits}")
-    ks = _kernel_set(table)
-    d = ks.definition
-    mosaic = check_mosaic(mosaic, d.cfa, d.patch)
-    h, w = mosaic.shape
-    y0, y1 = rows if rows is not None else (0, h)
-    shape = (y1 - y0, w, ks.n_out)
-    dtype = np.uint16 if bits == 16 else np.uint8
-    if out is None:
-        out = buffers.empty(shape, dtype)
-    elif out.shape != shape or out.dtype != dtype or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous {np.dtype(dtype)} array of shape {shape}")
+    ks, mosaic, (y0, y1), out = _render_args(table, mosaic, rows, out,
+                                             np.uint16 if bits == 16 else np.uint8)
+    d, w = ks.definition, mosaic.shape[1]
     lock = render_lock if render_lock is not None else contextlib.nullcontext()
     with lock:  # the encoder's tables (cached per process) are built once, not beside
         params = display_params(ks.output_space, ks.n_out, bits)  # a warm-up's build

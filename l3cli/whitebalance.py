@@ -46,7 +46,7 @@ from l3cli.errors import InputError
 from l3cli.io.metadata import check_gains  # re-exported (its home: the file layer)
 
 __all__ = ["WB_FEATURE", "ADAPT_SPACE", "check_gains", "parse_gains", "raw_gains", "file_gains",
-           "gains_or_error", "apply_gains", "white_features", "fit_adaptation_model",
+           "gains_or_error", "gain_pattern", "multiply_gains", "apply_gains", "white_features", "fit_adaptation_model",
            "adaptation_matrix", "adapt_image", "fit_shot_matrix", "WhiteBalanceModel",
            "training_gains", "training_mosaic", "training_target", "quick_rgb"]
 
@@ -159,12 +159,8 @@ def gains_or_error(raw: Any, override: np.ndarray | None) -> np.ndarray:
     return g
 
 
-def apply_gains(mosaic: np.ndarray, cfa: Any, gains: np.ndarray, saturation: float
-                ) -> np.ndarray:
-    """Multiply each pixel by its channel's gain (float32 copy).
-
-    A pixel at or above ``saturation`` in the raw stays at or above it, so a
-    gain below one does not hide clipping from the saturation classes.
+def gain_pattern(cfa: Any, gains: np.ndarray) -> np.ndarray:
+    """The (R, G, B) ``gains`` laid out over one CFA period: float32 (ph, pw).
 
     Raises
     ------
@@ -179,13 +175,43 @@ def apply_gains(mosaic: np.ndarray, cfa: Any, gains: np.ndarray, saturation: flo
     for y in range(ph):
         for x in range(pw):
             gmap[y, x] = gains[_RGB.index(cfa.channel_at(y, x))]
-    h, w = mosaic.shape
-    tiled = np.tile(gmap, (-(-h // ph), -(-w // pw)))[:h, :w]
-    out = mosaic.astype(np.float32) * tiled
-    sat = mosaic >= saturation
-    if sat.any():
-        out[sat] = np.maximum(out[sat], mosaic[sat])
-    return out
+    return gmap
+
+
+def multiply_gains(mosaic: np.ndarray, pattern: np.ndarray, saturation: float) -> np.ndarray:
+    """Multiply a float32 mosaic by its CFA positions' gains, in place; returns it.
+
+    A pixel at or above ``saturation`` is never lowered (a gain below one does
+    not hide clipping from the saturation classes); the products are float32.
+    """
+    sat = np.float32(saturation)
+    ph, pw = pattern.shape
+    for y in range(ph):
+        for x in range(pw):
+            g = np.float32(pattern[y, x])
+            if g == 1:
+                continue
+            v = mosaic[y::ph, x::pw]
+            if g > 1:  # the product of a pixel >= 0 is not below it: no clipping to keep
+                np.multiply(v, g, out=v)
+            else:
+                np.multiply(v, g, out=v, where=~(v >= sat))
+    return mosaic
+
+
+def apply_gains(mosaic: np.ndarray, cfa: Any, gains: np.ndarray, saturation: float
+                ) -> np.ndarray:
+    """Multiply each pixel by its channel's gain (float32 copy).
+
+    A pixel at or above ``saturation`` in the raw stays at or above it, so a
+    gain below one does not hide clipping from the saturation classes.
+
+    Raises
+    ------
+    InputError
+        The CFA has channels other than R, G and B.
+    """
+    return multiply_gains(np.array(mosaic, dtype=np.float32), gain_pattern(cfa, gains), saturation)
 
 
 def white_features(gains: np.ndarray, n_features: int) -> np.ndarray:
