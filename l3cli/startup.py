@@ -118,13 +118,47 @@ def _on_signal(signum: int, frame: Any) -> None:
     raise Interrupted(signum)
 
 
+_previous_unraisablehook: list = []
+
+
+def _on_unraisable(unraisable: Any) -> None:
+    """Deliver again a signal whose :class:`Interrupted` a callback swallowed.
+
+    Python runs a signal handler wherever the main thread is, and an
+    exception raised inside a weakref callback, a finaliser or the import
+    lock's clean-up cannot propagate: Python reports it as "Exception
+    ignored in ..." with a traceback, and the run would go on as if no
+    signal had come. Here the report is dropped and the signal sent again a
+    moment later from a helper thread, once the main thread has left the
+    callback (and this hook): the handler runs again in ordinary code and
+    the run unwinds.
+    """
+    exc = unraisable.exc_value
+    if isinstance(exc, Interrupted) and _first_signal and _first_signal[1] == exc.signum:
+        timer = threading.Timer(0.02, _redeliver, (exc.signum,))
+        timer.daemon = True
+        timer.start()
+        return
+    (_previous_unraisablehook[0] if _previous_unraisablehook else sys.__unraisablehook__)(unraisable)
+
+
+def _redeliver(signum: int) -> None:
+    _first_signal.clear()
+    os.kill(os.getpid(), signum)
+
+
 def handle_signals() -> None:
     """Make SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` (main thread only).
 
     A signal that the process inherited as ignored (``nohup``) stays ignored.
+    One raised where Python cannot propagate it (a callback) is delivered
+    again (:func:`_on_unraisable`).
     """
     if threading.current_thread() is not threading.main_thread():
         return
+    if sys.unraisablehook is not _on_unraisable:
+        _previous_unraisablehook[:] = [sys.unraisablehook]
+        sys.unraisablehook = _on_unraisable
     for sig in SIGNALS:
         if sig != signal.SIGINT and signal.getsignal(sig) == signal.SIG_IGN:
             continue

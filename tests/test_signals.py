@@ -321,3 +321,32 @@ def test_a_signal_while_a_temporary_is_made_still_removes_it(tmp_path: Path, mon
         assert [p.name[:8] for p in tmp_path.iterdir()] == [".l3-tmp-"]
     atomic.remove_live_temporaries()
     assert list(tmp_path.iterdir()) == []
+
+
+_SWALLOWED = """
+import os, signal, sys, time, weakref
+from l3cli import startup
+startup.handle_signals()
+class A: pass
+def callback(_):
+    os.kill(os.getpid(), signal.{sig})
+    for _ in range(100000):  # the handler runs in here, inside the callback
+        pass
+a = A(); r = weakref.ref(a, callback)
+try:
+    del a
+    time.sleep(5)
+except startup.Interrupted as e:
+    sys.exit(e.signum)
+sys.exit(1)
+"""
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_signal_inside_a_callback_is_not_lost(sig: str) -> None:
+    """A signal whose handler runs inside a weakref callback (as at start-up, in the
+    import lock's clean-up) still ends the run, with no "Exception ignored" traceback."""
+    proc = subprocess.run([sys.executable, "-c", _SWALLOWED.format(sig=sig)], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == getattr(signal, sig), proc.stderr
+    assert "Traceback" not in proc.stderr and "ignored" not in proc.stderr
