@@ -281,6 +281,23 @@ def test_same_raw_twice_is_refused_by_render_and_info(runner, work: Path, monkey
     assert not (work / "planes").exists()
 
 
+def test_same_render_twice_is_refused_by_evaluate(runner, work: Path, monkeypatch) -> None:
+    """A rendered image given twice would count twice in the summary; one reference
+    for two renders is allowed (two tables' renders of one raw)."""
+    import numpy as np
+
+    from l3cli.io.image import write_image
+
+    monkeypatch.chdir(work)
+    img = np.full((32, 32, 3), 0.5, np.float32)
+    write_image("a.png", img)
+    write_image("b.png", img)
+    res = runner.invoke(cli, ["evaluate", "a.png", "./a.png", "--reference", "b.png", "b.png"])
+    assert_one_line_error(res, "given twice", "a.png")
+    res = runner.invoke(cli, ["evaluate", "a.png", "b.png", "--reference", "b.png", "b.png"])
+    assert res.exit_code == 0, res.output
+
+
 @pytest.mark.parametrize("command", ["render", "smooth", "train"])
 def test_output_name_too_long(runner, work: Path, sim: Path, command: str) -> None:
     """A name longer than the filesystem allows: one clear line, no "internal error"."""

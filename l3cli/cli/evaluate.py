@@ -104,8 +104,12 @@ def evaluate(ctx: click.Context, rendered: tuple[str, ...], references: tuple[st
         raise click.BadParameter(f"{dpi}: must be positive", param_hint="--dpi")
     if distance <= 0:
         raise click.BadParameter(f"{distance}: must be positive", param_hint="--distance")
+    from l3cli.cli.options import distinct_inputs
     from l3cli.cli.paths import check_outputs, plan_folder
 
+    # a rendered image given twice would be scored (and averaged into the summary) twice; one
+    # reference may serve several renders (two tables' renders of one raw)
+    distinct_inputs(rendered, "a rendered image")
     check_outputs([(json_path, "--json")], [*rendered, *references])
     plots = plan_folder(plots_dir, "--plots")
     options = EvalOptions(dpi=dpi, distance=distance, filters=filters, opponent=opponent,
