@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from l3cli.errors import TableError
+from l3cli.tablekeys import optional_group
 
 __all__ = ["MULTISCALE_RULE", "TRANSFERS", "Multiscale", "MultiscaleStats", "accumulate",
            "apply", "apply_stage", "bands", "classes", "decode", "default_transfer", "encode",
@@ -292,16 +293,8 @@ class Multiscale:
         keys = ("multiscale_rule", "multiscale_sigmas", "multiscale_level_cuts",
                 "multiscale_energy_cuts", "multiscale_blend", "multiscale_counts",
                 "multiscale_transfer")
-        present = [k for k in keys if k in arrs]
-        if not present:
+        if optional_group(arrs, keys, MULTISCALE_RULE) is None:
             return None
-        if len(present) != len(keys):
-            missing = ", ".join(k for k in keys if k not in arrs)
-            raise TableError(f"damaged table, missing keys {missing}")
-        rule = arrs["multiscale_rule"]
-        if rule.dtype.kind != "U" or rule.ndim != 0 or str(rule) != MULTISCALE_RULE:
-            raise TableError(f"multiscale_rule {str(rule)!r} is not supported (this l3 "
-                             f"applies {MULTISCALE_RULE!r})")
         for k in keys[1:5]:
             if arrs[k].dtype.kind != "f":
                 raise TableError(f"key {k!r} has dtype {arrs[k].dtype}, expected floating point")

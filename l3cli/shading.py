@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import TableError
+from l3cli.tablekeys import optional_group
 
 __all__ = ["SHADING_RULE", "GainField", "normalised_coords", "gain_map", "corrected",
            "corrected_raw", "correct_mosaic", "block_samples", "BlockSamples", "fit_field", "apply_gain_maps"]
@@ -138,16 +139,8 @@ class GainField:
             non-positive gains.
         """
         keys = ("shading_rule", "shading_centre", "shading_coeffs", "shading_size")
-        present = [k for k in keys if k in arrs]
-        if not present:
+        if optional_group(arrs, keys, SHADING_RULE) is None:
             return None
-        if len(present) != len(keys):
-            missing = ", ".join(k for k in keys if k not in arrs)
-            raise TableError(f"damaged table, missing keys {missing}")
-        rule = arrs["shading_rule"]
-        if rule.dtype.kind != "U" or rule.ndim or str(rule) != SHADING_RULE:
-            raise TableError(f"shading_rule {str(rule)!r} is not supported; this l3 reads "
-                             f"{SHADING_RULE!r}")
         for k in keys[1:]:
             if arrs[k].dtype.kind not in ("f", "i", "u"):
                 raise TableError(f"key {k!r} has dtype {arrs[k].dtype}, expected numbers")

@@ -25,7 +25,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # no l3 concepts: errors, option defaults, process start-up, progress,
     # buffer pools, the CFA, colour spaces, spectra, map-reduce
     ("base", ("l3cli", "errors", "defaults", "startup", "progress", "buffers", "cfa",
-              "colourspace", "spectral", "parallel", "figures", "shading")),
+              "colourspace", "spectral", "parallel", "figures", "tablekeys", "shading")),
     # files: raws, images, metadata, display encoding, manifests, atomic writes
     ("io", ("io",)),
     # the L3 model: classes, the tile kernel, render rows, the table, tone
