@@ -137,6 +137,7 @@ def test_bad_raw_among_good_ones_leaves_no_render(runner, work: Path) -> None:
 def test_libraw_message_is_folded_into_the_one_line(work: Path) -> None:
     """In a real process LibRaw writes to fd 2 itself; l3 folds that into its one line."""
     raw, _ = _truncated_dng(work)
+    raw = raw.rename(raw.with_suffix(".nef"))  # LibRaw's to decode (l3 reads DNG pixels)
     proc = subprocess.run([sys.executable, "-m", "l3cli.cli.main", "info", str(raw)],
                           capture_output=True, text=True, cwd=work)
     assert proc.returncode == 1

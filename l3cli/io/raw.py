@@ -3,7 +3,10 @@
 :func:`read_raw` returns one :class:`RawImage` whatever the source:
 
 * anything LibRaw opens (DNG, NEF, CR2, ARW, ...) through rawpy — the visible
-  area (``raw_image_visible``), per-channel black levels honoured;
+  area (``raw_image_visible``), per-channel black levels honoured; the pixels of
+  uncompressed, lossless-JPEG and lossy-JPEG DNGs are read by l3 itself
+  (:mod:`l3cli.io.dng_direct`, :mod:`l3cli.io.dng_ljpeg`, :mod:`l3cli.io.dng_lossy`),
+  to LibRaw's values, with LibRaw's metadata;
 * a headerless dump ``NAME.raw`` described by a sidecar ``NAME.raw.toml``
   (``width``, ``height``, ``dtype``, ``cfa``, ``black_level``, ``white_level``);
 * a single-channel integer image (16-bit TIFF or PNG mosaic) with a sidecar
@@ -343,18 +346,22 @@ def _visible_pattern(pattern: np.ndarray, top: int, left: int) -> np.ndarray:
     return pattern[np.ix_((top + np.arange(ph)) % ph, (left + np.arange(pw)) % pw)]
 
 
-def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
+def _read_rawpy(path: Path, libraw_only: bool = False, libraw: bool = False) -> RawImage:
     import rawpy
 
     rp = None
     failure: Exception | None = None
-    # dng_lossy runs on numba: worth it where numba is loaded anyway (render, train), not
-    # for a quick look at a file or two (l3 info: ~0.2 s to import numba and the kernel)
     fast = None
-    if path.suffix.lower() == ".dng" and not libraw_only and "numba" in sys.modules:
-        from l3cli.io import dng_lossy
+    if path.suffix.lower() == ".dng" and not libraw:
+        from l3cli.io import dng_direct  # uncompressed and lossless JPEG: numpy, imagecodecs
 
-        fast = dng_lossy.read(path)
+        fast = dng_direct.read(path)
+        # dng_lossy runs on numba: worth it where numba is loaded anyway (render, train), not
+        # for a quick look at a file or two (l3 info: ~0.2 s to import numba and the kernel)
+        if fast is None and not libraw_only and "numba" in sys.modules:
+            from l3cli.io import dng_lossy
+
+            fast = dng_lossy.read(path)
     with fd2.captured(str(path)) as said:
         try:
             if fast is not None:
@@ -406,11 +413,12 @@ def _read_rawpy(path: Path, libraw_only: bool = False) -> RawImage:
         raw = _raw_image(path, vis, cfa, black, white, meta)
     if fast is not None:
         del vis
-        buffers.release(fast[2])  # dng_lossy's array, for the next file's decode
+        buffers.release(fast[2])  # the decoder's array, for the next file's decode
     return raw
 
 
-def read_raw(path: str | os.PathLike, *, libraw_only: bool = False) -> RawImage:
+def read_raw(path: str | os.PathLike, *, libraw_only: bool = False,
+             libraw: bool = False) -> RawImage:
     """Read a raw mosaic from any supported source.
 
     Parameters
@@ -422,7 +430,11 @@ def read_raw(path: str | os.PathLike, *, libraw_only: bool = False) -> RawImage:
         Let LibRaw decode lossy-JPEG DNGs too. Otherwise, in a process that
         has imported numba, :mod:`l3cli.io.dng_lossy` decodes them (the same
         values, in a third of the time; it runs on numba, which a caller
-        may be still importing in another thread).
+        may be still importing in another thread). Uncompressed and
+        lossless-JPEG DNGs are still read by :mod:`l3cli.io.dng_direct`
+        (numpy and imagecodecs, no numba).
+    libraw
+        Let LibRaw decode every raw (l3's own DNG readers off).
 
     Returns
     -------
@@ -451,7 +463,7 @@ def read_raw(path: str | os.PathLike, *, libraw_only: bool = False) -> RawImage:
             f"{path}: a {suffix} image is not a raw file (a mosaic image needs a sidecar "
             f"{sidecar_path(path).name})"
         )
-    raw = _read_rawpy(path, libraw_only)
+    raw = _read_rawpy(path, libraw_only, libraw)
     if suffix == ".dng":  # the camera's GainMap opcodes (lens shading), as the DNG SDK applies them
         from l3cli.io.dng_opcodes import apply_dng_opcodes
 
