@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_product.py [--dng PATH] [--copies 8] [--repeat 3]
-        [--features-repeat 3] [--cache DIR] [--retrain]
+        [--features-repeat 3] [--cache DIR] [--retrain] [--raws-only]
 
 Tables (trained once and kept in ``--cache``, keyed by their inputs and l3's version):
 
@@ -17,7 +17,7 @@ Tables (trained once and kept in ``--cache``, keyed by their inputs and l3's ver
   adaptation, tone curve, patch 7. Needs ``--dng`` (default the shared data set's);
   skipped with a note without it.
 
-Three tables are printed:
+Four tables are printed:
 
 1. **Per-feature cost** relative to the plain 5x5 table: tables of the plain layout
    with one feature each (white-balance adaptation, tone curve, both, patch 7 and 9,
@@ -33,7 +33,11 @@ Three tables are printed:
    one Python process of rawpy (LibRaw AHD) + OpenImageIO with the same encoder
    settings (``bench_files.peer``), interleaved, best of ``--repeat``; and the
    *floor* (LibRaw's decode + the write alone, ``bench_files.floor``), which says
-   where LibRaw is the bottleneck.
+   where LibRaw is the bottleneck. The other raw kinds users have, made from the
+   same 12-MP mosaic (:func:`raw_kinds`): lossless-JPEG DNG, 12-bit packed DNG, and
+   headerless ``.raw`` dumps (whose peer reads the uncompressed DNG: LibRaw cannot
+   read a headerless file). Before it, the **per-file read** of each kind in this
+   process (:func:`decode_table`): l3's ``read_raw`` against LibRaw's decode.
 3. **One 9-MP DNG → JPEG**, whole process, each trained table.
 
 Without the shared DNG a synthetic 9-MP DNG (with an as-shot white) stands in for the
@@ -214,6 +218,92 @@ def uncompressed_dng(dng: Path, path: Path, w: int = 4000, h: int = 3000) -> Pat
                      color_matrix=cam if np.any(cam) else None)
 
 
+def raw_kinds(unc: Path, folder: Path, copies: int) -> dict[str, tuple[list[str], list[str]]]:
+    """The other raw kinds users have, made from the uncompressed DNG's mosaic (the same
+    pixels, levels and white): ``{kind: (l3's files, the peer's files)}``.
+
+    * lossless-JPEG DNG (compression 7, SOF3; 256x256 tiles of two interleaved halves per
+      row, as cameras and Adobe's converter write them; imagecodecs' libjpeg-turbo);
+    * 12-bit packed uncompressed DNG (the mosaic's top 12 bits);
+    * headerless dump (``.raw`` + ``.raw.toml``, 16-bit little-endian): LibRaw cannot read
+      those, so the peer reads the uncompressed DNG of the same pixels.
+    """
+    import rawpy
+
+    sys.path.insert(0, str(REPO / "tests"))
+    from dngmake import make_dng
+
+    with rawpy.imread(str(unc)) as raw:
+        m = raw.raw_image_visible.copy()
+        black = int(round(float(np.mean(raw.black_level_per_channel))))
+        white = int(raw.white_level)
+        wb = np.asarray(raw.camera_whitebalance[:3], np.float64)
+        spec = "".join("RGBG"[c] for c in raw.raw_pattern.ravel())
+    pattern = tuple("RGB".index(c) for c in spec)
+    neutral = tuple(wb[1] / wb)
+    kinds: dict[str, tuple[list[str], list[str]]] = {}
+
+    def copies_of(first: Path) -> list[str]:
+        return [str(first)] + [str(shutil.copyfile(first, first.with_name(
+            f"{first.stem[:-2]}{i + 1:02d}{first.suffix}"))) for i in range(1, copies)]
+
+    d = _fresh(folder / "ljpeg")
+    files = copies_of(make_dng(d / "lj01.dng", m, pattern=pattern, bits=16, tile=(256, 256),
+                               lossless_jpeg=True, components=2, black=black, white=white,
+                               neutral=neutral))
+    kinds[f"{copies} x 12-MP lossless-JPEG DNG"] = (files, files)
+    d = _fresh(folder / "packed12")
+    files = copies_of(make_dng(d / "pk01.dng", m >> 4, pattern=pattern, bits=12,
+                               black=black >> 4, white=white >> 4, neutral=neutral))
+    kinds[f"{copies} x 12-MP 12-bit packed DNG"] = (files, files)
+    d = _fresh(folder / "headerless")
+    m.astype("<u2").tofile(d / "hl01.raw")
+    (d / "hl01.raw.toml").write_text(
+        f'width = {m.shape[1]}\nheight = {m.shape[0]}\ndtype = "uint16"\ncfa = "{spec}"\n'
+        f"black_level = {black}\nwhite_level = {white}\n"
+        f"white_balance = [{neutral[0] ** -1:.6f}, 1.0, {neutral[2] ** -1:.6f}]\n")
+    files = copies_of(d / "hl01.raw")
+    for f in files[1:]:
+        shutil.copyfile(d / "hl01.raw.toml", f + ".toml")
+    kinds[f"{copies} x 12-MP headerless .raw (peer: the same pixels as uncompressed DNG)"] = (
+        files, [str(unc)] * copies)
+    return kinds
+
+
+def decode_table(kinds: dict[str, tuple[list[str], list[str]]], repeat: int) -> list[str]:
+    """Per-file read, one process, interleaved rounds, best of ``repeat``: l3's
+    ``read_raw`` (decode + LibRaw's metadata + normalisation) against LibRaw's decode
+    (``rawpy.imread(...).raw_image_visible`` copied) and ``read_raw(..., libraw=True)``."""
+    import rawpy
+
+    from l3cli.io.raw import read_raw
+
+    def libraw(f: str) -> None:
+        with rawpy.imread(f) as raw:
+            raw.raw_image_visible.copy()
+
+    lines = [f"Per-file read, one process, best of {repeat} interleaved rounds (the first "
+             "file of each kind):", "",
+             "| raws | l3 read_raw | LibRaw decode (raw_image_visible copy) | read_raw via "
+             "LibRaw | LibRaw decode / l3 | read_raw LibRaw / l3 |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for kind, (files, peer_files) in kinds.items():
+        best = {"l3": np.inf, "libraw": np.inf, "rr_libraw": np.inf}
+        calls = (("l3", read_raw, files[0], {}), ("libraw", libraw, peer_files[0], {}),
+                 ("rr_libraw", read_raw, peer_files[0], {"libraw": True}))
+        for _ in range(repeat):
+            for name, fn, arg, kw in calls:
+                t = time.perf_counter()
+                fn(arg, **kw)
+                best[name] = min(best[name], time.perf_counter() - t)
+        lines.append(f"| {kind.split(' (')[0]} | {best['l3'] * 1e3:.1f} ms "
+                     f"| {best['libraw'] * 1e3:.1f} ms | {best['rr_libraw'] * 1e3:.1f} ms "
+                     f"| {best['libraw'] / best['l3']:.2f}x "
+                     f"| {best['rr_libraw'] / best['l3']:.2f}x |")
+        print(lines[-1], flush=True)
+    return lines
+
+
 # ------------------------------------------------------------------ timings
 def kernel_times(tables: dict, raw_path: Path, repeat: int,
                  rounds: list[dict[str, float]] | None = None) -> dict[str, float]:
@@ -331,9 +421,10 @@ def _megapixels(raw: Path) -> float:
     return read_raw(raw).mosaic.size / 1e6
 
 
-def libraw_table(tables: dict[str, Path], kinds: dict[str, list[str]], tmp: Path,
-                 repeat: int) -> list[str]:
-    """Trained tables vs LibRaw AHD + OpenImageIO, whole processes, interleaved."""
+def libraw_table(tables: dict[str, Path], kinds: dict[str, list[str] | tuple[list[str], list[str]]],
+                 tmp: Path, repeat: int) -> list[str]:
+    """Trained tables vs LibRaw AHD + OpenImageIO, whole processes, interleaved (a kind's
+    files, or (l3's files, the peer's files) where LibRaw cannot read l3's)."""
     me = [sys.executable, str(HERE / "bench_files.py")]
     lines = [f"Trained tables against LibRaw AHD + OpenImageIO (one Python process, same "
              f"encoder settings), whole processes, best of {repeat}, interleaved; floor = "
@@ -341,7 +432,8 @@ def libraw_table(tables: dict[str, Path], kinds: dict[str, list[str]], tmp: Path
              "| raws | output | table | l3 render | LibRaw AHD | l3 vs AHD | floor "
              "| AHD / floor |", "|---|---|---|---:|---:|---:|---:|---:|"]
     print("\n".join(lines), flush=True)
-    for kind, files in kinds.items():
+    for kind, both in kinds.items():
+        files, peer_files = both if isinstance(both, tuple) else (both, both)
         for fmt, label in (("jpg", "JPEG q95 4:4:4"), ("tiff", "TIFF 16-bit")):
             best = {name: np.inf for name in tables} | {"AHD": np.inf, "floor": np.inf}
             for _ in range(repeat):
@@ -352,7 +444,7 @@ def libraw_table(tables: dict[str, Path], kinds: dict[str, list[str]], tmp: Path
                     best[name] = min(best[name], dt)
                 for alg in ("AHD", "floor"):
                     out = _fresh(tmp / "out")
-                    dt, _, _ = _run([*me, "--peer", alg, fmt, str(out), *files])
+                    dt, _, _ = _run([*me, "--peer", alg, fmt, str(out), *peer_files])
                     best[alg] = min(best[alg], dt)
             for name in tables:
                 lines.append(f"| {kind} | {label} | {name} | {best[name]:.2f} s "
@@ -388,6 +480,9 @@ def main() -> None:
     ap.add_argument("--features-repeat", type=int, default=3)
     ap.add_argument("--cache", default=str(DEFAULT_CACHE))
     ap.add_argument("--retrain", action="store_true")
+    ap.add_argument("--raws-only", action="store_true",
+                    help="only the raw-kind tables (per-file read, and against LibRaw): no "
+                         "per-feature or one-file table")
     ap.add_argument("--kernel-child", nargs=3, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.kernel_child:
@@ -409,8 +504,9 @@ def main() -> None:
         for i in range(a.copies):
             lossy.append(str(shutil.copyfile(base, src / f"frame{i + 1:02d}.dng")))
         tables = feature_tables() | trained
-        print("\n".join(feature_table(tables, lossy, Path(lossy[0]), tmp, a.features_repeat)),
-              flush=True)
+        if not a.raws_only:
+            print("\n".join(feature_table(tables, lossy, Path(lossy[0]), tmp,
+                                          a.features_repeat)), flush=True)
         if not dng.exists():
             print(f"\n(skipped the LibRaw tables: {dng} is not here; it is in the shared data "
                   "set — pass --dng PATH)", flush=True)
@@ -423,11 +519,17 @@ def main() -> None:
         first = uncompressed_dng(dng, big / "big01.dng")
         unc = [str(first)] + [str(shutil.copyfile(first, big / f"big{i + 1:02d}.dng"))
                               for i in range(1, a.copies)]
+        kinds: dict = {f"{a.copies} x 9-MP lossy DNG": lossy,
+                       f"{a.copies} x 12-MP uncompressed DNG": unc}
+        kinds |= raw_kinds(first, tmp / "kinds", a.copies)
         print("", flush=True)
-        libraw_table(peers, {f"{a.copies} x 9-MP lossy DNG": lossy,
-                                       f"{a.copies} x 12-MP uncompressed DNG": unc},
-                             tmp, a.repeat)
-        print("\n".join(one_file_table(peers, lossy[0], tmp, a.repeat)), flush=True)
+        decode_table({k: v if isinstance(v, tuple) else (v, v) for k, v in kinds.items()},
+                     max(a.repeat, 5))
+        print("", flush=True)
+        libraw_table(peers, kinds, tmp, a.repeat)
+        if not a.raws_only:
+            print("\n".join(one_file_table(peers, lossy[0], tmp, a.repeat)), flush=True)
+        print(f"load average after: {os.getloadavg()[0]:.1f}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
