@@ -94,6 +94,23 @@ MULTISCALE_ENERGY_BINS = 8
 #: Ridge shrinkage of each class's blend towards the identity (relative to its band power).
 MULTISCALE_RIDGE = 1e-3
 
+# l3 train's self-tuning (l3cli.train.tune; docs/training.md, "Self-tuning")
+#: Tune by cross-validation by default: on for pairs folders (a camera's own look, which
+#: no fixed layout fits every camera), off for simulate folders (the paper's layout).
+#: ``--tune`` / ``--no-tune`` override it.
+TUNE_PAIRS = True
+TUNE_SIMULATE = False
+#: The searched values (``[train.tune]`` overrides them): ``spaces`` None = the inputs'
+#: default target space and ``srgb``; an empty tuple = not searched (the fixed default).
+#: Patch 7/9, lens shading on/off and the multi-scale stage on/off: 3 to 8 candidates,
+#: within 3 minutes on the bundled frames on 2 cores (docs/training.md).
+TUNE_GRID = {"spaces": None, "patches": (7, 9), "levels": (), "contrast_bins": (),
+             "contrast_thresholds": (), "augments": (), "sample_weights": (),
+             "shading": (True, False), "multiscale": (False, True), "folds": 5}
+#: The one-standard-error rule's cap: a cheaper candidate is chosen over the best only
+#: when its CV score is within one paired standard error and within this fraction of it.
+TUNE_TOLERANCE = 0.05
+
 # l3 smooth
 #: Spline smoothing strength over response levels (λ of the Whittaker smoother).
 SPLINE_STRENGTH = 0.02

@@ -377,8 +377,9 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
         out.append(f"tuned by cross-validation ({len(tuned['folds'])} folds, "
                    f"{tuned['metric']}): chose {ch['target']}, patch {ch['patch']}, "
                    f"{ch['levels']} levels, {ch['contrast_bins']} contrast bins, threshold "
-                   f"{ch.get('contrast_threshold') or 'quantile'} "
-                   f"(CV {ch['cv_mean']:.4f})")
+                   f"{ch.get('contrast_threshold') or 'quantile'}, shading "
+                   f"{'on' if ch.get('shading') else 'off'}, multi-scale "
+                   f"{'on' if ch.get('multiscale') else 'off'} (CV {ch['cv_mean']:.4f})")
         out.append(format_candidates(tuned))
     if classes != "none":
         if table is None:

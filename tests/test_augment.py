@@ -273,7 +273,7 @@ def test_cli_defaults_for_pairs_folders_and_switching_on(tmp_path, runner):
 
     folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
     on, off = tmp_path / "on.npz", tmp_path / "off.npz"
-    common = ["--patch", "5", "--levels", "4", "--contrast-bins", "1"]
+    common = ["--patch", "5", "--levels", "4", "--contrast-bins", "1", "--no-tune"]
     res = runner.invoke(cli, ["train", str(folder), "-o", str(off), *common])
     assert res.exit_code == 0, res.output
     opts = load_table(off).provenance["options"]  # both off by default (defaults.py)

@@ -119,10 +119,11 @@ def test_quiet_hides_warnings(runner, tmp_path):
     from l3cli.io.image import write_image
 
     write_image(pairs / "a.png", np.full((48, 64, 3), 0.5, np.float32))
-    res = runner.invoke(cli, ["train", str(pairs), "-o", str(tmp_path / "t.npz")])
+    res = runner.invoke(cli, ["train", str(pairs), "-o", str(tmp_path / "t.npz"), "--no-tune"])
     assert res.exit_code == 0, res.output
     assert "WARNING" in res.output and "featureless" in res.output
-    res = runner.invoke(cli, ["-q", "train", str(pairs), "-o", str(tmp_path / "t2.npz")])
+    res = runner.invoke(cli, ["-q", "train", str(pairs), "-o", str(tmp_path / "t2.npz"),
+                              "--no-tune"])
     assert res.exit_code == 0 and "WARNING" not in res.output
 
 

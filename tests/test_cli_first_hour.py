@@ -29,7 +29,8 @@ def test_simulate_and_train_print_a_summary_off_a_terminal(runner, tmp_path):
 
 def test_train_takes_one_raw_file(runner, tmp_path):
     out = tmp_path / "t.npz"
-    res = runner.invoke(cli, ["train", str(FRAME), "-o", str(out), "--levels", "6", "--no-tone-curve"])
+    res = runner.invoke(cli, ["train", str(FRAME), "-o", str(out), "--levels", "6", "--no-tone-curve",
+                              "--no-tune"])
     assert res.exit_code == 0, res.output
     assert out.is_file() and "Directory" not in res.output
 

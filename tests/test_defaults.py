@@ -58,6 +58,13 @@ EXPECTED = {
                           "augment": "none", "sample_weight": "none", "shading": False},
     "SPLINE_STRENGTH": 0.02,
     "TONE_CURVE": False,
+    # self-tuning by default for pairs folders (issue 27; tests/test_tune.py checks the CLI)
+    "TUNE_GRID": {"spaces": None, "patches": (7, 9), "levels": (), "contrast_bins": (),
+                  "contrast_thresholds": (), "augments": (), "sample_weights": (),
+                  "shading": (True, False), "multiscale": (False, True), "folds": 5},
+    "TUNE_PAIRS": True,
+    "TUNE_SIMULATE": False,
+    "TUNE_TOLERANCE": 0.05,
     "VIEWING_DISTANCE_M": 1.0,
     "WEIGHT_EXPONENT": 1.5,
     "WEIGHT_FLOOR": 0.01,

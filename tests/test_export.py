@@ -337,7 +337,7 @@ def default_pairs_table(tmp_path_factory):
             with open(toml, "a") as fh:
                 fh.write(f"white_balance = [{_SHOT_GAINS[stem]}]\n")
     out = work / "default.npz"
-    res = CliRunner().invoke(cli, ["train", str(work / "frames"), "-o", str(out)])
+    res = CliRunner().invoke(cli, ["train", str(work / "frames"), "-o", str(out), "--no-tune"])
     assert res.exit_code == 0, res.output
     return out, work / "holdout"
 

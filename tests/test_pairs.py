@@ -172,13 +172,13 @@ def test_cli_train_on_pairs_folder(dng_pairs: Path, tmp_path: Path, runner):
     from l3cli.table import load_table
 
     out = tmp_path / "cam.npz"
-    res = runner.invoke(cli, ["-v", "train", str(dng_pairs), "-o", str(out), "--levels", "3",
+    res = runner.invoke(cli, ["-v", "train", str(dng_pairs), "-o", str(out), "--levels", "3", "--no-tune",
                               "--patch", "3"])
     assert res.exit_code == 0, res.output
     assert "offset (dy=4, dx=4)" in res.output  # -v reports the alignment of y
     # the linear version of the renders' space by default (l3 render writes display sRGB)
     assert load_table(out).output_space == "linear-srgb"
-    res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(out), "--levels", "3",
+    res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(out), "--levels", "3", "--no-tune",
                               "--patch", "3", "--target", "linear-srgb"])
     assert res.exit_code == 0, res.output
     assert load_table(out).output_space == "linear-srgb"
@@ -189,7 +189,7 @@ def test_cli_train_refuses_misaligned_pair(dng_pairs: Path, tmp_path: Path, runn
 
     write_image(dng_pairs / "x.png", srgb_encode(scene(H, W, seed=5)), space="srgb")
     res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(tmp_path / "z.npz"),
-                              "--levels", "3", "--patch", "3"])
+                              "--levels", "3", "--patch", "3", "--no-tune"])
     assert res.exit_code == 1
     assert "x.png does not align with" in res.output
     assert not (tmp_path / "z.npz").exists()
@@ -209,7 +209,7 @@ def test_resized_render_needs_scaled_renders(dng_pairs: Path, tmp_path: Path, ru
     (dng_pairs / "x.png").unlink()
     write_image(dng_pairs / "x.png", np.clip(zoom(enc, (0.9, 0.9, 1), order=1), 0, 1), space="srgb")
     out = tmp_path / "cam.npz"
-    args = ["-v", "train", str(dng_pairs), "-o", str(out), "--levels", "3", "--patch", "3"]
+    args = ["-v", "train", str(dng_pairs), "-o", str(out), "--levels", "3", "--patch", "3", "--no-tune"]
     res = runner.invoke(cli, args)
     assert res.exit_code == 1 and not out.exists()
     assert "x.png does not align with" in res.output and "--scaled-renders" in res.output
@@ -247,7 +247,7 @@ def test_render_to_jpeg_and_evaluate_against_the_camera_jpeg(dng_pairs: Path, tm
     from l3cli.io.image import read_image
 
     table = tmp_path / "cam.npz"
-    res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(table), "--levels", "3",
+    res = runner.invoke(cli, ["train", str(dng_pairs), "-o", str(table), "--levels", "3", "--no-tune",
                               "--patch", "3", "--target", "linear-srgb"])
     assert res.exit_code == 0, res.output
     # a new raw, not trained on, whose camera JPEG is cropped by 4 pixels and mirrored

@@ -125,7 +125,8 @@ def test_tune_picks_the_known_best_space(tmp_path: Path):
     fit them in the linear space, so linear-srgb must win over srgb."""
     folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     grid = TuneGrid(spaces=("linear-srgb", "srgb"), patches=(5,), levels=(4,),
-                    contrast_bins=(1,), augments=("none",), sample_weights=("none",))
+                    contrast_bins=(1,), augments=("none",), sample_weights=("none",),
+                    shading=(False,), multiscale=(False,))
     res = tune(find_pairs([folder]), TrainOptions(**OPTS), grid)
     assert res.best.candidate.target_space == "linear-srgb"
     by_space = {r.candidate.target_space: r.mean for r in res.results}
@@ -189,7 +190,8 @@ def test_tune_refuses_augmentation_for_a_pipeline_that_is_not_mirror_symmetric(t
         shifted = np.roll(lin, 1, axis=1)
         write_image(folder / f"{stem}.png", srgb_encode(np.clip(shifted, 0, 1)), space="srgb")
     grid = TuneGrid(spaces=("linear-srgb",), patches=(5,), levels=(4,), contrast_bins=(1,),
-                    augments=("d4", "none"), sample_weights=("none",))
+                    augments=("d4", "none"), sample_weights=("none",), shading=(False,),
+                    multiscale=(False,))
     res = tune(find_pairs([folder]), TrainOptions(**OPTS, augment="d4"), grid)
     by_aug = {r.candidate.augment: r.mean for r in res.results}
     assert set(by_aug) == {"d4", "none"}
@@ -217,7 +219,8 @@ def test_tune_on_white_balanced_shots_scores_and_keeps_the_white_balance(tmp_pat
             f.write(f"white_balance = {[float(g) for g in gains]}\n")
         write_image(folder / f"{stem}.png", srgb_encode(np.clip(lin, 0, 1)), space="srgb")
     grid = TuneGrid(spaces=("linear-srgb",), patches=(5,), levels=(4,), contrast_bins=(1,),
-                    augments=("none",), sample_weights=("none",))
+                    augments=("none",), sample_weights=("none",), shading=(False,),
+                    multiscale=(False,))
     pairs = find_pairs([folder])
     wb = tune(pairs, TrainOptions(**OPTS, white_balance=True), grid)
     plain = tune(pairs, TrainOptions(**OPTS), grid)
@@ -226,3 +229,134 @@ def test_tune_on_white_balanced_shots_scores_and_keeps_the_white_balance(tmp_pat
     direct = train(pairs, wb.options)
     np.testing.assert_allclose(wb.table.kernels, direct.kernels, rtol=1e-5, atol=1e-6)
     assert wb.table.provenance["tune"]["chosen"]["target"] == "linear-srgb"
+
+
+# ------------------------------------------------ self-tuning by default (issue 27)
+def test_the_default_search_is_the_product():
+    """The defaults are the product: tuning on for pairs folders, off for simulate
+    folders, and the searched grid; a change here is a change of what users get."""
+    from l3cli import defaults
+
+    assert defaults.TUNE_PAIRS is True and defaults.TUNE_SIMULATE is False
+    assert defaults.TUNE_TOLERANCE == 0.05
+    assert TuneGrid() == TuneGrid(spaces=None, patches=(7, 9), levels=(), contrast_bins=(),
+                                  contrast_thresholds=(), augments=(), sample_weights=(),
+                                  shading=(True, False), multiscale=(False, True), folds=5)
+    text = " ".join(runner_help().split())
+    assert "--tune / --no-tune" in text
+    assert "[default: on for pairs folders, off for simulate folders]" in text
+
+
+def runner_help() -> str:
+    from click.testing import CliRunner
+
+    return CliRunner().invoke(cli, ["train", "--help"]).output
+
+
+def _result(cand, scores):
+    from l3cli.train.tune import CandidateResult
+
+    return CandidateResult(cand, np.asarray(scores, dtype=float))
+
+
+def test_one_standard_error_rule():
+    """The cheapest candidate within one paired standard error (capped at 5 %) of the
+    best is chosen; outside it, the best."""
+    from l3cli.train.tune import Candidate, choose
+
+    p7 = Candidate("linear-srgb", 7, 24, 3, 0.2)
+    p9 = Candidate("linear-srgb", 9, 24, 3, 0.2)
+    ms = Candidate("linear-srgb", 7, 24, 3, 0.2, multiscale=True)
+    best = [0.70, 1.00, 0.60]
+    # p7 0.02 worse on average, differences (0.05, -0.01, 0.02): SE 0.0173 < 0.02, not within
+    chosen, b, margins = choose([_result(p9, best), _result(p7, [0.75, 0.99, 0.62])])
+    assert b.candidate == p9 and chosen.candidate == p9
+    assert margins[p7] == pytest.approx(np.std([0.05, -0.01, 0.02], ddof=1) / np.sqrt(3))
+    # noisier differences (0.08, -0.04, 0.02): SE 0.0346 >= 0.02: the cheaper p7
+    chosen, _, _ = choose([_result(p9, best), _result(p7, [0.78, 0.96, 0.62])])
+    assert chosen.candidate == p7
+    # the multi-scale stage costs more than patch 9: within reach, p9 is still chosen
+    chosen, b, _ = choose([_result(ms, [0.69, 0.99, 0.59]), _result(p9, [0.72, 0.97, 0.62])])
+    assert b.candidate == ms and chosen.candidate == p9
+    # the cap: very noisy differences but 10 % worse: the best
+    chosen, _, _ = choose([_result(p9, best), _result(p7, [1.10, 0.80, 0.73])])
+    assert chosen.candidate == p9
+
+
+def test_multiscale_folds_score_the_same_renders_without_the_stage(tmp_path: Path):
+    """The fold renders of the multi-scale scoring, without the stage, are the plain
+    folds' (the same table per fold, the same S-CIELAB); the stage is fitted per fold
+    and changes the scores."""
+    from l3cli.train.cvmultiscale import multiscale_fold_scores
+
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    opts = TrainOptions(target_space="linear-srgb", **OPTS)
+    images = load_cv_images(find_pairs([folder]), opts)
+    units = make_units(images)
+    folds = make_folds(units, 5)
+    layout = layout_stats(images, units, opts, None)
+    plain = fold_scores(images, units, folds, layout, opts)
+    with_stage, without = multiscale_fold_scores(images, units, folds, layout, opts)
+    np.testing.assert_array_equal(without, plain)
+    assert np.all(np.isfinite(with_stage)) and not np.allclose(with_stage, plain)
+
+
+def _default_search(folder):
+    grid = TuneGrid(spaces=("linear-srgb", "srgb"), patches=(3, 5), levels=(4,),
+                    contrast_bins=(1,))
+    return tune(find_pairs([folder]), TrainOptions(**OPTS, shading=True, tone_curve=True,
+                                                   target_space="linear-srgb"),
+                grid)
+
+
+def test_tune_searches_multiscale_and_is_deterministic(tmp_path: Path):
+    """A search over spaces, patches, shading and the multi-scale stage: the stage is
+    scored, a flat-field pipeline keeps no shading field, and two runs with the same
+    seed give bit-identical tables and records."""
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    a, b = _default_search(folder), _default_search(folder)
+    cands = [r.candidate for r in a.results]
+    assert any(c.multiscale for c in cands) and {c.patch for c in cands} == {3, 5}
+    assert not any(c.shading for c in cands)  # no shading in the data: no field kept
+    assert "no gain field kept" in a.record["shading"]
+    assert a.record["rule"].startswith("one-standard-error rule")
+    ra, rb = dict(a.record), dict(b.record)
+    ra.pop("seconds"), rb.pop("seconds")
+    assert ra == rb
+    np.testing.assert_array_equal(a.table.kernels, b.table.kernels)
+    if a.chosen.candidate.multiscale:
+        np.testing.assert_array_equal(a.table.multiscale.blend, b.table.multiscale.blend)
+    assert a.table.provenance["tune"]["chosen"] == a.record["chosen"]
+
+
+def test_cli_tunes_pairs_by_default_keeping_the_options_given(tmp_path: Path, runner):
+    """Pairs folders are tuned without --tune; an option given is not searched;
+    --no-tune trains the fixed defaults."""
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    out = tmp_path / "t.npz"
+    common = ["--levels", "4", "--contrast-bins", "1", "--level-range", "0.02", "0.6"]
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(out), "--patch", "5",
+                              "--no-multiscale", *common])
+    assert res.exit_code == 0, res.output
+    assert "CV S-CIELAB" in res.output and "one-standard-error rule" in res.output
+    rec = load_table(out).provenance["tune"]
+    assert {c["patch"] for c in rec["candidates"]} == {5}
+    assert not any(c["multiscale"] for c in rec["candidates"])
+    assert {c["target"] for c in rec["candidates"]} == {"linear-srgb", "srgb"}
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(out), "--no-tune", *common])
+    assert res.exit_code == 0, res.output
+    assert "tune" not in load_table(out).provenance and "CV S-CIELAB" not in res.output
+
+
+def test_simulate_folders_are_not_tuned_by_default(tmp_path: Path):
+    from l3cli.cli.train import _want_tune
+    from l3cli.pairs import Pair
+
+    sim = [Pair("x", tmp_path / "x.dng", tmp_path / "x.exr", align=False)]
+    real = [Pair("x", tmp_path / "x.dng", tmp_path / "x.png", align=True)]
+    opts = TrainOptions()
+    assert _want_tune(None, sim, opts, None, None) is False
+    assert _want_tune(True, sim, opts, None, None) is True
+    assert _want_tune(None, real, opts, None, None) is True
+    assert _want_tune(False, real, opts, None, None) is False
+    assert _want_tune(None, real, opts, 2, None) is False  # a cluster: the fixed defaults

@@ -139,11 +139,14 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @white_balance_opt(
               help="White-balance multipliers for every training raw instead of their own "
                    "(implies --as-shot-wb).")
-@click.option("--tune", is_flag=True, default=False,
-              help="Choose target space, patch, levels, contrast bins and contrast threshold by "
-                   "cross-validation "
-                   "over the training images (S-CIELAB of held-out images); prints the "
-                   "candidates and records them in the table (docs/training.md).")
+@click.option("--tune/--no-tune", "tune", default=None,
+              help="Choose the options by cross-validation over the training images "
+                   "(S-CIELAB of held-out images): target space, patch 7/9, lens shading "
+                   "and the multi-scale stage on or off; options given here are kept fixed. "
+                   "The cheapest to render of the candidates within one standard error of "
+                   "the best is chosen; prints the candidates and records them in the table "
+                   "(docs/training.md, \"Self-tuning\"). --no-tune trains the fixed defaults "
+                   "[default: on for pairs folders, off for simulate folders].")
 @click.option("--config", type=InputPath(dir_okay=False), callback=_read_config,
               is_eager=True, expose_value=False,
               help="TOML file whose [train] table sets these options (keys as the long "
@@ -179,10 +182,11 @@ def _odd(ctx: click.Context, param: click.Parameter, value: int) -> int:
 @click.option("--sample-weight", type=click.Choice(["none", "luminance"]), default=None,
               help="Weight each training pixel by its target's luminance in the fit "
                    f"{_default('sample_weight')}.")
-@click.option("--multiscale/--no-multiscale", default=defaults.MULTISCALE, show_default=True,
+@click.option("--multiscale/--no-multiscale", default=None,
               help="After the table, learn a multi-scale stage that blends wide low-passes of "
                    "the render with its detail per coarse class: noise reduction beyond the "
-                   "patch, as cameras do (docs/training.md).")
+                   "patch, as cameras do (docs/training.md) [default: chosen by the tuning "
+                   "for pairs folders, else off].")
 @seed_opt
 @workers_opt
 @scheduler_opt
@@ -190,7 +194,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           level_range: tuple[float, float] | None, contrast_bins: int,
           contrast_threshold: float | None, saturation: float, merge_positions: bool,
           target_space: str, sample_fraction: float, min_samples_factor: float,
-          seed: int, scaled_renders: bool = False, tune: bool = False,
+          seed: int, scaled_renders: bool = False, tune: bool | None = None,
           workers: int | None = None,
           scheduler: str | None = None, as_shot_wb: bool | None = None,
           white_balance=None, embedded_preview: bool = False,
@@ -202,7 +206,7 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
           highlight_fraction: float = defaults.HIGHLIGHT_FRACTION,
           tone_curve: bool | None = None, shading: bool | None = None,
           augment: str | None = None, sample_weight: str | None = None,
-          multiscale: bool = defaults.MULTISCALE) -> None:
+          multiscale: bool | None = None) -> None:
     """Train a table from INPUT folders and write it to TABLE.npz (-o).
 
     Each INPUT is an `l3 simulate` output folder (manifest.json) or a pairs
@@ -280,12 +284,13 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         highlight_fraction=highlight_fraction, tone_curve=tone_curve,
                         augment=augment, sample_weight=sample_weight, shading=shading)
     show = not quiet()
+    tune = _want_tune(tune, pairs, opts, workers, scheduler)
     if tune:
-        table = _tune(pairs, opts, workers, scheduler, show)
+        table = _tune(pairs, opts, multiscale, show)
     else:
         table = train_table(pairs, opts, workers=workers, scheduler=scheduler,
                             show_progress=show)
-    if multiscale:  # the learned stage after the kernels (l3cli.multiscale)
+    if multiscale and not tune:  # the learned stage after the kernels (l3cli.multiscale)
         from l3cli.train.multiscale import attach_multiscale
 
         attach_multiscale(table, pairs, seed=seed, show_progress=show)
@@ -297,16 +302,65 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                    f"{len(pairs)} captures ({int(table.counts.sum())} samples)", err=True)
 
 
-def _tune(pairs, opts, workers, scheduler, show):
-    """``--tune``: the cross-validated search; prints the candidate table."""
-    from l3cli.train.tune import format_candidates
+#: The options whose values the search holds fixed when the user gives them
+#: (TuneGrid.fixed's names; multiscale is not a TrainOptions attribute).
+_SEARCHED = ("patch", "target_space", "levels", "contrast_bins", "contrast_threshold",
+             "augment", "sample_weight", "shading", "multiscale")
+
+
+def _given(name: str) -> bool:
+    """Whether the user set option ``name`` (command line, environment or --config)."""
+    from click.core import ParameterSource
+
+    src = click.get_current_context().get_parameter_source(name)
+    return src in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT,
+                   ParameterSource.DEFAULT_MAP)
+
+
+def _want_tune(tune, pairs, opts, workers, scheduler) -> bool:
+    """``--tune``/``--no-tune``, else the default of the inputs' kind
+    (:data:`l3cli.defaults.TUNE_PAIRS`); a defaulted search gives way (with a note)
+    to what it cannot do: a cluster (--workers/--scheduler), --by, or a target
+    space it cannot score."""
+    from l3cli.train.cv import CV_SPACES
+    from l3cli.train.fit import pairs_kind
+
+    if tune is not None:
+        if tune and (workers is not None or scheduler is not None):
+            raise click.UsageError("--tune runs in this process; drop --workers/--scheduler")
+        return tune
+    if not (defaults.TUNE_PAIRS if pairs_kind(pairs) == "pairs" else defaults.TUNE_SIMULATE):
+        return False
+    why = ("--workers/--scheduler" if workers is not None or scheduler is not None
+           else "--by" if opts.by else f"--target {opts.target_space}"
+           if opts.target_space not in CV_SPACES else None)
+    if why is None:
+        return True
+    if not silenced():
+        click.echo(f"note: {why}: training the fixed defaults (the self-tuning of pairs "
+                   "folders runs in this process without it; docs/training.md)", err=True)
+    return False
+
+
+def _tune(pairs, opts, multiscale, show):
+    """The cross-validated search; prints progress and the candidate table."""
+    from l3cli.train.tune import TuneGrid, format_candidates
     from l3cli.train.tune import tune as run_tune
 
-    if workers is not None or scheduler is not None:
-        raise click.UsageError("--tune runs in this process; drop --workers/--scheduler")
-    grid = click.get_current_context().meta.get("l3.tune_grid")
-    res = run_tune(pairs, opts, grid, show_progress=show)
-    if not (click.get_current_context().find_root().obj or {}).get("quiet"):
+    grid = click.get_current_context().meta.get("l3.tune_grid") or TuneGrid()
+    values = {**vars(opts), "multiscale": multiscale}
+    grid = grid.fixed(**{k: values[k] for k in _SEARCHED if _given(k)})
+    loud = not (click.get_current_context().find_root().obj or {}).get("quiet")
+
+    def report(k, c, score, seconds):
+        if loud:
+            on = {True: "on", False: "off"}
+            click.echo(f"tune {k:>2}: {c.target_space:<11} patch {c.patch} shading "
+                       f"{on[c.shading]:<3} multiscale {on[c.multiscale]:<3}  CV {score:.4f}  "
+                       f"({seconds:.0f} s)", err=True)
+
+    res = run_tune(pairs, opts, grid, show_progress=show, report=report)
+    if loud:
         rec = res.record
         click.echo(f"tune: {len(rec['candidates'])} candidates, {len(rec['folds'])} folds, "
                    f"{rec['seconds']:.0f} s; {rec['metric']}", err=True)

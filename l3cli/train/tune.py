@@ -1,42 +1,61 @@
-"""``l3 train --tune``: choose the training options by cross-validation.
+"""``l3 train``'s self-tuning (on by default for pairs folders): options by cross-validation.
 
-Searched: the target space (:data:`l3cli.train.cv.CV_SPACES`), the patch
-size, the number of levels and of contrast bins. Every candidate is scored by
-K-fold cross-validation over whole training images (or column blocks of a
-single image), with S-CIELAB (ISETCam's 10° opponent transform, 96 dpi at
-1 m, 4-pixel border excluded) of the held-out renders, as ``l3 evaluate``
-scores them; the folds come from additive statistics (:mod:`l3cli.train.cv`),
-never from retraining.
+Searched by default (:data:`l3cli.defaults.TUNE_GRID`): the target space
+(:data:`l3cli.train.cv.CV_SPACES`), the patch size, lens shading on or off
+(:mod:`l3cli.train.shading`) and the multi-scale stage on or off
+(:mod:`l3cli.train.cvmultiscale`); a ``[train.tune]`` config table can add
+the number of levels, contrast bins and threshold, the dihedral augmentation
+and the sample weights. Every candidate is scored by K-fold cross-validation
+over whole training images (or column blocks of a single image), with
+S-CIELAB (ISETCam's 10° opponent transform, 96 dpi at 1 m, 4-pixel border
+excluded) of the held-out renders, as ``l3 evaluate`` scores them; the folds
+come from additive statistics (:mod:`l3cli.train.cv`: the normal equations
+of every unit are summed once per class layout, for all target spaces at
+once, and a fold is the total minus its held-out units), never from
+retraining.
 
-The search has four stages so that its cost stays a few dozen candidates:
+The search is coarse to fine, cheap candidates first, each stage around the
+best candidate so far (and the one the rule below would pick, where they
+differ):
 
-1. every target space x every patch size, at the starting levels, contrast
-   bins and contrast rule (``--levels``, ``--contrast-bins``,
-   ``--contrast-threshold``);
-2. for the best space and patch, every levels x contrast-bins pair;
-3. for the best of those, every contrast threshold of the grid (a fixed
-   threshold, or ``"quantile"``: the per-level quantiles of the data);
-4. for the best of those, the dihedral augmentation and the sample weights
-   (``--augment`` x ``--sample-weight``, :mod:`l3cli.train.augment`,
-   :mod:`l3cli.train.weights`): a pipeline that is not mirror-symmetric, or
-   whose dark pixels matter more, is found here.
+1. every target space at the smallest patch (one statistics pass);
+2. the larger patches for the better half of the spaces (successive halving);
+3. levels x contrast bins, 4. contrast thresholds, 5. augmentation x sample
+   weights, where the grid lists more than one value;
+6. lens shading off (where a gain field was learned and kept: the field is
+   learned once, before the search);
+7. the multi-scale stage on (each fold fits its own stage on its table's
+   renders of its training images).
 
-The best candidate's table is solved from the statistics of all the
+**The choice (one-standard-error rule).** Render speed matters, so the
+chosen candidate is not simply the best: among the candidates whose mean CV
+score is within one standard error of the best's -- the standard error of
+the per-unit score differences to the best (paired, as every candidate is
+scored on the same held-out units), and never more than
+:data:`l3cli.defaults.TUNE_TOLERANCE` (5 %) of the best score -- the one
+with the lowest render cost is chosen (:meth:`Candidate.cost_key`: the
+multi-scale stage, then the patch size, then the shading gain; equal cost:
+the lower score).
+
+The chosen candidate's table is solved from the statistics of all the
 training images (the statistics already collected), and its provenance
-records the candidates, their scores and the choice (``l3 inspect`` shows
-them).
+records the candidates, their scores, the rule and the choice (``l3
+inspect`` shows them).
 """
 
 from __future__ import annotations
 
+import copy
 import logging
+import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from l3cli import defaults
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair
 from l3cli.table import TransformTable
@@ -60,32 +79,43 @@ from l3cli.train.fit import (
     train,
 )
 
-__all__ = ["TuneGrid", "Candidate", "CandidateResult", "TuneResult", "DEFAULT_FOLDS",
-           "tune", "format_candidates", "replace_opts", "read_train_config"]
+__all__ = ["TuneGrid", "Candidate", "CandidateResult", "TuneResult", "DEFAULT_FOLDS", "RULE",
+           "tune", "choose", "format_candidates", "replace_opts", "read_train_config"]
 
 log = logging.getLogger(__name__)
 
 #: Default number of cross-validation folds (leave-one-image-out up to this many images).
-DEFAULT_FOLDS = 5
+DEFAULT_FOLDS = defaults.TUNE_GRID["folds"]
+
+#: The choice rule, as the output and the table's provenance state it.
+RULE = (f"one-standard-error rule: the cheapest to render (multi-scale stage, then patch size, "
+        f"then shading) of the candidates whose CV score is within one standard error of the "
+        f"paired per-unit differences (at most {defaults.TUNE_TOLERANCE:.0%}) of the best")
+
+_G = defaults.TUNE_GRID
 
 
 @dataclass(frozen=True)
 class TuneGrid:
-    """The values searched by :func:`tune` (see the module notes).
+    """The values searched by :func:`tune` (see the module notes); the defaults are
+    :data:`l3cli.defaults.TUNE_GRID`.
 
     ``spaces`` None: the default target space of the inputs (the linear version
     of the renders' space, :func:`l3cli.train.fit.default_target_space`) and
-    ``srgb`` (the renders' encoding).
+    ``srgb`` (the renders' encoding). An empty tuple: not searched (the value
+    of the options :func:`tune` is given).
     """
 
-    spaces: tuple[str, ...] | None = None
-    patches: tuple[int, ...] = (5, 7)
-    levels: tuple[int, ...] = (24, 36, 48)
-    contrast_bins: tuple[int, ...] = (1, 2, 3)
-    contrast_thresholds: tuple[float | None, ...] = (None, 0.1, 0.2)
-    augments: tuple[str, ...] = ("d4", "none")
-    sample_weights: tuple[str, ...] = ("luminance", "none")
-    folds: int = DEFAULT_FOLDS
+    spaces: tuple[str, ...] | None = _G["spaces"]
+    patches: tuple[int, ...] = _G["patches"]
+    levels: tuple[int, ...] = _G["levels"]
+    contrast_bins: tuple[int, ...] = _G["contrast_bins"]
+    contrast_thresholds: tuple[float | None, ...] = _G["contrast_thresholds"]
+    augments: tuple[str, ...] = _G["augments"]
+    sample_weights: tuple[str, ...] = _G["sample_weights"]
+    shading: tuple[bool, ...] = _G["shading"]
+    multiscale: tuple[bool, ...] = _G["multiscale"]
+    folds: int = _G["folds"]
 
     def __post_init__(self) -> None:
         bad = [s for s in self.spaces or () if s not in CV_SPACES]
@@ -94,7 +124,7 @@ class TuneGrid:
                               f"{', '.join(CV_SPACES)}")
         for name, vals, lo in (("patches", self.patches, 1), ("levels", self.levels, 2),
                                ("contrast_bins", self.contrast_bins, 1)):
-            if not vals or any(int(v) < lo for v in vals):
+            if any(int(v) < lo for v in vals):
                 raise ConfigError(f"tune {name} {list(vals)} not allowed; use values >= {lo}")
         if any(p % 2 == 0 for p in self.patches):
             raise ConfigError(f"tune patches {list(self.patches)} must be odd")
@@ -103,11 +133,13 @@ class TuneGrid:
                               "must be > 0 (or \"quantile\")")
         if self.folds < 2:
             raise ConfigError(f"tune folds {self.folds} not allowed; use 2 or more")
+        for name in ("shading", "multiscale"):
+            if any(not isinstance(v, bool) for v in getattr(self, name)):
+                raise ConfigError(f"tune {name} {list(getattr(self, name))} not allowed; use "
+                                  "true and/or false")
         from l3cli.train.augment import augment_elements
         from l3cli.train.weights import check_weight
 
-        if not self.augments or not self.sample_weights:
-            raise ConfigError("tune augments and sample_weights need at least one value each")
         for a in self.augments:
             augment_elements(a)
         for w in self.sample_weights:
@@ -117,7 +149,7 @@ class TuneGrid:
     def from_dict(cls, d: dict) -> TuneGrid:
         """From a config table (``[train.tune]``): keys as the attributes."""
         known = {"spaces", "patches", "levels", "contrast_bins", "contrast_thresholds", "folds",
-                 "augments", "sample_weights"}
+                 "augments", "sample_weights", "shading", "multiscale"}
         extra = set(d) - known
         if extra:
             raise ConfigError(f"unknown tune keys {sorted(extra)}; allowed: {sorted(known)}")
@@ -126,6 +158,16 @@ class TuneGrid:
             kw["contrast_thresholds"] = tuple(None if t == "quantile" else float(t)
                                               for t in kw["contrast_thresholds"])
         return cls(**kw)
+
+    def fixed(self, **values) -> TuneGrid:
+        """The grid with these dimensions held at one value each (options the user gave):
+        ``patch``, ``target_space``, ``levels``, ``contrast_bins``, ``contrast_threshold``,
+        ``augment``, ``sample_weight``, ``shading``, ``multiscale``."""
+        names = {"patch": "patches", "target_space": "spaces", "levels": "levels",
+                 "contrast_bins": "contrast_bins", "contrast_threshold": "contrast_thresholds",
+                 "augment": "augments", "sample_weight": "sample_weights",
+                 "shading": "shading", "multiscale": "multiscale"}
+        return replace(self, **{names[k]: (v,) for k, v in values.items()})
 
 
 @dataclass(frozen=True)
@@ -139,13 +181,21 @@ class Candidate:
     contrast_threshold: float | None = None
     augment: str = "none"
     sample_weight: str = "none"
+    shading: bool = False
+    multiscale: bool = False
 
     def as_dict(self) -> dict:
         """JSON form (``contrast_threshold`` None: per-level quantiles)."""
         return {"target": self.target_space, "patch": self.patch, "levels": self.levels,
                 "contrast_bins": self.contrast_bins,
                 "contrast_threshold": self.contrast_threshold, "augment": self.augment,
-                "sample_weight": self.sample_weight}
+                "sample_weight": self.sample_weight, "shading": self.shading,
+                "multiscale": self.multiscale}
+
+    def cost_key(self) -> tuple:
+        """Render cost order: the multi-scale stage (about 1.3 s per megapixel), then the
+        patch (9 x 9 about 1.4 x the time of 5 x 5), then the shading gain (one multiply)."""
+        return (self.multiscale, self.patch, self.shading)
 
 
 @dataclass
@@ -163,7 +213,8 @@ class CandidateResult:
 
 @dataclass
 class TuneResult:
-    """What :func:`tune` found."""
+    """What :func:`tune` found (``best``: the lowest score; ``chosen``: the rule's pick,
+    whose options and table these are)."""
 
     results: list[CandidateResult]
     best: CandidateResult
@@ -173,170 +224,269 @@ class TuneResult:
     folds: list[list[int]]
     seconds: float
     record: dict = field(default_factory=dict)
+    chosen: CandidateResult | None = None
 
 
-def _next_stage(stage: int, grid: TuneGrid, best: Candidate,
-                done: set[Candidate]) -> list[Candidate]:
-    b = best
-    if stage == 2:
-        cands = [replace(b, levels=lv, contrast_bins=nb)
-                 for lv in grid.levels for nb in grid.contrast_bins]
-    elif stage == 4:  # weights outer: one statistics pass per weighting
-        cands = [replace(b, augment=a, sample_weight=w)
-                 for w in grid.sample_weights for a in grid.augments]
-    elif b.contrast_bins == 1:  # one bin: no contrast threshold to choose
-        cands = []
-    else:
-        cands = [replace(b, contrast_threshold=t) for t in grid.contrast_thresholds]
-    return [c for c in cands if c not in done]
+def choose(results: Sequence[CandidateResult], tolerance: float = defaults.TUNE_TOLERANCE
+           ) -> tuple[CandidateResult, CandidateResult, dict]:
+    """The one-standard-error rule (module notes): ``(chosen, best, margins)``.
+
+    ``margins`` maps each candidate to the largest score above the best's it
+    may have to be chosen (the paired standard error, capped at ``tolerance``
+    times the best score).
+    """
+    best = min(results, key=lambda r: r.mean)
+    margins = {}
+    ok = []
+    for r in results:
+        d = np.asarray(r.scores, float) - np.asarray(best.scores, float)
+        se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else 0.0
+        margins[r.candidate] = min(se, tolerance * best.mean)
+        if r.mean - best.mean <= margins[r.candidate]:
+            ok.append(r)
+    chosen = min(ok, key=lambda r: (r.candidate.cost_key(), r.mean))
+    return chosen, best, margins
+
+
+class _Search:
+    """The state of one search: images per shading setting, statistics cache, results."""
+
+    def __init__(self, pairs, base, grid, field, opponent, report):
+        self.pairs, self.base, self.grid, self.field = pairs, base, grid, field
+        self.opponent, self.report = opponent, report
+        self.images: dict[bool, list] = {}
+        self.hists: dict[tuple, object] = {}
+        self.layouts: dict[tuple, object] = {}
+        self.results: list[CandidateResult] = []
+        self.t0 = time.perf_counter()
+
+    def opts(self, c: Candidate) -> TrainOptions:
+        o = replace_opts(self.base, c)
+        o.shading_field = self.field if c.shading else None
+        return o
+
+    def images_for(self, shading: bool):
+        if shading not in self.images:
+            o = copy.copy(self.base)
+            o.shading_field = self.field if shading else None
+            self.images[shading] = load_cv_images(self.pairs, o, opponent=self.opponent)
+        return self.images[shading]
+
+    def layout(self, c: Candidate):
+        key = (c.shading, c.patch, c.levels, c.contrast_bins, c.contrast_threshold,
+               c.sample_weight)
+        if key not in self.layouts:
+            images = self.images_for(c.shading)
+            opts = self.opts(c)
+            if (c.shading, c.patch) not in self.hists:
+                self.hists[(c.shading, c.patch)] = histogram(images, opts)
+            while len(self.layouts) >= 2:  # bounded memory: the two latest layouts
+                del self.layouts[next(iter(self.layouts))]
+            self.layouts[key] = layout_stats(images, self.units, opts,
+                                             self.hists[(c.shading, c.patch)])
+        return self.layouts[key]
+
+    def evaluate(self, cands: Sequence[Candidate]) -> None:
+        done = {r.candidate for r in self.results}
+        for c in cands:
+            if c in done:
+                continue
+            done.add(c)
+            images = self.images_for(c.shading)
+            opts = self.opts(c)
+            lay = self.layout(c)
+            if c.multiscale:
+                from l3cli.train.cvmultiscale import multiscale_fold_scores
+
+                scores, _ = multiscale_fold_scores(images, self.units, self.folds, lay, opts,
+                                                   seed=opts.seed)
+            else:
+                scores = fold_scores(images, self.units, self.folds, lay, opts)
+            self.results.append(CandidateResult(c, scores))
+            log.info("tune %s: %.4f", c.as_dict(), self.results[-1].mean)
+            if self.report is not None:
+                self.report(len(self.results), c, self.results[-1].mean,
+                            time.perf_counter() - self.t0)
+
+    def anchors(self) -> list[Candidate]:
+        """The best candidate so far and the rule's pick (once each)."""
+        chosen, best, _ = choose(self.results)
+        return list(dict.fromkeys([best.candidate, chosen.candidate]))
 
 
 def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid | None = None,
-         *, show_progress: bool | None = False, opponent: str = DEFAULT_OPPONENT) -> TuneResult:
-    """Search target space, patch, levels, contrast bins and rule by cross-validation.
+         *, show_progress: bool | None = False, opponent: str = DEFAULT_OPPONENT,
+         report: Callable[[int, Candidate, float, float], None] | None = None) -> TuneResult:
+    """Search the options of ``grid`` by cross-validation; train the chosen candidate.
 
     Parameters
     ----------
     pairs
         Training pairs (two or more images, or one image cut into blocks).
     base
-        Options kept fixed (sampling, seed, saturation, ridge grid, ...); its
-        levels and contrast bins start stage 1.
+        Options kept fixed (sampling, seed, saturation, ridge grid, ...), and the
+        values of the dimensions the grid leaves empty.
     grid
-        Values searched.
+        Values searched (:data:`l3cli.defaults.TUNE_GRID` when None).
     show_progress
-        Progress bar on stderr (one step per candidate).
+        Progress bars on stderr (the multi-scale stage of the chosen table).
     opponent
         S-CIELAB opponent transform of the score.
+    report
+        Called after every candidate with (number, candidate, CV score, seconds so far).
 
     Returns
     -------
     TuneResult
-        Every candidate's scores, the best one, its options and its table
-        (trained on all the pairs), and the provenance record.
+        Every candidate's scores, the best one, the chosen one, its options and its
+        table (trained on all the pairs; with its multi-scale stage when chosen),
+        and the provenance record.
     """
-    from l3cli.progress import progress
-
-    t0 = time.perf_counter()
     base = base or TrainOptions()
     grid = grid or TuneGrid()
     pairs = list(pairs)
     if not pairs:
         raise InputError("no training pairs")
-    shading_record = None
-    if base.shading:  # the lens-shading field first: every candidate sees corrected mosaics
-        import copy
+    shadings = grid.shading or (base.shading,)
+    field, shading_record = None, None
+    if True in shadings:  # the lens-shading field first, once: every candidate with it
+        from l3cli.train.shading import learn_shading  # sees the corrected mosaics
 
-        from l3cli.train.shading import learn_shading
-
-        base = copy.copy(base)
-        base.shading_field, shading_record = learn_shading(pairs, base)
-    images = load_cv_images(pairs, base, opponent=opponent)
-    units = make_units(images)
-    folds = make_folds(units, grid.folds)
-    start_levels = base.levels if base.levels in grid.levels else grid.levels[0]
-    start_bins = (base.contrast_bins if base.contrast_bins in grid.contrast_bins
-                  else grid.contrast_bins[0])
-    start_t = base.contrast_threshold
+        o = copy.copy(base)
+        o.shading = True
+        field, shading_record = learn_shading(pairs, o)
+        if field is None:  # not kept: shading on is shading off
+            shadings = (False,)
+    s = _Search(pairs, base, grid, field, opponent, report)
+    images = s.images_for(shadings[0])
+    s.units = make_units(images)
+    s.folds = make_folds(s.units, grid.folds)
     spaces = grid.spaces or (default_target_space(pairs), "srgb")
-    plan = [Candidate(s, p, start_levels, start_bins, start_t, base.augment, base.sample_weight)
-            for p in grid.patches for s in spaces]
-    stage_ends = [len(plan)]
-    n_total = (len(plan) + len(grid.levels) * len(grid.contrast_bins) - 1
-               + len(grid.contrast_thresholds)
-               + len(grid.augments) * len(grid.sample_weights) - 1)
-    hists: dict[int, object] = {}
-    layout = None
-    layout_key = None
-    results: list[CandidateResult] = []
+    patches = tuple(sorted(grid.patches or (base.patch,)))
+    start = Candidate(spaces[0], patches[0], (grid.levels or (base.levels,))[0],
+                      (grid.contrast_bins or (base.contrast_bins,))[0],
+                      (grid.contrast_thresholds or (base.contrast_threshold,))[0],
+                      (grid.augments or (base.augment,))[0],
+                      (grid.sample_weights or (base.sample_weight,))[0],
+                      shadings[0], (grid.multiscale or (False,))[0])
+    # 1. every space at the smallest patch; 2. larger patches, the better half of the spaces
+    s.evaluate([replace(start, target_space=sp) for sp in spaces])
+    ranked = sorted(s.results, key=lambda r: r.mean)
+    keep = [r.candidate for r in ranked[:max(1, math.ceil(len(spaces) / 2))]]
+    s.evaluate([replace(c, patch=p) for p in patches[1:] for c in keep])
+    # 3.-5. the layout, augmentation and weights, where the grid lists several values
+    if len(grid.levels) > 1 or len(grid.contrast_bins) > 1:
+        s.evaluate([replace(a, levels=lv, contrast_bins=nb) for a in s.anchors()
+                    for lv in grid.levels or (a.levels,)
+                    for nb in grid.contrast_bins or (a.contrast_bins,)])
+    if len(grid.contrast_thresholds) > 1:
+        s.evaluate([replace(a, contrast_threshold=t) for a in s.anchors()
+                    if a.contrast_bins > 1 for t in grid.contrast_thresholds])
+    if len(grid.augments) > 1 or len(grid.sample_weights) > 1:
+        s.evaluate([replace(a, augment=au, sample_weight=w) for a in s.anchors()
+                    for w in grid.sample_weights or (a.sample_weight,)
+                    for au in grid.augments or (a.augment,)])
+    # 6. shading, 7. the multi-scale stage
+    s.evaluate([replace(a, shading=v) for a in s.anchors() for v in shadings])
+    s.evaluate([replace(a, multiscale=v) for a in s.anchors() for v in grid.multiscale])
+    chosen, best, margins = choose(s.results)
+    return _finish(s, chosen, best, margins, shading_record, show_progress)
 
-    def stats_for(c: Candidate):
-        nonlocal layout, layout_key
-        key = (c.patch, c.levels, c.contrast_bins, c.contrast_threshold, c.sample_weight)
-        if key != layout_key:
-            opts = replace_opts(base, c)
-            if c.patch not in hists:
-                hists[c.patch] = histogram(images, opts)
-            layout = None  # free the previous layout first
-            layout = layout_stats(images, units, opts, hists[c.patch])
-            layout_key = key
-        return layout
 
-    for k in progress(range(n_total), label="tune      ", length=n_total, enabled=show_progress):
-        while k == len(plan) and len(stage_ends) < 4:  # a stage is done: plan the next
-            best_c = min(results, key=lambda r: r.mean).candidate
-            plan += _next_stage(len(stage_ends) + 1, grid, best_c, {r.candidate for r in results})
-            stage_ends.append(len(plan))
-        if k >= len(plan):
-            continue
-        c = plan[k]
-        opts = replace_opts(base, c)
-        scores = fold_scores(images, units, folds, stats_for(c), opts)
-        results.append(CandidateResult(c, scores))
-        log.info("tune %s: %.4f", c.as_dict(), results[-1].mean)
-    best = min(results, key=lambda r: r.mean)
-    opts = replace_opts(base, best.candidate)
-    names = [u.name(images) for u in units]
-    seconds = time.perf_counter() - t0
+def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins: dict,
+            shading_record, show_progress) -> TuneResult:
+    """The chosen candidate's table and the provenance record."""
+    c = chosen.candidate
+    opts = s.opts(c)
+    images = s.images_for(c.shading)
+    names = [u.name(images) for u in s.units]
+    order = sorted(s.results, key=lambda r: r.candidate.cost_key())
+    rank = {r.candidate: i + 1 for i, r in enumerate(order)}
     record = {
-        "metric": f"S-CIELAB mean dE*ab ({opponent}, 96 dpi, 1 m, 4-pixel border excluded)",
-        "folds": [[names[u] for u in f] for f in folds],
+        "metric": (f"S-CIELAB mean dE*ab ({s.opponent}, 96 dpi, 1 m, 4-pixel border "
+                   "excluded)"),
+        "rule": RULE,
+        "folds": [[names[u] for u in f] for f in s.folds],
         "candidates": [{**r.candidate.as_dict(), "cv_mean": round(r.mean, 5),
-                        "cv_units": [round(float(v), 5) for v in r.scores]} for r in results],
-        "chosen": {**best.candidate.as_dict(), "cv_mean": round(best.mean, 5)},
-        "seconds": round(seconds, 1),
+                        "margin": round(margins[r.candidate], 5),
+                        "cost_rank": rank[r.candidate],
+                        "cv_units": [round(float(v), 5) for v in r.scores]} for r in s.results],
+        "chosen": {**c.as_dict(), "cv_mean": round(chosen.mean, 5)},
+        "best": {**best.candidate.as_dict(), "cv_mean": round(best.mean, 5)},
         # linear-srgb candidates in the renders' learned tone-curve space (one curve from all images)
         "tone_curve": images[0].curve is not None,
     }
-    prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
+    if shading_record is not None and s.field is None:
+        record["shading"] = "no gain field kept: " + str(shading_record.get("reason", ""))
+    prov = {"inputs": [str(p.raw) for p in s.pairs], "targets": [str(p.target) for p in s.pairs],
             "seed": opts.seed, "tune": record}
     if opts.white_balance:
         # the shots' adaptation model belongs in the table and its targets are fitted in
         # the chosen target space: the regular training path, once, with the chosen options
-        table = train(pairs, opts, show_progress=show_progress)
+        o = copy.copy(opts)
+        o.shading = False  # the field learned for the search, not learned again
+        o.shading_field = s.field if c.shading else None
+        table = train(s.pairs, o)
         table.provenance.update(prov)
+        table.provenance["options"] = opts.as_dict()
     else:
-        lay = stats_for(best.candidate)
-        table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
+        table = table_from_stats(space_stats(s.layout(c), opts.target_space), opts,
+                                 provenance=prov)
         if opts.tone_curve:
             attach_curve(table, images[0].curve)
-    if shading_record is not None:
-        table.shading = base.shading_field
+    if c.shading:
+        table.shading = s.field
         table.provenance["shading"] = shading_record
-    return TuneResult(results, best, opts, table, names, folds, seconds, record)
+    if c.multiscale:
+        from l3cli.train.multiscale import attach_multiscale
+
+        attach_multiscale(table, s.pairs, seed=opts.seed, show_progress=show_progress)
+    seconds = time.perf_counter() - s.t0
+    record["seconds"] = round(seconds, 1)
+    return TuneResult(s.results, best, opts, table, names, s.folds, seconds, record, chosen)
 
 
 def replace_opts(base: TrainOptions, c: Candidate) -> TrainOptions:
     """``base`` with the candidate's target space, patch, levels, contrast bins and rule,
-    augmentation and sample weights."""
+    augmentation, sample weights and shading."""
     d = base.as_dict()
     d.update(target_space=c.target_space, patch=c.patch, levels=c.levels,
              contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
              tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE,
-             augment=c.augment, sample_weight=c.sample_weight)
+             augment=c.augment, sample_weight=c.sample_weight, shading=c.shading)
     return TrainOptions(**d)
 
 
 def format_candidates(record: dict) -> str:
-    """The candidate table of a tune record (best marked ``*``), sorted by score."""
+    """The candidate table of a tune record, sorted by score: the chosen candidate
+    marked ``*``, the best ``b`` (where the rule chose a cheaper one)."""
     rows = sorted(record["candidates"], key=lambda r: r["cv_mean"])
-    chosen = record["chosen"]
     keys = ("target", "patch", "levels", "contrast_bins", "contrast_threshold", "augment",
-            "sample_weight")
+            "sample_weight", "shading", "multiscale")
+
+    def same(r, d):
+        return d is not None and all(r.get(k, False) == d.get(k, False) for k in keys)
+
     out = [f"  {'':1} {'target':<12} {'patch':>5} {'levels':>6} {'bins':>4} {'threshold':>9} "
-           f"{'augment':>7} {'weight':>9}  {'CV S-CIELAB':>11}  per held-out unit"]
+           f"{'augment':>7} {'weight':>9} {'shading':>7} {'multi':>5} {'cost':>4}  "
+           f"{'CV S-CIELAB':>11} {'margin':>6}  per held-out unit"]
     for r in rows:
-        mark = "*" if all(r.get(k) == chosen.get(k) for k in keys) else ""
+        mark = "*" if same(r, record["chosen"]) else "b" if same(r, record.get("best")) else ""
         units = " ".join(f"{v:.3f}" for v in r["cv_units"])
         thr = r.get("contrast_threshold")
         thr = "quantile" if thr is None else f"{thr:g}"
         if r["contrast_bins"] == 1:
             thr = "-"
+        onoff = {True: "on", False: "off"}
+        margin = f"{r['margin']:.4f}" if "margin" in r else "-"
         out.append(f"  {mark:1} {r['target']:<12} {r['patch']:>5} {r['levels']:>6} "
                    f"{r['contrast_bins']:>4} {thr:>9} {r.get('augment', 'none'):>7} "
-                   f"{r.get('sample_weight', 'none'):>9}  {r['cv_mean']:>11.4f}  {units}")
+                   f"{r.get('sample_weight', 'none'):>9} {onoff[r.get('shading', False)]:>7} "
+                   f"{onoff[r.get('multiscale', False)]:>5} {r.get('cost_rank', '-'):>4}  "
+                   f"{r['cv_mean']:>11.4f} {margin:>6}  {units}")
+    if "rule" in record:
+        out.append(f"  chosen (*) by the {record['rule']}")
     return "\n".join(out)
-
 
 
 def read_train_config(path: str | os.PathLike, allowed: set[str]) -> tuple[dict, TuneGrid | None]:

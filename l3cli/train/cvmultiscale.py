@@ -1,0 +1,132 @@
+"""Cross-validation of the multi-scale stage (``--multiscale``) for ``l3 train``'s search.
+
+The stage is fitted after the table, on the table's own renders of its
+training raws (:mod:`l3cli.train.multiscale`). A fold does the same with the
+fold's table: it renders every image of the fold (the held-out units and the
+units it trains on), places the stage's class cut points on the training
+units' renders, sums the stage's normal equations over their training pixels,
+solves, applies the stage to the held-out render and scores it with
+S-CIELAB, as :func:`l3cli.train.cv.score_fold` scores the table alone. Each
+image is rendered once per fold; the score without the stage comes from the
+same render, so both are returned.
+
+The targets are each image's XYZ channels converted to the table's output
+space (for a ``linear-srgb`` table with a tone curve: linear sRGB, the space
+its renders come out in), coded as the stage codes the render.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from l3cli import defaults
+from l3cli.colourspace import convert
+from l3cli.multiscale import (
+    Multiscale,
+    MultiscaleStats,
+    accumulate,
+    apply_stage,
+    default_transfer,
+    encode,
+    energy,
+    level,
+    place_cuts,
+    radius,
+    solve,
+)
+from l3cli.train.curve import attach_curve
+from l3cli.train.cv import CV_SPACES, CVImage, LayoutStats, Unit, display_xyz, fold_stats
+from l3cli.train.fit import TrainOptions, table_from_stats
+
+__all__ = ["multiscale_fold_scores"]
+
+#: Pixels per image sampled to place the stage's cut points (as l3cli.train.multiscale).
+_CUT_SAMPLES = 200_000
+
+
+def _train_mask(img: CVImage, image: int, units: Sequence[Unit], train_units: Sequence[int],
+                guard: int) -> np.ndarray | None:
+    """The pixels of ``image`` that train the fold's stage: its training units' columns
+    (less ``guard`` columns at an inner edge), within the image's training mask."""
+    mine = [units[u] for u in train_units if units[u].image == image]
+    if not mine:
+        return np.zeros(img.mosaic.shape, dtype=bool)
+    if all(u.columns is None for u in mine):
+        return img.mask
+    h, w = img.mosaic.shape
+    m = np.zeros((h, w), dtype=bool)
+    for u in mine:
+        x0, x1 = u.columns
+        m[:, (x0 + guard if x0 > 0 else 0):max(0, (x1 - guard if x1 < w else w))] = True
+    return m if img.mask is None else m & img.mask
+
+
+def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
+                           folds: Sequence[Sequence[int]], layout: LayoutStats,
+                           opts: TrainOptions, *, seed: int = defaults.SEED,
+                           sigmas=defaults.MULTISCALE_SIGMAS,
+                           levels: int = defaults.MULTISCALE_LEVELS,
+                           energy_bins: int = defaults.MULTISCALE_ENERGY_BINS,
+                           ridge: float = defaults.MULTISCALE_RIDGE
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """S-CIELAB of every unit when its fold is held out, with and without the stage.
+
+    Returns
+    -------
+    with_stage, without
+        float64 (n_units,) each.
+    """
+    from l3cli.kernelset import render_mosaic
+
+    sigmas = tuple(float(s) for s in sigmas)
+    space = opts.target_space
+    transfer = default_transfer(space)
+    guard = radius(sigmas[0]) + radius(sigmas[-1])
+    with_stage = np.full(len(units), np.nan)
+    without = np.full(len(units), np.nan)
+    for f, held in enumerate(folds):
+        table = table_from_stats(fold_stats(layout, held, space), opts)
+        if opts.tone_curve:
+            attach_curve(table, images[0].curve)
+        train_units = [u for u in range(len(units)) if u not in held]
+        probe = Multiscale.identity(table.n_out, sigmas)
+        rng = np.random.default_rng([seed, 27, f])
+        renders, levs, ens, masks = {}, [], [], {}
+        for i, img in enumerate(images):
+            plain = render_mosaic(table, img.mosaic)
+            y = encode(plain, transfer)
+            renders[i] = (plain, y)
+            mask = _train_mask(img, i, units, train_units, guard)
+            masks[i] = mask
+            idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(y[..., 0].size)
+            if idx.size == 0:
+                continue
+            _, coarse, _ = probe.features(y)
+            lev, en = level(coarse), energy(y, coarse, sigmas[0])
+            if idx.size > _CUT_SAMPLES:
+                idx = rng.choice(idx, _CUT_SAMPLES, replace=False)
+            levs.append(lev.ravel()[idx])
+            ens.append(en.ravel()[idx])
+        lcuts, ecuts = place_cuts(np.concatenate(levs), np.concatenate(ens), levels, energy_bins)
+        shape = Multiscale.identity(table.n_out, sigmas, lcuts, ecuts, transfer)
+        stats = MultiscaleStats.zeros(levels * energy_bins, len(sigmas), table.n_out)
+        k = CV_SPACES.index("xyz")
+        for i, img in enumerate(images):
+            mask = masks[i]
+            if mask is not None and not mask.any():
+                continue
+            target = encode(convert(img.targets[:, :, 3 * k:3 * k + 3], "xyz", space), transfer)
+            stack, coarse, cls = shape.features(renders[i][1])
+            accumulate(stats, stack, coarse, cls, target, mask)
+        stage = Multiscale(np.asarray(sigmas), lcuts, ecuts, solve(stats, ridge, table.n_out),
+                           stats.n, transfer)
+        for u in held:
+            unit = units[u]
+            img = images[unit.image]
+            plain = renders[unit.image][0]
+            for out, arr in ((without, plain), (with_stage, apply_stage(stage, plain))):
+                out[u] = img.scorer.mean(display_xyz(arr, space, img.display),
+                                         columns=unit.columns)
+    return with_stage, without
