@@ -360,7 +360,9 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
     the kernel set's ``post`` matrix (with the XYZ to linear sRGB matrix of
     ``xyz`` tables, one 3x3) and display-encodes it while it is in cache
     (:func:`l3cli.render_rows.encode_row`), 8 or 16 bits: no float image is
-    held and no second pass is made. Only ``lab`` tables (whose conversion
+    held and no second pass is made. With a tone curve and no 3x3 after it,
+    8 bits take the curve and the encoding as one lookup per value
+    (:mod:`l3cli.tonecode`: the same codes). Only ``lab`` tables (whose conversion
     is colour-science's) and adaptations that are not linear in the table's
     space render bands of about :data:`DISPLAY_BAND_PIXELS` to float and
     encode them one after another. Either way the integers are those of
@@ -404,9 +406,15 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
         params = params._replace(use_matrix=True,
                                  matrix=np.ascontiguousarray(params.matrix @ ks.post))
     if params is not None and ks.adapt is None:
+        codes = None
+        if ks.curve is not None and not params.use_matrix and bits == 8:
+            from l3cli.tonecode import code_table_for
+
+            with lock:
+                codes = code_table_for(ks.curve, params.thr, bits)
         with lock:
             run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=ks.kernels,
-                      n_out=ks.n_out, out=out, curve=ks.curve, display=params)
+                      n_out=ks.n_out, out=out, curve=ks.curve, display=params, codes=codes)
         return out
     # lab (colour-science's conversion) or a non-linear adaptation: float bands of
     # ~1 M pixels, each finished and encoded after its render

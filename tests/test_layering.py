@@ -30,8 +30,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("io", ("io",)),
     # the L3 model: classes, the tile kernel, render rows, the table, tone
     # curve, white balance, condition bins, kernel sets; the metrics
-    ("model", ("classify", "render_rows", "table", "tonecurve", "whitebalance", "conditions",
-               "kernelset", "metrics", "multiscale", "multiscale_kernel")),
+    ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
+               "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel")),
     # inputs: training pairs, registration, previews, cameras and simulation
     ("inputs", ("pairs", "align", "preview", "camera", "simulate", "rawinfo")),
     # workflows: train, render, evaluate, smooth, baseline, inspect, export

@@ -35,6 +35,7 @@ from l3cli.classify.layout import KernelTables, kernel_tables  # noqa: E402
 from l3cli.classify.mosaic import band_rows, check_mosaic  # noqa: E402
 from l3cli.render_rows import encode_row, render_row4, render_row_any, row_pairs  # noqa: E402
 from l3cli.startup import lean_cache  # noqa: E402
+from l3cli.tonecode import curve_encode_row  # noqa: E402
 from l3cli.tonecurve import curve_row  # noqa: E402
 
 __all__ = ["MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER", "KernelTables",
@@ -74,15 +75,17 @@ def _callee_stamp() -> tuple[int, ...]:
     """Size and modification time of the modules compiled into the tile kernel.
 
     numba's cache checks only the kernel's own source file, not those of the
-    functions it calls (:mod:`l3cli.render_rows`, :mod:`l3cli.tonecurve`).
+    functions it calls (:mod:`l3cli.render_rows`, :mod:`l3cli.tonecurve`,
+    :mod:`l3cli.tonecode`, :mod:`l3cli.io.encode_rows`).
     The kernel holds this stamp as a closure constant, which is part of
     numba's cache key, so an edit there recompiles it instead of loading a
     stale kernel.
     """
-    from l3cli import render_rows, tonecurve
+    from l3cli import render_rows, tonecode, tonecurve
+    from l3cli.io import encode_rows
 
     stamp: list[int] = []
-    for module in (render_rows, tonecurve):
+    for module in (render_rows, tonecurve, tonecode, encode_rows):
         st = os.stat(module.__file__)
         stamp += [st.st_size, st.st_mtime_ns]
     return tuple(stamp)
@@ -116,7 +119,7 @@ def _tile_kernel(S: int, PW: int):
                xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
                mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
                cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
-               out16):
+               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk):
         if stamp[0] < 0:  # never: holds the stamp in the kernel's closure (cache key)
             return
         W = mosaic.shape[1]
@@ -409,10 +412,14 @@ def _tile_kernel(S: int, PW: int):
                         render_row4(pb2, pb, i, tw, S, clsr, K, rowf, 0, n_out)
                     else:
                         render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
-                    if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
-                        curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
-                    encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp, shift,
-                               lin, out8, out16, enc_bits, o)
+                    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tonecode)
+                        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale,
+                                         ct_walk, out8, out16, enc_bits, o)
+                    else:
+                        if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
+                            curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+                        encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp,
+                                   shift, lin, out8, out16, enc_bits, o)
                 elif n_out <= 4:
                     render_row4(pb2, pb, i, tw, S, clsr, K, outf, o, n_out)
                 else:
@@ -432,6 +439,9 @@ _NO_U16 = np.zeros(1, dtype=np.uint16)
 #: Encoder arguments when not in display mode (the order of ``DisplayParams``).
 _NO_DISPLAY = (False, np.eye(3), np.zeros(2, np.float32), np.zeros(1, np.uint16),
                np.zeros(2, np.float32), 0)
+#: No composed curve-and-encoding table (:mod:`l3cli.tonecode`): ``walk`` 0.
+_NO_CODES = (np.zeros((1, 1), np.uint16), _NO_F32, np.zeros(1, np.float32),
+             np.zeros(1, np.float32), 0)
 _NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
                          *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
 
@@ -441,7 +451,8 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
               out_features: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
               kernels: np.ndarray | None = None, n_out: int = 0,
               out: np.ndarray | None = None,
-              curve: tuple[np.ndarray, ...] | None = None, display: Any = None) -> None:
+              curve: tuple[np.ndarray, ...] | None = None, display: Any = None,
+              codes: Any = None) -> None:
     """Run the tile kernel over output rows ``rows`` (default: all) of a mosaic.
 
     The one entry point to the classifier; :func:`classify`,
@@ -477,6 +488,10 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         :class:`~l3cli.io.encode.DisplayParams`; each rendered row is
         display-encoded into ``out`` (the same integers as
         :func:`~l3cli.io.encode.display_encode` of the float render).
+    codes
+        ``MODE_DISPLAY`` only: the curve and the encoding as one lookup
+        (:func:`l3cli.tonecode.code_table`, for this curve and encoder without
+        a matrix), used instead of ``curve`` and ``display``'s tables.
     """
     S = definition.patch
     h, w = mosaic.shape
@@ -509,7 +524,8 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         _tile_kernel(S, pw)(mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o,
                             lev_o, con_o, sat_o, K, n_out, outf,
                             *(curve if curve is not None else _NO_CURVE), *display, bits, out8,
-                            out16)
+                            out16, *(codes if codes is not None and mode == MODE_DISPLAY
+                                     else _NO_CODES))
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,
