@@ -157,8 +157,10 @@ class Prefetch:
     ``l3 render`` starts it before importing the render code (numba: most of
     a second of Python work that holds the GIL), so the first files decode
     (LibRaw releases the GIL) on the core that start-up leaves idle. It
-    always decodes with LibRaw (``read_raw(..., libraw_only=True)``): l3's
-    own decoder of lossy DNGs runs on numba, which is still importing. The
+    lets LibRaw decode lossy DNGs (``read_raw(..., libraw_only=True)``): l3's
+    own decoder of those runs on numba, which is still importing (uncompressed
+    and lossless-JPEG DNGs are read by :mod:`l3cli.io.dng_direct` here too:
+    numpy and imagecodecs, no numba). The
     files are decoded one after another, at most ``count`` of them (the
     pipeline's :data:`IN_FLIGHT`, so memory stays bounded). :meth:`take`
     hands a result (or raises its error) to the pipeline job of that file.
@@ -191,7 +193,7 @@ class Prefetch:
                 # a job that came for its file before the decode began decodes it itself
                 slot.started = not (self._stop.is_set() or slot.taken)
             try:
-                if slot.started:  # LibRaw only: no numba (still importing) in this thread
+                if slot.started:  # no numba (still importing) in this thread
                     slot.raw = read_raw(p, libraw_only=True)
             except BaseException as exc:  # noqa: BLE001 - handed to the job that takes it
                 slot.error = exc

@@ -316,6 +316,12 @@ def read(path: str | os.PathLike) -> tuple[Any, np.ndarray, np.ndarray | None] |
     base = min(layout.offsets) if layout.at_end else 0
     try:
         with open(path, "rb") as fh:
+            if layout.compression == _COMPRESSION_JPEG:  # lossy JPEG (dng_lossy's) reads on
+                fh.seek(layout.offsets[0])
+                if not dng_ljpeg.is_lossless(memoryview(fh.read(1 << 16)), layout,
+                                             layout.offsets[0]):
+                    return _no(path, "JPEG tiles that are not lossless (SOF3)")
+                fh.seek(0)
             head = fh.read(base) if base else None
             region = buffers.empty((max(0, layout.file_size - base),), np.uint8)
             fh.seek(base)
@@ -324,9 +330,6 @@ def read(path: str | os.PathLike) -> tuple[Any, np.ndarray, np.ndarray | None] |
         return None  # LibRaw's own read reports it
     region = region[:got] if got < region.size else region
     tags = head if head is not None else region
-    if layout.compression == _COMPRESSION_JPEG and not dng_ljpeg.is_lossless(
-            memoryview(region), layout, base):
-        return _no(path, "JPEG tiles that are not lossless (SOF3)")
     try:
         with fd2.captured(str(path)) as said:
             rp = libraw_metadata(tags, layout)
