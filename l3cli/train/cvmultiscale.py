@@ -26,8 +26,11 @@ from l3cli.colourspace import convert
 from l3cli.multiscale import (
     Multiscale,
     MultiscaleStats,
+    _blend,
     accumulate,
-    apply_stage,
+    bands,
+    classes,
+    decode,
     default_transfer,
     encode,
     energy,
@@ -86,47 +89,45 @@ def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
     guard = radius(sigmas[0]) + radius(sigmas[-1])
     with_stage = np.full(len(units), np.nan)
     without = np.full(len(units), np.nan)
+    k = CV_SPACES.index("xyz")
     for f, held in enumerate(folds):
         table = table_from_stats(fold_stats(layout, held, space), opts)
         if opts.tone_curve:
             attach_curve(table, images[0].curve)
         train_units = [u for u in range(len(units)) if u not in held]
-        probe = Multiscale.identity(table.n_out, sigmas)
         rng = np.random.default_rng([seed, 27, f])
-        renders, levs, ens, masks = {}, [], [], {}
-        for i, img in enumerate(images):
+        feats, levs, ens = {}, [], []
+        for i, img in enumerate(images):  # each image's render and bands, once per fold
             plain = render_mosaic(table, img.mosaic)
             y = encode(plain, transfer)
-            renders[i] = (plain, y)
-            mask = _train_mask(img, i, units, train_units, guard)
-            masks[i] = mask
-            idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(y[..., 0].size)
-            if idx.size == 0:
-                continue
-            _, coarse, _ = probe.features(y)
+            stack, coarse = bands(y, np.asarray(sigmas))
             lev, en = level(coarse), energy(y, coarse, sigmas[0])
+            mask = _train_mask(img, i, units, train_units, guard)
+            feats[i] = (plain, stack, coarse, lev, en, mask)
+            idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(lev.size)
             if idx.size > _CUT_SAMPLES:
                 idx = rng.choice(idx, _CUT_SAMPLES, replace=False)
             levs.append(lev.ravel()[idx])
             ens.append(en.ravel()[idx])
         lcuts, ecuts = place_cuts(np.concatenate(levs), np.concatenate(ens), levels, energy_bins)
-        shape = Multiscale.identity(table.n_out, sigmas, lcuts, ecuts, transfer)
         stats = MultiscaleStats.zeros(levels * energy_bins, len(sigmas), table.n_out)
-        k = CV_SPACES.index("xyz")
         for i, img in enumerate(images):
-            mask = masks[i]
+            plain, stack, coarse, lev, en, mask = feats[i]
+            cls = classes(lev, en, lcuts, ecuts)
+            feats[i] = (plain, stack, coarse, cls)
             if mask is not None and not mask.any():
                 continue
             target = encode(convert(img.targets[:, :, 3 * k:3 * k + 3], "xyz", space), transfer)
-            stack, coarse, cls = shape.features(renders[i][1])
             accumulate(stats, stack, coarse, cls, target, mask)
-        stage = Multiscale(np.asarray(sigmas), lcuts, ecuts, solve(stats, ridge, table.n_out),
-                           stats.n, transfer)
+        blend = Multiscale(np.asarray(sigmas), lcuts, ecuts, solve(stats, ridge, table.n_out),
+                           stats.n, transfer).blend
         for u in held:
             unit = units[u]
             img = images[unit.image]
-            plain = renders[unit.image][0]
-            for out, arr in ((without, plain), (with_stage, apply_stage(stage, plain))):
+            plain, stack, coarse, cls = feats[unit.image]
+            # the stage on the whole image (apply_stage does it in row bands, bit for bit)
+            staged = decode(_blend(stack, coarse, cls, blend), transfer)
+            for out, arr in ((without, plain), (with_stage, staged)):
                 out[u] = img.scorer.mean(display_xyz(arr, space, img.display),
                                          columns=unit.columns)
     return with_stage, without
