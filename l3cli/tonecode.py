@@ -9,8 +9,9 @@ the curve: the table's output is ``linear-srgb`` or ``srgb`` and its
 white-balance adaptation is the identity), the code of a value is a
 monotone function of ``v`` alone, per channel, and is fully described by
 the smallest float32 ``v`` that reaches each code (its threshold, found by
-bisection over float32 bit patterns with the curve and the encoder
-themselves, so the codes are those of curve-then-encode).
+bisection over float32 bit patterns with the curve's own float32
+arithmetic and the encoder's thresholds, so the codes are those of
+curve-then-encode).
 
 :func:`code_table` builds, per channel, a uniform grid over the curve's
 input range (:data:`CELLS` cells): the code of each cell's first value and
@@ -72,19 +73,40 @@ def curve_codes(v: np.ndarray, c: int, curve: tuple[np.ndarray, ...], thr: np.nd
                 ) -> np.ndarray:
     """Codes of float32 values ``v`` of channel ``c``: the curve, then the encoder's thresholds.
 
-    The reference for :func:`code_table` (and the tests): the same
-    :func:`l3cli.tonecurve.curve_row` the tile kernel runs, then the code
-    :func:`l3cli.io.encode_rows.encode_row` gives a value (clip to [0, 1], the
-    number of thresholds at or below it).
+    The reference for the tests: the same :func:`l3cli.tonecurve.curve_row`
+    the tile kernel runs, then the code :func:`l3cli.io.encode_rows.encode_row`
+    gives a value (clip to [0, 1], the number of thresholds at or below it).
     """
     from l3cli.tonecurve import curve_row
 
     base, slope, lo, step = curve
     x = np.array(v, dtype=np.float32).reshape(-1)
     curve_row(x, 0, x.size, 1, base[c:c + 1], slope[c:c + 1], lo[c:c + 1], step[c:c + 1])
+    return _codes(x, thr)
+
+
+def _codes(x: np.ndarray, thr: np.ndarray) -> np.ndarray:
     x = np.where(x > 0, x, np.float32(0))
     x = np.minimum(x, np.float32(1))
     return (np.searchsorted(thr, x, side="right") - 1).astype(np.int64)
+
+
+def _curve_codes_np(v: np.ndarray, c: int, curve: tuple[np.ndarray, ...], thr: np.ndarray
+                    ) -> np.ndarray:
+    """:func:`curve_codes` in numpy (calling the compiled curve in a new process costs
+    0.1 s of numba's cache loading; this costs nothing). ``curve_row``'s multiply-add
+    is fused (fast-math): the product of two float32 is exact in float64, so one
+    float64 add and the cast round as the fused operation does (checked against
+    :func:`curve_codes` by the tests; a double rounding could move a value by one
+    ulp, its code by at most one)."""
+    base, slope, lo, step = curve
+    top = np.float32(base.shape[1] - 1) - np.float32(1e-3)
+    x = np.asarray(v, dtype=np.float32).reshape(-1)
+    t = np.minimum(np.maximum((x - lo[c]) * step[c], np.float32(0.0)), top)
+    i = t.astype(np.int32)
+    f = t - i.astype(np.float32)
+    y = f.astype(np.float64) * slope[c, i].astype(np.float64) + base[c, i].astype(np.float64)
+    return _codes(y.astype(np.float32), thr)
 
 
 def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
@@ -118,8 +140,8 @@ def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
         hi = np.float32(lo[c] + np.float64(top) / np.float64(step[c]))
         a = np.float32(lo[c] - abs(lo[c]) - 1)  # every value below: the bottom code
         b = np.float32(hi + abs(hi) + 1)  # above: the top code
-        c_lo = int(curve_codes(a, c, curve, thr)[0])
-        c_hi = int(curve_codes(b, c, curve, thr)[0])
+        c_lo = int(_curve_codes_np(a, c, curve, thr)[0])
+        c_hi = int(_curve_codes_np(b, c, curve, thr)[0])
         # bisection over bit patterns for the codes reached inside (a, b]
         inside = codes[(codes > c_lo) & (codes <= c_hi)]
         klo = np.full(inside.size, _key(a)[()])
@@ -127,7 +149,7 @@ def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
         todo = np.arange(inside.size)
         while todo.size:
             mid = (klo[todo] + khi[todo]) // 2
-            ge = curve_codes(_unkey(mid), c, curve, thr) >= inside[todo]
+            ge = _curve_codes_np(_unkey(mid), c, curve, thr) >= inside[todo]
             khi[todo] = np.where(ge, mid, khi[todo])
             klo[todo] = np.where(ge, klo[todo], mid)
             todo = todo[khi[todo] - klo[todo] > 1]
