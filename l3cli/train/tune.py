@@ -27,6 +27,9 @@ differ):
 7. the multi-scale stage on (each fold fits its own stage on its table's
    renders of its training images).
 
+Stages 6 and 7 change the cheaper of the two anchors first and the other
+only where the change helped the cheaper one.
+
 **The choice (one-standard-error rule).** Render speed matters, so the
 chosen candidate is not simply the best: among the candidates whose mean CV
 score is within one standard error of the best's -- the standard error of
@@ -308,6 +311,16 @@ class _Search:
                 self.report(len(self.results), c, self.results[-1].mean,
                             time.perf_counter() - self.t0)
 
+    def try_change(self, name: str, values: Sequence) -> None:
+        """``name`` set to each of ``values`` on the cheapest anchor; on the other anchors
+        only for the values that beat the cheapest anchor's own score."""
+        anchors = sorted(self.anchors(), key=lambda c: (c.cost_key(), c.target_space))
+        first = anchors[0]
+        self.evaluate([replace(first, **{name: v}) for v in values])
+        score = {r.candidate: r.mean for r in self.results}
+        good = [v for v in values if score[replace(first, **{name: v})] < score[first]]
+        self.evaluate([replace(a, **{name: v}) for a in anchors[1:] for v in good])
+
     def anchors(self) -> list[Candidate]:
         """The best candidate so far and the rule's pick (once each)."""
         chosen, best, _ = choose(self.results)
@@ -386,9 +399,10 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         s.evaluate([replace(a, augment=au, sample_weight=w) for a in s.anchors()
                     for w in grid.sample_weights or (a.sample_weight,)
                     for au in grid.augments or (a.augment,)])
-    # 6. shading, 7. the multi-scale stage
-    s.evaluate([replace(a, shading=v) for a in s.anchors() for v in shadings])
-    s.evaluate([replace(a, multiscale=v) for a in s.anchors() for v in grid.multiscale])
+    # 6. shading, 7. the multi-scale stage: on the cheaper anchor first, on the other
+    # only where the change helped there (successive halving)
+    s.try_change("shading", shadings)
+    s.try_change("multiscale", grid.multiscale)
     chosen, best, margins = choose(s.results)
     return _finish(s, chosen, best, margins, shading_record, show_progress)
 
