@@ -170,7 +170,7 @@ def test_train_with_one_local_worker_equals_in_process_pairs_folder(runner, tmp_
         write_raw(d / f"{stem}.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
         write_image(d / f"{stem}.png", srgb_encode(lin)[crop:H - crop, crop:W - crop],
                     space="srgb")
-    extra = ["--patch", "3", "--levels", "4"]
+    extra = ["--patch", "3", "--levels", "4", "--no-tune"]  # workers: the fixed defaults
     local = _train(runner, [d], tmp_path / "local.npz", *extra)
     dist = _train(runner, [d], tmp_path / "dist.npz", *extra, "--workers", "1")
     npz_equal(local, dist)
