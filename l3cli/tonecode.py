@@ -14,7 +14,8 @@ arithmetic and the encoder's thresholds, so the codes are those of
 curve-then-encode).
 
 :func:`code_table` builds, per channel, a uniform grid over the curve's
-input range (:data:`CELLS` cells): the code of each cell's first value and
+input range (the fewest cells of :data:`CELL_CHOICES` that give one
+comparison per value for 8 bits): the code of each cell's first value and
 the thresholds; :func:`curve_encode_row` looks a value's cell up (a
 subtraction, a multiplication, a clamp) and finishes with as many
 comparisons with the next thresholds as a cell spans codes at most
@@ -32,11 +33,13 @@ import numpy as np
 
 from l3cli.startup import lean_cache
 
-__all__ = ["CELLS", "MAX_WALK", "CodeTable", "code_table", "code_table_for", "curve_codes",
+__all__ = ["CELL_CHOICES", "MAX_WALK", "CodeTable", "code_table", "code_table_for", "curve_codes",
            "curve_encode_row"]
 
-#: Cells of the uniform grid per channel (uint16 codes: 8 kB per channel).
-CELLS = 4096
+#: Cells of the uniform grid per channel, the fewest that give one comparison per value
+#: (:func:`code_table`): the table shares the L1 cache with the kernels' rows (1536 cells
+#: suffice for the Blackmagic table's curve; 8-bit codes are one byte).
+CELL_CHOICES = (1024, 2048, 4096, 8192)
 #: Most comparisons per value; a curve whose cells span more codes keeps curve-then-encode.
 MAX_WALK = 4
 
@@ -44,7 +47,7 @@ MAX_WALK = 4
 class CodeTable(NamedTuple):
     """What :func:`curve_encode_row` reads (the order of its arguments)."""
 
-    #: uint16 (n_out, CELLS): the code of each cell's first value.
+    #: uint8 (8 bits) or uint16 (n_out, cells): the code of each cell's first value.
     first: np.ndarray
     #: float32 (n_out, 2**bits + walk): ``thr[c, k]`` the smallest ``v`` of code >= k
     #: (NaN where no ``v`` reaches it, and as padding).
@@ -110,7 +113,7 @@ def _curve_codes_np(v: np.ndarray, c: int, curve: tuple[np.ndarray, ...], thr: n
 
 
 def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
-               cells: int = CELLS, max_walk: int = MAX_WALK) -> CodeTable | None:
+               cells: int | None = None, max_walk: int = MAX_WALK) -> CodeTable | None:
     """The composed lookup of a curve (:func:`l3cli.tonecurve.curve_arrays`) and an encoder.
 
     Parameters
@@ -121,6 +124,9 @@ def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
         The encoder's thresholds (:attr:`l3cli.io.encode.DisplayParams.thr`, no matrix).
     bits
         8 or 16.
+    cells
+        Cells of the grid per channel; None: the fewest of :data:`CELL_CHOICES` whose
+        cells span at most two codes (one comparison), else the most.
 
     Returns
     -------
@@ -131,10 +137,8 @@ def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
     n_out, n_lut = base.shape
     n = 1 << bits
     codes = np.arange(1, n, dtype=np.int64)
-    first = np.empty((n_out, cells), dtype=np.uint16)
     t_all = np.full((n_out, n + max_walk), np.nan, dtype=np.float32)
-    scale = np.empty(n_out, dtype=np.float32)
-    walk = 1
+    spans, found = [], []
     for c in range(n_out):
         top = np.float32(n_lut - 1) - np.float32(1e-3)
         hi = np.float32(lo[c] + np.float64(top) / np.float64(step[c]))
@@ -156,13 +160,20 @@ def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
         t = _unkey(khi)
         t_all[c, inside] = t
         t_all[c, 1:c_lo + 1] = -np.inf
-        # the grid: cell i = int((v - lo) * scale), clamped to [0, cells - 1]
-        s = np.float32(cells / max(float(hi) - float(lo[c]), 1e-12))
-        scale[c] = s
-        cell = _cell(t, lo[c], s, cells)
-        counts = np.bincount(cell, minlength=cells)
-        first[c] = c_lo + np.concatenate([[0], np.cumsum(counts)[:-1]])
-        walk = max(walk, int(counts.max()) if counts.size else 0)
+        spans.append(max(float(hi) - float(lo[c]), 1e-12))
+        found.append((t, c_lo))
+    for size in ([cells] if cells else CELL_CHOICES):
+        # the grid: cell i = int((v - lo) * scale), clamped to [0, size - 1]
+        first = np.empty((n_out, size), dtype=np.uint8 if bits == 8 else np.uint16)
+        scale = np.empty(n_out, dtype=np.float32)
+        walk = 1
+        for c, (t, c_lo) in enumerate(found):
+            scale[c] = np.float32(size / spans[c])
+            counts = np.bincount(_cell(t, lo[c], scale[c], size), minlength=size)
+            first[c] = c_lo + np.concatenate([[0], np.cumsum(counts)[:-1]])
+            walk = max(walk, int(counts.max()) if counts.size else 0)
+        if walk == 1:
+            break
     if walk > max_walk:
         return None
     return CodeTable(first, np.ascontiguousarray(t_all[:, :n + walk]),

@@ -440,7 +440,7 @@ _NO_U16 = np.zeros(1, dtype=np.uint16)
 _NO_DISPLAY = (False, np.eye(3), np.zeros(2, np.float32), np.zeros(1, np.uint16),
                np.zeros(2, np.float32), 0)
 #: No composed curve-and-encoding table (:mod:`l3cli.tonecode`): ``walk`` 0.
-_NO_CODES = (np.zeros((1, 1), np.uint16), _NO_F32, np.zeros(1, np.float32),
+_NO_CODES = (np.zeros((1, 1), np.uint8), _NO_F32, np.zeros(1, np.float32),
              np.zeros(1, np.float32), 0)
 _NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
                          *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
