@@ -404,3 +404,23 @@ def test_tuned_default_on_shaded_raws_keeps_shading(tmp_path: Path, runner):
     got = _holdout_score(runner, shaded, tmp_path / "shaded" / "holdout", tmp_path / "r1")
     want = _holdout_score(runner, control, ex / "holdout", tmp_path / "r2")
     assert got <= 1.15 * want, (got, want)
+
+
+def test_default_tuning_of_a_tiny_featureless_capture_trains(tmp_path: Path, runner):
+    """A single tiny featureless capture (64 px wide: its column blocks are narrower than
+    the multi-scale stage's guard bands): the search leaves the stage out instead of
+    failing, or, where it cannot score at all, the fixed defaults are trained with a
+    note (--tune then reports the problem as a one-line error)."""
+    from l3cli.io.image import write_image
+    from l3cli.io.raw import write_raw
+
+    pairs = tmp_path / "pairs"
+    pairs.mkdir()
+    write_raw(pairs / "a.dng", np.full((48, 64), 500, np.uint16), "RGGB", white_level=4095)
+    write_image(pairs / "a.png", np.full((48, 64, 3), 0.5, np.float32))
+    res = runner.invoke(cli, ["train", str(pairs), "-o", str(tmp_path / "t.npz")])
+    assert res.exit_code == 0, res.output
+    if "tune" not in load_table(tmp_path / "t.npz").provenance:
+        assert "self-tuning skipped" in res.output
+        res = runner.invoke(cli, ["train", str(pairs), "-o", str(tmp_path / "u.npz"), "--tune"])
+        assert res.exit_code == 1 and "Traceback" not in res.output

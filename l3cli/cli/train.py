@@ -284,10 +284,24 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                         highlight_fraction=highlight_fraction, tone_curve=tone_curve,
                         augment=augment, sample_weight=sample_weight, shading=shading)
     show = not quiet()
+    asked = tune is not None
     tune = _want_tune(tune, pairs, opts, workers, scheduler)
+    table = None
     if tune:
-        table = _tune(pairs, opts, multiscale, show)
-    else:
+        from l3cli.errors import InputError, TableError
+
+        try:
+            table = _tune(pairs, opts, multiscale, show)
+        except (InputError, TableError) as exc:
+            if asked:  # --tune: its error is the user's answer
+                raise
+            # the default search cannot score these inputs (e.g. too little data for its
+            # folds): the fixed defaults, which need less, with a note
+            tune = False
+            if not silenced():
+                click.echo(f"note: self-tuning skipped ({exc}); training the fixed defaults",
+                           err=True)
+    if table is None:
         table = train_table(pairs, opts, workers=workers, scheduler=scheduler,
                             show_progress=show)
     if multiscale and not tune:  # the learned stage after the kernels (l3cli.multiscale)

@@ -23,6 +23,7 @@ import numpy as np
 
 from l3cli import defaults
 from l3cli.colourspace import convert
+from l3cli.errors import InputError
 from l3cli.multiscale import (
     Multiscale,
     MultiscaleStats,
@@ -109,6 +110,9 @@ def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
                 idx = rng.choice(idx, _CUT_SAMPLES, replace=False)
             levs.append(lev.ravel()[idx])
             ens.append(en.ravel()[idx])
+        if sum(v.size for v in levs) == 0:
+            raise InputError("no training pixels for the multi-scale stage in a fold (images "
+                             f"too small for its {guard}-pixel guard bands)")
         lcuts, ecuts = place_cuts(np.concatenate(levs), np.concatenate(ens), levels, energy_bins)
         stats = MultiscaleStats.zeros(levels * energy_bins, len(sigmas), table.n_out)
         for i, img in enumerate(images):

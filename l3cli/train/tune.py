@@ -301,8 +301,12 @@ class _Search:
             if c.multiscale:
                 from l3cli.train.cvmultiscale import multiscale_fold_scores
 
-                scores, _ = multiscale_fold_scores(images, self.units, self.folds, lay, opts,
-                                                   seed=opts.seed)
+                try:
+                    scores, _ = multiscale_fold_scores(images, self.units, self.folds, lay,
+                                                       opts, seed=opts.seed)
+                except InputError as exc:  # too little data for the stage: not a candidate
+                    log.warning("tune: the multi-scale stage is not scored: %s", exc)
+                    continue
             else:
                 scores = fold_scores(images, self.units, self.folds, lay, opts)
             self.results.append(CandidateResult(c, scores))
@@ -318,7 +322,8 @@ class _Search:
         first = anchors[0]
         self.evaluate([replace(first, **{name: v}) for v in values])
         score = {r.candidate: r.mean for r in self.results}
-        good = [v for v in values if score[replace(first, **{name: v})] < score[first]]
+        good = [v for v in values
+                if score.get(replace(first, **{name: v}), np.inf) < score[first]]
         self.evaluate([replace(a, **{name: v}) for a in anchors[1:] for v in good])
 
     def anchors(self) -> list[Candidate]:
