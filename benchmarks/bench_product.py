@@ -283,10 +283,12 @@ def decode_table(kinds: dict[str, tuple[list[str], list[str]]], repeat: int) -> 
             raw.raw_image_visible.copy()
 
     lines = [f"Per-file read, one process, best of {repeat} interleaved rounds (the first "
-             "file of each kind):", "",
+             "file of each kind; LibRaw reads a headerless dump's peer, the uncompressed DNG "
+             "of the same pixels):", "",
              "| raws | l3 read_raw | LibRaw decode (raw_image_visible copy) | read_raw via "
              "LibRaw | LibRaw decode / l3 | read_raw LibRaw / l3 |",
              "|---|---:|---:|---:|---:|---:|"]
+    print("\n".join(lines), flush=True)
     for kind, (files, peer_files) in kinds.items():
         best = {"l3": np.inf, "libraw": np.inf, "rr_libraw": np.inf}
         calls = (("l3", read_raw, files[0], {}), ("libraw", libraw, peer_files[0], {}),
