@@ -407,11 +407,13 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
                                  matrix=np.ascontiguousarray(params.matrix @ ks.post))
     if params is not None and ks.adapt is None:
         codes = None
-        if ks.curve is not None and not params.use_matrix and bits == 8:
+        if ks.curve is not None and not params.use_matrix and bits == 8 and ks.n_out == 3:
             from l3cli.tonecode import code_table_for
 
             with lock:
                 codes = code_table_for(ks.curve, params.thr, bits)
+            if codes is not None and codes.walk != 1:  # the general loop is slower than
+                codes = None  # curve-then-encode (measured): only the one-comparison loop
         with lock:
             run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=ks.kernels,
                       n_out=ks.n_out, out=out, curve=ks.curve, display=params, codes=codes)
