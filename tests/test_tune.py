@@ -327,6 +327,8 @@ def test_tune_searches_multiscale_and_is_deterministic(tmp_path: Path):
     if a.chosen.candidate.multiscale:
         np.testing.assert_array_equal(a.table.multiscale.blend, b.table.multiscale.blend)
     assert a.table.provenance["tune"]["chosen"] == a.record["chosen"]
+    if a.options.tone_curve:  # the curve's decision recorded as l3 train records it
+        assert "used" in a.table.provenance["tone_curve"]
 
 
 def test_cli_tunes_pairs_by_default_keeping_the_options_given(tmp_path: Path, runner):

@@ -102,6 +102,7 @@ class CVImage:
     display: bool
     scorer: ReferenceSCIELAB
     curve: object = None
+    curve_record: dict | None = None
 
 
 def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
@@ -158,6 +159,8 @@ def _use_curve(images: list[CVImage], opts: TrainOptions) -> None:
     curve, record = chosen_curve([curve_samples(img.mosaic, img.cfa,
                                                 img.targets[:, :, 3 * k:3 * k + 3], img.mask, opts)
                                   for img in images])
+    for img in images:
+        img.curve_record = record
     if curve is None:
         return
     for img in images:

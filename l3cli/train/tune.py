@@ -451,8 +451,8 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
     else:
         table = table_from_stats(space_stats(s.layout(c), opts.target_space), opts,
                                  provenance=prov)
-        if opts.tone_curve:
-            attach_curve(table, images[0].curve)
+        if opts.tone_curve:  # with the curve's record, as l3 train writes it
+            attach_curve(table, images[0].curve, images[0].curve_record)
     if c.shading:
         table.shading = s.field
         table.provenance["shading"] = shading_record
