@@ -214,9 +214,14 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     affine kernel is fitted by ridge regression with λ chosen by generalised
     cross-validation from per-class sufficient statistics.
 
+    Pairs folders are self-tuned by default: target space, patch 7/9, lens
+    shading and the multi-scale stage are chosen by cross-validation over the
+    training images, preferring the cheaper render within one standard error
+    of the best (--no-tune: the fixed defaults).
+
     With --workers or --scheduler each input is read and reduced to
     statistics by a dask.distributed worker; the table is the same as in
-    process (docs/distributed.md).
+    process (docs/distributed.md; pairs folders then train the fixed defaults).
     """
     import logging
 
