@@ -33,10 +33,13 @@ def test_white_balance_handling_reaches_the_fixed_illuminant_control(tmp_path):
     # options (--augment d4, --sample-weight luminance; off by default) move the two
     # sides of this tiny case (3 scenes at 160x120) apart by chance -- mixed-wb 2.37 vs
     # fixed 1.21 with them, 3.30 vs 3.23 without; at 320x240 1.54 vs 1.35 with them,
-    # 1.91 vs 1.06 without -- so they are held off explicitly here.
+    # 1.91 vs 1.06 without -- so they are held off explicitly here. For the same reason the
+    # fit is the fixed one (--no-tune): self-tuning, the pairs-folder default, may choose
+    # another patch or target for each side of this tiny case (mixed-wb 1.64 vs fixed 0.63).
     res = _experiment().run(tmp_path, l3=l3, size="160x120",
                             only=("mixed-wb", "mixed-nowb", "fixed"),
-                            train_opts=("--augment", "none", "--sample-weight", "none"))
+                            train_opts=("--augment", "none", "--sample-weight", "none",
+                                        "--no-tune"))
     assert res["fixed"] > 0  # the converter's demosaic is not learned exactly
     assert res["mixed-wb"] <= 1.25 * res["fixed"], res
     assert res["mixed-nowb"] > 3 * res["mixed-wb"], res  # without it the colours fail
