@@ -7,7 +7,7 @@ The real-camera tutorial (docs/real-camera.md, `scripts/real_camera.sh` on the
 bundled `examples/infinite_isp/`) is run with `l3 train`'s defaults into a
 temporary folder; its scores replace the text between the markers
 ``<!-- numbers:real-camera-tutorial -->`` and ``<!-- /numbers -->``.
-``tests/test_docs_numbers.py`` runs the check (marked slow), so a change that
+``tests/test_defaults.py::test_train_with_no_options_beats_the_quality_floor`` runs the check (marked slow), so a change that
 moves the tutorial's results fails until the docs are regenerated.
 """
 
