@@ -36,6 +36,7 @@ Reference: Adobe, *Digital Negative (DNG) Specification* 1.4; LibRaw 0.22
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
@@ -49,7 +50,7 @@ from l3cli import buffers
 from l3cli.errors import InputError
 from l3cli.io import fd2
 
-__all__ = ["Layout", "decode_uncompressed", "libraw_metadata", "probe", "read"]
+__all__ = ["Layout", "decode_uncompressed", "libraw_metadata", "probe", "quiet_probe", "read"]
 
 log = logging.getLogger(__name__)
 
@@ -90,9 +91,8 @@ def probe(path: str | os.PathLike) -> Layout | None:
     """The raw layout of a DNG this module reads, or None (the reason in the debug log)."""
     import tifffile
 
-    _probing.on = True
     try:
-        with tifffile.TiffFile(path) as tf:
+        with quiet_probe(), tifffile.TiffFile(path) as tf:
             if not tf.is_dng:
                 return None
             pages = list(tf.pages) + [s for p in tf.pages for s in (p.pages or [])]
@@ -115,19 +115,35 @@ def probe(path: str | os.PathLike) -> Layout | None:
                           int(tf.filehandle.size))
     except Exception as exc:  # noqa: BLE001 - not ours to judge: LibRaw reads it
         return _no(path, f"tags: {exc}")
-    finally:
-        _probing.on = False
 
 
 _probing = threading.local()
 
 
+@contextlib.contextmanager
+def quiet_probe():
+    """tifffile's log records to l3's debug log while this thread probes a DNG's tags.
+
+    A probe only asks whether one of l3's decoders applies (here, or
+    :mod:`l3cli.io.dng_lossy`); a damaged or foreign file goes on to LibRaw,
+    whose one-line error is the user's message. Without this, tifffile's
+    warning on such a file reached stderr only when the render's job decoded
+    the file itself (not the prefetch, which reads with LibRaw alone): an
+    extra line that depended on thread timing.
+    """
+    depth = getattr(_probing, "depth", 0)
+    _probing.depth = depth + 1
+    try:
+        yield
+    finally:
+        _probing.depth = depth
+
+
 class _QuietProbe(logging.Filter):
-    """Drops tifffile's log records in a thread that is probing (to l3's debug log): a
-    damaged or foreign file goes on to LibRaw, whose one-line error is the user's message."""
+    """Drops tifffile's records in a thread inside :func:`quiet_probe` (to the debug log)."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if getattr(_probing, "on", False):
+        if getattr(_probing, "depth", 0):
             log.debug("DNG probe, tifffile: %s", record.getMessage())
             return False
         return True

@@ -48,7 +48,6 @@ import io
 import logging
 import math
 import os
-import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -61,6 +60,7 @@ from numba.extending import intrinsic
 
 from l3cli import buffers
 from l3cli.io import fd2
+from l3cli.io.dng_direct import quiet_probe
 from l3cli.startup import lean_cache
 
 __all__ = ["LossyTiles", "decode", "libraw_metadata", "probe", "read"]
@@ -105,37 +105,11 @@ class LossyTiles:
     curve: np.ndarray  # uint16[65536]: LibRaw's linearisation curve
 
 
-_probing = threading.local()
-
-
-class _QuietProbe(logging.Filter):
-    """Drops tifffile's log records in a thread that is probing (to l3's debug log).
-
-    The probe only asks whether l3's decoder applies; a damaged or foreign
-    file goes on to LibRaw, whose one-line error is the user's message.
-    Without this, tifffile's warning on such a file reached stderr only when
-    the render's job decoded the file itself (not the prefetch, which reads
-    with LibRaw alone): an extra line that depended on thread timing.
-    """
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if getattr(_probing, "on", False):
-            log.debug("lossy DNG probe, tifffile: %s", record.getMessage())
-            return False
-        return True
-
-
-logging.getLogger("tifffile").addFilter(_QuietProbe())
-
-
 def probe(source: str | os.PathLike | bytes) -> LossyTiles | None:
     """The lossy tile layout of a DNG (a path, or the file's bytes), or None if it has
     another one (only the file's tags are read; tifffile's warnings go to the debug log)."""
-    _probing.on = True
-    try:
+    with quiet_probe():
         return _probe(source)
-    finally:
-        _probing.on = False
 
 
 def _probe(source: str | os.PathLike | bytes) -> LossyTiles | None:
