@@ -337,13 +337,15 @@ def apply_stage(stage: Multiscale, y: np.ndarray, *, band_rows: int = BAND_ROWS)
         b1 = min(h, b0 + max(1, int(band_rows)))
         a0, a1 = max(0, b0 - halo), min(h, b1 + halo)
         stack, coarse, cls = stage.features(encode(y[a0:a1], stage.transfer))
-        part = _blend(stack, coarse, cls, stage.blend)
+        part = blend_bands(stack, coarse, cls, stage.blend)
         out[b0:b1] = decode(part[b0 - a0:b1 - a0], stage.transfer)
     return out
 
 
-def _blend(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
-           blend: np.ndarray) -> np.ndarray:
+def blend_bands(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
+                blend: np.ndarray) -> np.ndarray:
+    """``coarse + sum_j A_{cls,j} b_j`` of a whole image's bands (:func:`bands`,
+    :func:`classes`), in the stage's coding: :func:`apply_stage` without its row bands."""
     from l3cli.multiscale_kernel import blend_rows
 
     out = np.empty_like(coarse)

@@ -27,9 +27,9 @@ from l3cli.errors import InputError
 from l3cli.multiscale import (
     Multiscale,
     MultiscaleStats,
-    _blend,
     accumulate,
     bands,
+    blend_bands,
     classes,
     decode,
     default_transfer,
@@ -43,11 +43,9 @@ from l3cli.multiscale import (
 from l3cli.train.curve import attach_curve
 from l3cli.train.cv import CV_SPACES, CVImage, LayoutStats, Unit, display_xyz, fold_stats
 from l3cli.train.fit import TrainOptions, table_from_stats
+from l3cli.train.multiscale import cut_sample
 
 __all__ = ["multiscale_fold_scores"]
-
-#: Pixels per image sampled to place the stage's cut points (as l3cli.train.multiscale).
-_CUT_SAMPLES = 200_000
 
 
 def _train_mask(img: CVImage, image: int, units: Sequence[Unit], train_units: Sequence[int],
@@ -105,11 +103,9 @@ def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
             lev, en = level(coarse), energy(y, coarse, sigmas[0])
             mask = _train_mask(img, i, units, train_units, guard)
             feats[i] = (plain, stack, coarse, lev, en, mask)
-            idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(lev.size)
-            if idx.size > _CUT_SAMPLES:
-                idx = rng.choice(idx, _CUT_SAMPLES, replace=False)
-            levs.append(lev.ravel()[idx])
-            ens.append(en.ravel()[idx])
+            lev_s, en_s = cut_sample(lev, en, mask, rng)
+            levs.append(lev_s)
+            ens.append(en_s)
         if sum(v.size for v in levs) == 0:
             raise InputError("no training pixels for the multi-scale stage in a fold (images "
                              f"too small for its {guard}-pixel guard bands)")
@@ -130,7 +126,7 @@ def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
             img = images[unit.image]
             plain, stack, coarse, cls = feats[unit.image]
             # the stage on the whole image (apply_stage does it in row bands, bit for bit)
-            staged = decode(_blend(stack, coarse, cls, blend), transfer)
+            staged = decode(blend_bands(stack, coarse, cls, blend), transfer)
             for out, arr in ((without, plain), (with_stage, staged)):
                 out[u] = img.scorer.mean(display_xyz(arr, space, img.display),
                                          columns=unit.columns)

@@ -38,12 +38,22 @@ from l3cli.multiscale import (
 )
 from l3cli.pairs import Pair, load_pair
 
-__all__ = ["fit_multiscale", "attach_multiscale"]
+__all__ = ["CUT_SAMPLES", "attach_multiscale", "cut_sample", "fit_multiscale"]
 
 log = logging.getLogger(__name__)
 
 #: Pixels per image sampled to place the class cut points.
-_CUT_SAMPLES = 200_000
+CUT_SAMPLES = 200_000
+
+
+def cut_sample(lev: np.ndarray, en: np.ndarray, mask: np.ndarray | None,
+               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One image's share of the sample that places the cut points: the coarse level and
+    band energy of at most :data:`CUT_SAMPLES` of its training pixels (``mask``)."""
+    idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(lev.size)
+    if idx.size > CUT_SAMPLES:
+        idx = rng.choice(idx, CUT_SAMPLES, replace=False)
+    return lev.ravel()[idx], en.ravel()[idx]
 
 
 def _rendered(table, pair: Pair):
@@ -98,12 +108,9 @@ def fit_multiscale(table, pairs: Sequence[Pair], *, sigmas=defaults.MULTISCALE_S
     for pair in progress(pairs, label="multiscale cuts", enabled=show_progress):
         y, _, mask = _rendered(table, pair)
         stack, coarse, _ = probe.features(y)
-        lev, en = level(coarse), energy(y, coarse, sigmas[0])
-        idx = np.flatnonzero(mask.ravel()) if mask is not None else np.arange(lev.size)
-        if idx.size > _CUT_SAMPLES:
-            idx = rng.choice(idx, _CUT_SAMPLES, replace=False)
-        levs.append(lev.ravel()[idx])
-        ens.append(en.ravel()[idx])
+        lev_s, en_s = cut_sample(level(coarse), energy(y, coarse, sigmas[0]), mask, rng)
+        levs.append(lev_s)
+        ens.append(en_s)
     if not levs or sum(v.size for v in levs) == 0:
         raise InputError("no training pixels for the multiscale stage")
     lcuts, ecuts = place_cuts(np.concatenate(levs), np.concatenate(ens), levels, energy_bins)
