@@ -34,7 +34,7 @@ from typing import Any, TypeVar
 from l3cli.errors import L3Error
 from l3cli.progress import progress as _progress
 
-__all__ = ["map_reduce", "dask_client", "ParallelError"]
+__all__ = ["map_reduce", "dask_client", "cpu_count", "ParallelError"]
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,8 @@ def _describe(item: Any) -> str:
     return s if len(s) < 120 else s[:117] + "..."
 
 
-def _cpu_count() -> int:
+def cpu_count() -> int:
+    """The CPUs this process may run on (its affinity mask; os.cpu_count elsewhere)."""
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
@@ -158,7 +159,7 @@ def check_worker_count(n: int) -> None:
     if n > most:
         raise ParallelError(f"--workers {n} is too many: each worker process needs about "
                             f"{WORKER_BYTES >> 20} MiB, and the available memory holds at most "
-                            f"{most}; use --workers {min(most, _cpu_count())} or fewer")
+                            f"{most}; use --workers {min(most, cpu_count())} or fewer")
 
 
 def _children() -> set[int]:
@@ -333,7 +334,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         else:
             n = int(workers)  # type: ignore[arg-type]
             check_worker_count(n)
-            threads = max(1, _cpu_count() // n)
+            threads = max(1, cpu_count() // n)
             try:
                 with dask.config.set({_TRIM: None}), _terminal_signals_held():
                     cluster = LocalCluster(

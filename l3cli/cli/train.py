@@ -321,12 +321,6 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
                    f"{len(pairs)} captures ({int(table.counts.sum())} samples)", err=True)
 
 
-#: The options whose values the search holds fixed when the user gives them
-#: (TuneGrid.fixed's names; multiscale is not a TrainOptions attribute).
-_SEARCHED = ("patch", "target_space", "levels", "contrast_bins", "contrast_threshold",
-             "augment", "sample_weight", "shading", "multiscale")
-
-
 def _given(name: str) -> bool:
     """Whether the user set option ``name`` (command line, environment or --config)."""
     from click.core import ParameterSource
@@ -368,7 +362,7 @@ def _tune(pairs, opts, multiscale, show):
 
     grid = click.get_current_context().meta.get("l3.tune_grid") or TuneGrid()
     values = {**vars(opts), "multiscale": multiscale}
-    grid = grid.fixed(**{k: values[k] for k in _SEARCHED if _given(k)})
+    grid = grid.fixed(**{k: values[k] for k in TuneGrid.OPTIONS if _given(k)})
     loud = not (click.get_current_context().find_root().obj or {}).get("quiet")
 
     def report(k, c, score, seconds):

@@ -26,7 +26,6 @@ name, as does a file cut short.
 from __future__ import annotations
 
 import logging
-import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -94,8 +93,9 @@ def is_lossless(data: memoryview, layout: Any, base: int = 0) -> bool:
 
 
 def _workers() -> int:
-    return max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                      else os.cpu_count() or 1))
+    from l3cli.parallel import cpu_count
+
+    return max(1, min(4, cpu_count()))
 
 
 def decode(path, region: np.ndarray, base: int, layout: Any

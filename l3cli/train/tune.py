@@ -162,15 +162,16 @@ class TuneGrid:
                                               for t in kw["contrast_thresholds"])
         return cls(**kw)
 
+    #: The option each searched dimension sets (``l3 train``'s parameter names).
+    OPTIONS = {"patch": "patches", "target_space": "spaces", "levels": "levels",
+               "contrast_bins": "contrast_bins", "contrast_threshold": "contrast_thresholds",
+               "augment": "augments", "sample_weight": "sample_weights",
+               "shading": "shading", "multiscale": "multiscale"}
+
     def fixed(self, **values) -> TuneGrid:
-        """The grid with these dimensions held at one value each (options the user gave):
-        ``patch``, ``target_space``, ``levels``, ``contrast_bins``, ``contrast_threshold``,
-        ``augment``, ``sample_weight``, ``shading``, ``multiscale``."""
-        names = {"patch": "patches", "target_space": "spaces", "levels": "levels",
-                 "contrast_bins": "contrast_bins", "contrast_threshold": "contrast_thresholds",
-                 "augment": "augments", "sample_weight": "sample_weights",
-                 "shading": "shading", "multiscale": "multiscale"}
-        return replace(self, **{names[k]: (v,) for k, v in values.items()})
+        """The grid with these dimensions held at one value each (options the user gave),
+        keyed by option name (:attr:`OPTIONS`)."""
+        return replace(self, **{self.OPTIONS[k]: (v,) for k, v in values.items()})
 
 
 @dataclass(frozen=True)
