@@ -57,7 +57,9 @@ def _check_against_plain_loop(t, m, *, row_sums):
 def test_row_pair_render_is_bit_identical_to_the_one_row_loop(patch, n_out):
     t = make_table("RGGB", patch=patch, n_out=n_out, seed=patch + n_out)
     rng = np.random.default_rng(patch * 10 + n_out)
-    m = (rng.random((70, 530)) * 1.1).astype(np.float32)  # two tile rows, two tile columns
+    # two tile rows, two tile columns; the second tile 21 pixels wide (the 4-pixel
+    # groups of 3-output tables end with a single pixel)
+    m = (rng.random((70, 533)) * 1.1).astype(np.float32)
     _check_against_plain_loop(t, m, row_sums=True)
 
 
