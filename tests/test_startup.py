@@ -138,6 +138,31 @@ def test_gc_pause_leaves_a_caller_disabled_collector_alone():
     assert gc.isenabled()
 
 
+def test_gc_resume_freezes_only_when_the_pause_asked_for_it():
+    """The console entry point pauses with ``freeze``: the objects made until the
+    resume go to the permanent generation (a later full collection skips them);
+    a plain pause (the in-process CLI, tests) freezes nothing."""
+    before = gc.get_freeze_count()
+    try:
+        startup.pause_gc()
+        startup.resume_gc()
+        assert gc.isenabled() and gc.get_freeze_count() == before
+        startup.pause_gc(freeze=True)
+        kept = [[i] for i in range(1000)]  # made while paused
+        startup.resume_gc()
+        assert gc.isenabled() and gc.get_freeze_count() >= before + len(kept)
+        frozen = gc.get_freeze_count()
+        startup.pause_gc(freeze=True)
+        startup.resume_gc(freeze=False)  # declined (a command with a teardown)
+        assert gc.isenabled() and gc.get_freeze_count() == frozen
+        startup.pause_gc()  # the freeze was for that one resume: none here
+        startup.resume_gc()
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()
+        gc.enable()
+
+
 def _child(code: str, env: dict | None = None) -> str:
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
                          env={**os.environ, **(env or {})}, timeout=300)

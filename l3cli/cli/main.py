@@ -74,6 +74,8 @@ class _LazyGroup(click.Group):
         if name in _LEAN_START:  # while it imports and loads its kernels (invoke resumes)
             startup.pause_gc()
             startup.arm_exit_now()  # main() may skip the interpreter's teardown
+        else:  # main() paused it for the start-up; the other commands run with it (and
+            startup.resume_gc(freeze=False)  # with the teardown, whose finalisers need it)
         return name, cmd, rest
 
     def invoke(self, ctx: click.Context):  # noqa: D401 - click API
@@ -164,6 +166,7 @@ def main() -> None:  # pragma: no cover - console entry point
     """Console entry point of ``l3``: the group, then a quick exit for the lean
     commands (:func:`l3cli.startup.exit_now`). SIGINT, SIGTERM and SIGHUP end
     a run alike (:func:`l3cli.startup.handle_signals`): cleaned up, exit 128+n."""
+    startup.pause_gc(freeze=True)  # no collection while the command is found
     startup.handle_signals()
     try:
         try:
