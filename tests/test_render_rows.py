@@ -52,8 +52,10 @@ def _check_against_plain_loop(t, m, *, row_sums):
     np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
-@pytest.mark.parametrize("patch", [1, 3, 5, 7])
-@pytest.mark.parametrize("n_out", [1, 2, 3, 4])
+@pytest.mark.parametrize(("patch", "n_out"), [
+    *((p, n) for p in (1, 3, 5, 7) for n in (1, 2, 3, 4)),
+    pytest.param(9, 3, marks=pytest.mark.slow),  # the tuning's other patch: a kernel compile
+])
 def test_row_pair_render_is_bit_identical_to_the_one_row_loop(patch, n_out):
     t = make_table("RGGB", patch=patch, n_out=n_out, seed=patch + n_out)
     rng = np.random.default_rng(patch * 10 + n_out)
