@@ -234,6 +234,27 @@ def test_signal_at_work(work: Path, command: str, sig: str) -> None:
     _check_output(output)
 
 
+def test_signal_right_after_the_output_folder_is_made(work: Path) -> None:
+    """A signal between the output folder's mkdir and its record (the moment
+    test_signal_at_work can hit on a loaded machine): the folder still goes."""
+    args, output = _commands(work)["render"]
+    _prepare(work, output)
+    code = ("import os, pathlib, signal, sys\n"
+            "real = pathlib.Path.mkdir\n"
+            "def mkdir(self, *a, **k):\n"
+            "    real(self, *a, **k)\n"
+            f"    if self == pathlib.Path({str(output)!r}):\n"
+            "        os.kill(os.getpid(), signal.SIGINT)  # handled before the next line\n"
+            "pathlib.Path.mkdir = mkdir\n"
+            f"sys.argv = ['l3', *{args!r}]\n"
+            "from l3cli.cli.main import main\nmain()\n")
+    p = subprocess.run([sys.executable, "-c", code], cwd=work, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 128 + signal.SIGINT, p.stderr
+    assert "Traceback" not in p.stderr and "Aborted" in p.stderr, p.stderr
+    _check_output(output)
+
+
 def _cluster_up(pid: int) -> bool:
     """A local cluster's worker processes are running."""
     try:

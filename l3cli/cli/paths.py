@@ -49,17 +49,20 @@ class OutputPlan:
         first, so the folder goes too.
         """
         from l3cli.errors import OutputError
+        from l3cli.startup import signals_deferred
 
         created: list[Path] = []
         try:
             for folder in self.folders:
                 missing = [p for p in (folder, *folder.parents) if not p.exists()]
-                try:
-                    folder.mkdir(parents=True, exist_ok=True)
-                except OSError as exc:
-                    raise OutputError(f"{folder}: cannot create the {self.what} folder "
-                                      f"({exc.strerror or exc})") from exc
-                created.extend(missing)  # deepest first
+                # a signal between the mkdir and its record would leave the folder behind
+                with signals_deferred():
+                    try:
+                        folder.mkdir(parents=True, exist_ok=True)
+                    except OSError as exc:
+                        raise OutputError(f"{folder}: cannot create the {self.what} folder "
+                                          f"({exc.strerror or exc})") from exc
+                    created.extend(missing)  # deepest first
             yield self
         except BaseException as exc:
             if isinstance(exc, KeyboardInterrupt) and created:
