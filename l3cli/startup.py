@@ -199,11 +199,12 @@ def pause_gc(*, freeze: bool = False) -> None:
 
     Does nothing when collection is already off (the caller's choice, which
     :func:`resume_gc` then leaves alone). With ``freeze`` (the console entry
-    point, for the lean commands that end without a teardown) :func:`resume_gc` first moves
-    the objects made until then (the imported modules, numba's type system:
-    about a million) to the permanent generation (:func:`gc.freeze`), so later
-    full collections do not walk them again; cyclic garbage made while paused
-    is then never collected, which only a short-lived process can afford.
+    point, for the lean commands that end without a teardown) :func:`resume_gc`
+    first moves the objects made until then (the imported modules, numba's type
+    system: about 115 000 that the collector tracks) to the permanent generation
+    (:func:`gc.freeze`), so later full collections do not walk them again;
+    cyclic garbage made while paused is then never collected, which only a
+    short-lived process can afford.
     """
     global _gc_paused, _gc_freeze
     with _gc_lock:
