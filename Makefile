@@ -9,19 +9,18 @@ DEMO   ?= demo_out
 
 .PHONY: setup bytecode demo test test-fast fuzz bench bench-check lint clean
 
-setup: $(STAMP)
+setup: $(STAMP) bytecode
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
-	$(MAKE) --no-print-directory bytecode
 	touch $(STAMP)
 
 # The package's bytecode, as `pip install` (not -e) writes it: an editable install
 # leaves it to Python, which cannot keep it where PYTHONDONTWRITEBYTECODE is set, and
 # then compiles every module on every start (~0.15 s of each `l3 render`, measured).
-bytecode:
+bytecode: $(STAMP)
 	$(PY) -m compileall -q l3cli > /dev/null
 
 test: $(STAMP) bytecode
