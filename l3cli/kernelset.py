@@ -42,8 +42,8 @@ import numpy as np
 
 from l3cli import buffers
 from l3cli.classify import MODE_DISPLAY, MODE_RENDER, check_mosaic, run_tiles
+from l3cli.classify.layout import RENDER_LANES, pack_lanes
 from l3cli.errors import InputError, TableError
-from l3cli.render_rows import RENDER_LANES, pack_lanes
 from l3cli.table import TransformTable
 
 if TYPE_CHECKING:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import sys
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -44,7 +43,7 @@ from l3cli import buffers
 from l3cli.errors import L3Error
 from l3cli.progress import progress
 
-__all__ = ["IN_FLIGHT", "Prefetch", "RenderTurns", "preload_scipy_blas", "render_one",
+__all__ = ["IN_FLIGHT", "Prefetch", "RenderTurns", "render_one",
            "render_pipeline", "warm_up"]
 
 #: Files between decode and write at a time (one decoding, one rendering, one
@@ -96,50 +95,6 @@ class RenderTurns:
 log = logging.getLogger(__name__)
 
 
-def preload_scipy_blas() -> None:
-    """Load scipy's BLAS/LAPACK capsule modules without the rest of ``scipy.linalg``.
-
-    numba's CPU target, on its first use (also when loading cached kernels),
-    imports ``scipy.linalg.cython_blas`` to check that BLAS exists; importing
-    that submodule first runs ``scipy.linalg``'s ``__init__`` (and through it
-    ``numpy.f2py`` and scipy's array-API layer): about a third of a second of
-    a one-file ``l3 render`` that never calls BLAS. Loading the two extension
-    modules by file and registering them under their names gives numba the
-    same modules (a later ``import scipy.linalg`` reuses them). Any surprise
-    (another scipy layout) leaves the normal import to happen.
-    """
-    if "scipy.linalg" in sys.modules:
-        return
-    try:
-        import glob
-        import importlib.machinery
-        import importlib.util
-
-        import scipy
-
-        folder = os.path.join(scipy.__path__[0], "linalg")
-        for name in ("cython_blas", "cython_lapack"):
-            full = f"scipy.linalg.{name}"
-            if full in sys.modules:
-                continue
-            files = [f for suffix in importlib.machinery.EXTENSION_SUFFIXES
-                     for f in glob.glob(os.path.join(folder, name + suffix))]
-            if not files:
-                return
-            spec = importlib.util.spec_from_file_location(full, files[0])
-            if spec is None or spec.loader is None:
-                return
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[full] = module
-            try:
-                spec.loader.exec_module(module)
-            except BaseException:
-                del sys.modules[full]
-                raise
-    except Exception as exc:  # noqa: BLE001 - an optimisation only
-        log.debug("scipy BLAS preload skipped: %s", exc)
-
-
 class _Slot:
     """One prefetched decode: done when the raw (or its error) is there."""
 
@@ -154,14 +109,12 @@ class _Slot:
 class Prefetch:
     """The first raws' decodes, started in a thread before a render's heavy imports.
 
-    ``l3 render`` starts it before importing the render code (numba: most of
-    a second of Python work that holds the GIL), so the first files decode
-    (LibRaw releases the GIL) on the core that start-up leaves idle. It
-    lets LibRaw decode lossy DNGs (``read_raw(..., libraw_only=True)``): l3's
-    own decoder of those runs on numba, which is still importing (uncompressed
-    and lossless-JPEG DNGs are read by :mod:`l3cli.io.dng_direct` here too:
-    numpy and imagecodecs, no numba). The
-    files are decoded one after another, at most ``count`` of them (the
+    ``l3 render`` starts it before importing the render code, so the first
+    files decode (LibRaw releases the GIL) on the core that start-up leaves
+    idle. Lossy DNGs take l3's own decoder only where its machine code is
+    stored (:func:`l3cli.io.raw.read_raw`: this thread never imports numba);
+    uncompressed and lossless-JPEG DNGs are read by
+    :mod:`l3cli.io.dng_direct` (numpy and imagecodecs). The files are decoded one after another, at most ``count`` of them (the
     pipeline's :data:`IN_FLIGHT`, so memory stays bounded). :meth:`take`
     hands a result (or raises its error) to the pipeline job of that file.
     Use it as a context manager: leaving stops the decodes not yet started
@@ -193,8 +146,8 @@ class Prefetch:
                 # a job that came for its file before the decode began decodes it itself
                 slot.started = not (self._stop.is_set() or slot.taken)
             try:
-                if slot.started:  # no numba (still importing) in this thread
-                    slot.raw = read_raw(p, libraw_only=True)
+                if slot.started:
+                    slot.raw = read_raw(p)
             except BaseException as exc:  # noqa: BLE001 - handed to the job that takes it
                 slot.error = exc
             finally:
@@ -233,17 +186,18 @@ class Prefetch:
 
 
 def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
-    """Load the render kernel from numba's cache on a tiny input.
+    """Load the render kernel (and the encoder's tables) on a tiny input.
 
-    Run beside the first file's decode, this moves numba's first-call cost
-    (target set-up, cache loading: a few tenths of a second) off the
-    critical path of a one-file render. The tile kernel is one compiled
+    Run beside the first file's decode, this moves the first call's cost off
+    the critical path of a one-file render: loading the kernel's stored
+    machine code (:mod:`l3cli.kernel_store`, ~0.05 s with llvmlite's import),
+    or, the first time on a machine, numba's import and compile. The tile
+    kernel is one compiled
     function for float (EXR) and display (TIFF/PNG/JPEG) outputs, with or
     without a kernel set's post matrix.
     """
     from l3cli.kernelset import render_display, render_mosaic
 
-    preload_scipy_blas()
     s = max(table.patch, *table.cfa.period) * 2
     tiny = np.zeros((s, s), dtype=np.float32)
     with _RENDER_LOCK:
@@ -393,7 +347,6 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
     results: list[Path | None] = [None] * len(jobs)
     first: BaseException | None = None  # the first failure in input order (later ones: counted,
     failed = 0                          # not kept: a traceback holds its file's arrays)
-    preload_scipy_blas()  # before any thread can reach numba's first call
     with (buffers.recycling(2 * (int(in_flight) + 1)),  # mosaics and outputs
           ThreadPoolExecutor(max_workers=max(1, int(in_flight)),
                              thread_name_prefix="l3-render") as pool):

@@ -34,40 +34,12 @@ from numba import types
 from numba.core import cgutils, errors
 from numba.extending import intrinsic
 
+from l3cli.classify.layout import RENDER_LANES, pack_lanes, row_groups  # re-exported
 from l3cli.io.encode_rows import encode_row, encode_rows  # re-exported: the tile kernel's
 from l3cli.startup import lean_cache
 
-__all__ = ["RENDER_LANES", "affine4", "encode_row", "encode_rows", "pack_lanes", "render_row4",
-           "render_row_any", "row_groups", "row_pairs"]
-
-#: Output lanes of the vectorised render path (tables with up to 4 outputs).
-RENDER_LANES = 4
-
-
-def row_groups(S: int) -> list[tuple[int, int]]:
-    """The patch rows of :func:`affine4` as ``(first row, rows)``: pairs, then a last
-    single row when ``S`` is odd (5: ``[(0, 2), (2, 2), (4, 1)]``)."""
-    return [(r, min(2, S - r)) for r in range(0, S, 2)]
-
-
-def pack_lanes(k: np.ndarray) -> np.ndarray:
-    """Kernels (n_classes, S*S + 1, 4) in :func:`affine4`'s layout, (n_classes, 4 (S*S + 1)).
-
-    Per row group (:func:`row_groups`), per tap of the row, per lane ``l``
-    and row ``j`` of the group: ``4 * m * dx + m * l + j`` (``m`` rows in the
-    group); then the constant's 4 lanes.
-    """
-    nc, q, lanes = k.shape
-    S = int(round((q - 1) ** 0.5))
-    if S * S + 1 != q or lanes != RENDER_LANES:
-        raise ValueError(f"kernels of shape {k.shape} are not (n, S*S + 1, 4)")
-    parts = []
-    for r0, m in row_groups(S):
-        g = k[:, r0 * S:(r0 + m) * S].reshape(nc, m, S, lanes)  # (class, row, dx, lane)
-        parts.append(g.transpose(0, 2, 3, 1).reshape(nc, S * lanes * m))
-    parts.append(k[:, S * S])
-    return np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=np.float32)
-
+__all__ = ["RENDER_LANES", "affine4", "curve_encode_row", "curve_row", "encode_row", "encode_rows",
+           "pack_lanes", "render_row4", "render_row_any", "row_groups", "row_pairs"]
 
 @nb.njit(cache=True)
 def row_pairs(pb, pb2, nrows):
@@ -234,3 +206,81 @@ def render_row_any(pb, i, tw, S, cls_row, K, outf, o, n_out):
         for q in range(n_out):
             outf[o + q] = acc[q]
         o += n_out
+
+
+@lean_cache
+@nb.njit(cache=True, fastmath=True)
+def curve_row(outf, o, tw, n_out, base, slope, lo, step_inv):  # pragma: no cover - compiled
+    """Map ``tw`` pixels of ``n_out`` values at ``outf[o:]`` through the look-up table.
+
+    Called by the render tile kernel on each output row while it is in cache
+    (:func:`l3cli.classify.kernel.run_tiles`, ``curve``); ``base``/``slope``
+    are :func:`curve_arrays`'s. Branch-free: values outside the table's range
+    take its end entries.
+    """
+    top = np.float32(base.shape[1] - 1) - np.float32(1e-3)
+    for c in range(n_out):
+        l0 = lo[c]
+        si = step_inv[c]
+        for x in range(tw):
+            k = o + x * n_out + c
+            t = (outf[k] - l0) * si
+            t = min(max(t, np.float32(0.0)), top)
+            i = np.int32(t)
+            outf[k] = base[c, i] + (t - np.float32(i)) * slope[c, i]
+
+
+@lean_cache
+@nb.njit(cache=True, nogil=True)
+def curve_encode_row(src, tw, n_out, first, thr, lo, scale, walk, out8, out16, bits, o):
+    """Codes of the ``tw`` pixels of ``n_out`` values at ``src[0:]`` into ``out8``/``out16``
+    from ``o``: per value its cell's first code, then ``walk`` comparisons with the next
+    thresholds (:func:`l3cli.tonecode.code_table`; the codes of the curve followed by the encoder).
+
+    Three outputs and one comparison (an 8-bit encoding) take a loop over pixels with
+    the channels written out (1.6-2x faster than a loop per channel, measured), with
+    unsigned indices (no wrap-around code) clamped after the conversion too (a NaN
+    converts to an arbitrary integer).
+    """
+    cells = first.shape[1]
+    top = np.float32(cells - 1)
+    last = np.uint32(cells - 1)
+    if n_out == 3 and walk == 1 and bits == 8:
+        f = first.ravel()
+        th = thr.ravel()
+        nt = np.uint32(thr.shape[1])
+        l0, l1, l2 = lo[0], lo[1], lo[2]
+        s0, s1, s2 = scale[0], scale[1], scale[2]
+        one = np.uint32(1)
+        for x in range(tw):
+            k = 3 * x
+            a = src[k]
+            b = src[k + 1]
+            d = src[k + 2]
+            ia = min(np.uint32(np.int32(min(max((a - l0) * s0, np.float32(0.0)), top))), last)
+            ib = min(np.uint32(np.int32(min(max((b - l1) * s1, np.float32(0.0)), top))), last)
+            id_ = min(np.uint32(np.int32(min(max((d - l2) * s2, np.float32(0.0)), top))), last)
+            qa = np.uint32(f[ia])
+            qb = np.uint32(f[ib + np.uint32(cells)])
+            qd = np.uint32(f[id_ + np.uint32(2 * cells)])
+            qa += np.uint32(a >= th[qa + one])
+            qb += np.uint32(b >= th[qb + nt + one])
+            qd += np.uint32(d >= th[qd + nt + nt + one])
+            out8[o + k] = qa
+            out8[o + k + 1] = qb
+            out8[o + k + 2] = qd
+        return
+    for c in range(n_out):
+        l0 = lo[c]
+        s = scale[c]
+        for x in range(tw):
+            k = x * n_out + c
+            v = src[k]
+            t = min(max((v - l0) * s, np.float32(0.0)), top)
+            q = np.int32(first[c, min(np.uint32(np.int32(t)), last)])
+            for _ in range(walk):
+                q += np.int32(v >= thr[c, q + 1])
+            if bits == 8:
+                out8[o + k] = q
+            else:
+                out16[o + k] = q

@@ -1,7 +1,7 @@
 """Process start-up and exit: what a short ``l3 render`` spends around its pixels.
 
 A one-file render is mostly start-up (``docs/performance.md``). Four costs
-here are not l3's own work, and each has one switch in this module:
+here are not l3's own work, and each has one switch here:
 
 * **OpenBLAS threads.** numpy and scipy each load an OpenBLAS that starts a
   thread per core; the threads spin for a while after start-up, stealing a
@@ -20,14 +20,15 @@ here are not l3's own work, and each has one switch in this module:
   OpenImageIO): ~0.1 s of a one-file render, with nothing left to
   do. :func:`exit_now` ends a finished ``l3 render`` / ``l3 info``
   after running the exit handlers and flushing the standard streams.
-* **numba's cache loading.** Loading a kernel from numba's on-disk cache
-  first "refreshes" numba's CPU target: it imports numba's implementation
-  registries (the typing and lowering of all of Python and numpy) and
-  installs them, ~0.17 s, which only *compiling* needs. :func:`lean_cache`
-  makes l3's kernels load with only what running them needs (numba's
-  runtime library); a cache miss compiles as before, and numba's compiler
-  refreshes the target itself. Other numba functions in the process are
-  left alone.
+* **numba itself.** Importing numba (~0.35 s: its typing and lowering of
+  all of Python and numpy) and loading a kernel from its cache (~0.2 s) is
+  what compiling needs, not running machine code. The render kernel and the
+  lossy DNG decoder come from :mod:`l3cli.kernel_store` instead (their
+  stored object code, loaded in milliseconds without numba);
+  :func:`lean_cache` makes l3's other cached numba functions load with only
+  what running them needs (numba's runtime library), and
+  :func:`preload_scipy_blas` spares numba's first use ``scipy.linalg``'s
+  import.
 
 Signals have one policy here too (:func:`handle_signals`): SIGINT, SIGTERM
 and SIGHUP each raise :class:`Interrupted` (a ``KeyboardInterrupt``) in the
@@ -52,7 +53,8 @@ import time
 from typing import Any, NoReturn
 
 __all__ = ["Interrupted", "arm_exit_now", "exit_now", "handle_signals", "interrupt_status",
-           "lean_cache", "pause_gc", "resume_gc", "signals_deferred", "single_threaded_blas"]
+           "lean_cache", "pause_gc", "preload_scipy_blas", "resume_gc", "signals_deferred",
+           "single_threaded_blas"]
 
 log = logging.getLogger(__name__)
 
@@ -302,3 +304,55 @@ def lean_cache(dispatcher: Any) -> Any:
     except Exception as exc:  # noqa: BLE001 - an optimisation only
         log.debug("lean cache loads not set up for %s: %s", dispatcher, exc)
     return dispatcher
+
+
+def preload_scipy_blas() -> None:
+    """Load scipy's BLAS/LAPACK capsule modules without the rest of ``scipy.linalg``.
+
+    numba's CPU target, on its first use (also when loading cached kernels),
+    imports ``scipy.linalg.cython_blas`` to check that BLAS exists; importing
+    that submodule first runs ``scipy.linalg``'s ``__init__`` (and through it
+    ``numpy.f2py`` and scipy's array-API layer): about a third of a second of
+    a one-file ``l3 render`` that never calls BLAS. Loading the two extension
+    modules by file and registering them under their names gives numba the
+    same modules (a later ``import scipy.linalg`` reuses them). Any surprise
+    (another scipy layout) leaves the normal import to happen.
+    """
+    if "scipy.linalg" in sys.modules:
+        return
+    with _preload_lock:  # two threads' first numba calls: one preload
+        _preload_scipy_blas()
+
+
+_preload_lock = threading.Lock()
+
+
+def _preload_scipy_blas() -> None:
+    try:
+        import glob
+        import importlib.machinery
+        import importlib.util
+
+        import scipy
+
+        folder = os.path.join(scipy.__path__[0], "linalg")
+        for name in ("cython_blas", "cython_lapack"):
+            full = f"scipy.linalg.{name}"
+            if full in sys.modules:
+                continue
+            files = [f for suffix in importlib.machinery.EXTENSION_SUFFIXES
+                     for f in glob.glob(os.path.join(folder, name + suffix))]
+            if not files:
+                return
+            spec = importlib.util.spec_from_file_location(full, files[0])
+            if spec is None or spec.loader is None:
+                return
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[full] = module
+            try:
+                spec.loader.exec_module(module)
+            except BaseException:
+                del sys.modules[full]
+                raise
+    except Exception as exc:  # noqa: BLE001 - an optimisation only
+        log.debug("scipy BLAS preload skipped: %s", exc)

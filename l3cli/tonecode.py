@@ -1,7 +1,7 @@
 """The learned tone curve and the display encoding as one lookup per value.
 
 A table with a learned tone curve renders the curve's linear space; each
-output value ``v`` is mapped through the curve (:func:`l3cli.tonecurve.curve_row`,
+output value ``v`` is mapped through the curve (:func:`l3cli.render_rows.curve_row`,
 an interpolation in a 1024-entry table) and then display-encoded
 (:func:`l3cli.io.encode_rows.encode_row`: clip, a bucket lookup, one
 comparison). When nothing mixes the channels between the two (no 3x3 after
@@ -16,7 +16,7 @@ curve-then-encode).
 :func:`code_table` builds, per channel, a uniform grid over the curve's
 input range (the fewest cells of :data:`CELL_CHOICES` that give one
 comparison per value for 8 bits): the code of each cell's first value and
-the thresholds; :func:`curve_encode_row` looks a value's cell up (a
+the thresholds; :func:`l3cli.render_rows.curve_encode_row` looks a value's cell up (a
 subtraction, a multiplication, a clamp) and finishes with as many
 comparisons with the next thresholds as a cell spans codes at most
 (``walk``, 1-2 for 8 bits). Two table reads per value instead of the curve's
@@ -28,13 +28,9 @@ from __future__ import annotations
 import hashlib
 from typing import NamedTuple
 
-import numba as nb
 import numpy as np
 
-from l3cli.startup import lean_cache
-
-__all__ = ["CELL_CHOICES", "MAX_WALK", "CodeTable", "code_table", "code_table_for", "curve_codes",
-           "curve_encode_row"]
+__all__ = ["CELL_CHOICES", "MAX_WALK", "CodeTable", "code_table", "code_table_for", "curve_codes"]
 
 #: Cells of the uniform grid per channel, the fewest that give one comparison per value
 #: (:func:`code_table`): the table shares the L1 cache with the kernels' rows (1536 cells
@@ -45,7 +41,7 @@ MAX_WALK = 4
 
 
 class CodeTable(NamedTuple):
-    """What :func:`curve_encode_row` reads (the order of its arguments)."""
+    """What :func:`l3cli.render_rows.curve_encode_row` reads (the order of its arguments)."""
 
     #: uint8 (8 bits) or uint16 (n_out, cells): the code of each cell's first value.
     first: np.ndarray
@@ -76,11 +72,11 @@ def curve_codes(v: np.ndarray, c: int, curve: tuple[np.ndarray, ...], thr: np.nd
                 ) -> np.ndarray:
     """Codes of float32 values ``v`` of channel ``c``: the curve, then the encoder's thresholds.
 
-    The reference for the tests: the same :func:`l3cli.tonecurve.curve_row`
+    The reference for the tests: the same :func:`l3cli.render_rows.curve_row`
     the tile kernel runs, then the code :func:`l3cli.io.encode_rows.encode_row`
     gives a value (clip to [0, 1], the number of thresholds at or below it).
     """
-    from l3cli.tonecurve import curve_row
+    from l3cli.render_rows import curve_row
 
     base, slope, lo, step = curve
     x = np.array(v, dtype=np.float32).reshape(-1)
@@ -199,64 +195,7 @@ def code_table_for(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int
 
 
 def _cell(v: np.ndarray, lo: np.float32, scale: np.float32, cells: int) -> np.ndarray:
-    """:func:`curve_encode_row`'s cell of float32 values (the same float32 arithmetic)."""
+    """:func:`l3cli.render_rows.curve_encode_row`'s cell of float32 values (the same float32 arithmetic)."""
     t = (np.asarray(v, np.float32) - np.float32(lo)) * np.float32(scale)
     t = np.minimum(np.maximum(t, np.float32(0)), np.float32(cells - 1))
     return t.astype(np.int64)
-
-
-@lean_cache
-@nb.njit(cache=True, nogil=True)
-def curve_encode_row(src, tw, n_out, first, thr, lo, scale, walk, out8, out16, bits, o):
-    """Codes of the ``tw`` pixels of ``n_out`` values at ``src[0:]`` into ``out8``/``out16``
-    from ``o``: per value its cell's first code, then ``walk`` comparisons with the next
-    thresholds (:func:`code_table`; the codes of the curve followed by the encoder).
-
-    Three outputs and one comparison (an 8-bit encoding) take a loop over pixels with
-    the channels written out (1.6-2x faster than a loop per channel, measured), with
-    unsigned indices (no wrap-around code) clamped after the conversion too (a NaN
-    converts to an arbitrary integer).
-    """
-    cells = first.shape[1]
-    top = np.float32(cells - 1)
-    last = np.uint32(cells - 1)
-    if n_out == 3 and walk == 1 and bits == 8:
-        f = first.ravel()
-        th = thr.ravel()
-        nt = np.uint32(thr.shape[1])
-        l0, l1, l2 = lo[0], lo[1], lo[2]
-        s0, s1, s2 = scale[0], scale[1], scale[2]
-        one = np.uint32(1)
-        for x in range(tw):
-            k = 3 * x
-            a = src[k]
-            b = src[k + 1]
-            d = src[k + 2]
-            ia = min(np.uint32(np.int32(min(max((a - l0) * s0, np.float32(0.0)), top))), last)
-            ib = min(np.uint32(np.int32(min(max((b - l1) * s1, np.float32(0.0)), top))), last)
-            id_ = min(np.uint32(np.int32(min(max((d - l2) * s2, np.float32(0.0)), top))), last)
-            qa = np.uint32(f[ia])
-            qb = np.uint32(f[ib + np.uint32(cells)])
-            qd = np.uint32(f[id_ + np.uint32(2 * cells)])
-            qa += np.uint32(a >= th[qa + one])
-            qb += np.uint32(b >= th[qb + nt + one])
-            qd += np.uint32(d >= th[qd + nt + nt + one])
-            out8[o + k] = qa
-            out8[o + k + 1] = qb
-            out8[o + k + 2] = qd
-        return
-    for c in range(n_out):
-        l0 = lo[c]
-        s = scale[c]
-        for x in range(tw):
-            k = x * n_out + c
-            v = src[k]
-            t = min(max((v - l0) * s, np.float32(0.0)), top)
-            q = np.int32(first[c, min(np.uint32(np.int32(t)), last)])
-            for _ in range(walk):
-                q += np.int32(v >= thr[c, q + 1])
-            if bits == 8:
-                out8[o + k] = q
-            else:
-                out16[o + k] = q
-

@@ -28,14 +28,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numba
 import numpy as np
-
-from l3cli.startup import lean_cache
 
 __all__ = ["KNOTS", "LUT_SIZE", "ToneCurve", "block_samples", "fit_tone_curve", "select_curve",
            "apply_curve",
-           "curve_arrays", "curve_row"]
+           "curve_arrays"]
 
 #: Intervals of the piecewise-linear curve over the encoded value [0, 1] (leave-one-image-out
 #: on the bundled frames: 8 -> 0.62, 16 -> 0.453, 24 -> 0.451, 32 -> 0.448).
@@ -271,31 +268,9 @@ def _increasing(f: np.ndarray) -> np.ndarray:
     return g / g[-1]
 
 
-@lean_cache
-@numba.njit(cache=True, fastmath=True)
-def curve_row(outf, o, tw, n_out, base, slope, lo, step_inv):  # pragma: no cover - compiled
-    """Map ``tw`` pixels of ``n_out`` values at ``outf[o:]`` through the look-up table.
-
-    Called by the render tile kernel on each output row while it is in cache
-    (:func:`l3cli.classify.kernel.run_tiles`, ``curve``); ``base``/``slope``
-    are :func:`curve_arrays`'s. Branch-free: values outside the table's range
-    take its end entries.
-    """
-    top = np.float32(base.shape[1] - 1) - np.float32(1e-3)
-    for c in range(n_out):
-        l0 = lo[c]
-        si = step_inv[c]
-        for x in range(tw):
-            k = o + x * n_out + c
-            t = (outf[k] - l0) * si
-            t = min(max(t, np.float32(0.0)), top)
-            i = np.int32(t)
-            outf[k] = base[c, i] + (t - np.float32(i)) * slope[c, i]
-
-
 def curve_arrays(lut: np.ndarray, lo_hi: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The look-up table as :func:`curve_row` reads it.
+    """The look-up table as :func:`l3cli.render_rows.curve_row` reads it.
 
     Returns
     -------
@@ -334,6 +309,8 @@ def apply_curve(img: np.ndarray, lut: np.ndarray, lo_hi: np.ndarray) -> np.ndarr
     """
     if img.dtype != np.float32 or not img.flags.c_contiguous:
         raise ValueError("apply_curve needs a C-contiguous float32 image")
+    from l3cli.render_rows import curve_row
+
     h, w, n = img.shape
     curve_row(img.reshape(-1), 0, h * w, n, *curve_arrays(lut, lo_hi))
     return img

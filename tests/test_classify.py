@@ -236,9 +236,10 @@ def test_kernel_tables_follow_the_kernel_arguments():
     import inspect
 
     from l3cli.classify.features import ContextGuide
-    from l3cli.classify.kernel import KernelTables, _tile_kernel, kernel_tables
+    from l3cli.classify.kernel import KernelTables, kernel_tables
+    from l3cli.classify.tile_kernel import tile_kernel
 
-    names = list(inspect.signature(_tile_kernel(5, 2).py_func).parameters)
+    names = list(inspect.signature(tile_kernel(5, 2).py_func).parameters)
     assert names[names.index("tc") + 1 : names.index("ctx")] == list(KernelTables._fields)
     # then the image's context guide (ctx = its grid)
     assert len(names[names.index("ctx") : names.index("mode")]) == len(ContextGuide._fields)

@@ -13,7 +13,7 @@ import pytest
 import rawpy
 
 from l3cli.errors import InputError
-from l3cli.io import dng_lossy
+from l3cli.io import dng_lossy, dng_lossy_tables, dng_lossy_tile
 from l3cli.io.raw import read_raw, write_raw
 
 
@@ -85,8 +85,8 @@ def test_stream_ending_early_falls_back_to_libraw(bmd, tmp_path):
 
 
 def test_no_numba_import_for_a_quick_look(bmd):
-    """A process without numba (l3 info) reads the DNG with LibRaw: importing numba and
-    loading the decoder would cost more than it saves on a file or two."""
+    """A process without numba (l3 info) reads the DNG without importing numba (LibRaw,
+    or the decoder's stored machine code): the import would cost more than it saves."""
     path, _ = bmd
     code = ("import sys; from l3cli.io.raw import read_raw; r = read_raw(sys.argv[1]); "
             "print(r.shape, 'numba' in sys.modules)")
@@ -110,7 +110,7 @@ def test_huffman_table_standard_dc_codes():
     011, 100, 101, 110; category 6 is 1110 and 11 is 111111110 (9 bits)."""
     counts = bytes([0, 1, 5, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0])
     values = bytes(range(12))
-    table = dng_lossy._huffman_table(counts, values)
+    table = dng_lossy_tables.huffman_table(counts, values)
     assert table[0] == 9
     lut = table[1:]
 
@@ -131,19 +131,19 @@ def test_huffman_table_standard_dc_codes():
                           (0b0, 1, -1), (0b1, 1, 1), (0, 0, 0), (0x7FF, 12, -2048)])
 def test_sign_extension(bits, length, value):
     """T.81 F.2.2.1: a magnitude category's low half codes the negative values."""
-    assert dng_lossy._extend(bits, length) == value
+    assert dng_lossy_tile._extend(bits, length) == value
 
 
 @numba.njit
 def _run_idct(w0, basis, out):
-    dng_lossy._idct(w0, basis, out)
+    dng_lossy_tile.idct(w0, basis, out)
 
 
 def test_idct_is_dcraws_float32_loops():
     """The vectorised IDCT against dcraw's loops written out in float32 numpy scalars:
     the same sums in the same order, no fused multiply-add, so equal bit for bit."""
     rng = np.random.default_rng(3)
-    basis = dng_lossy._BASIS
+    basis = dng_lossy_tables.BASIS
     for trial in range(20):
         w0 = np.zeros(64, np.float32)
         nz = rng.choice(64, size=rng.integers(1, 64), replace=False)
@@ -170,7 +170,7 @@ def test_basis_is_dcraws_cosines():
     for u in range(8):
         for x in range(8):
             k = (2 * x + 1) * u
-            assert dng_lossy._BASIS[u, x] == np.float32(np.cos((k % 32) * np.pi / 16) / 2)
+            assert dng_lossy_tables.BASIS[u, x] == np.float32(np.cos((k % 32) * np.pi / 16) / 2)
 
 
 @pytest.mark.parametrize("seed", range(12))

@@ -22,10 +22,10 @@ PACKAGE = ROOT / "l3cli"
 #: before it. Entries are module names under ``l3cli`` (a package name takes
 #: its whole subtree; the longest matching entry wins).
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    # no l3 concepts: errors, option defaults, process start-up, progress,
-    # buffer pools, the CFA, colour spaces, spectra, map-reduce
-    ("base", ("l3cli", "errors", "defaults", "startup", "progress", "buffers", "cfa",
-              "colourspace", "spectral", "parallel", "figures", "tablekeys", "shading")),
+    # no l3 concepts: errors, option defaults, process start-up, stored machine
+    # code, progress, buffer pools, the CFA, colour spaces, spectra, map-reduce
+    ("base", ("l3cli", "errors", "defaults", "startup", "kernel_store", "progress", "buffers",
+              "cfa", "colourspace", "spectral", "parallel", "figures", "tablekeys", "shading")),
     # files: raws, images, metadata, display encoding, manifests, atomic writes
     ("io", ("io",)),
     # the L3 model: classes, the tile kernel, render rows, the table, tone

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import gc
-import json
 import os
 import subprocess
 import sys
@@ -182,30 +181,6 @@ def test_render_and_info_run_one_openblas_thread_unless_the_user_says_otherwise(
     assert out.returncode == 0, out.stderr
     assert int(out.stdout.split()[-1]) == 1
     assert int(_child(code, {"OPENBLAS_NUM_THREADS": "2"})) == 2
-
-
-def test_cached_kernels_load_lean_and_render_the_same(tmp_path, table_path):  # noqa: F811
-    """A fresh process loads the render kernel from numba's cache without importing
-    numba's implementation registries, and renders what this process renders."""
-    from l3cli.io.raw import read_raw
-    from l3cli.render import render_mosaic, table_for_task
-
-    raw = _raws(tmp_path, 1, seed=7)[0]
-    code = (
-        "import sys, json, numpy as np\n"
-        "from l3cli.render import render_mosaic, table_for_task\n"
-        "from l3cli.io.raw import read_raw\n"
-        f"t = table_for_task({str(table_path)!r}); m = read_raw({str(raw)!r}).mosaic\n"
-        "img = render_mosaic(t, m)\n"
-        "from l3cli.classify.kernel import _tile_kernel\n"
-        "load = _tile_kernel(t.patch, t.cfa.period[1])._cache.load_overload\n"
-        "print(json.dumps({'lean': load.__qualname__.startswith('lean_cache'),"
-        " 'registries': 'numba.np.linalg' in sys.modules, 'img': img.ravel().tolist()}))\n")
-    _child(code)  # fills numba's cache for this signature if a test has not yet
-    got = json.loads(_child(code))
-    assert got["lean"] and not got["registries"]
-    want = render_mosaic(table_for_task(table_path), read_raw(raw).mosaic)
-    np.testing.assert_array_equal(np.asarray(got["img"], dtype=np.float32), want.ravel())
 
 
 def test_lean_cache_leaves_other_numba_functions_alone():

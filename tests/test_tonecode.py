@@ -10,8 +10,9 @@ import pytest
 from l3cli.classify import ClassDefinition
 from l3cli.io.encode import display_encode, display_params, quantise_reference
 from l3cli.kernelset import KernelSet, render_display, render_mosaic
+from l3cli.render_rows import curve_encode_row
 from l3cli.table import TransformTable
-from l3cli.tonecode import code_table, curve_codes, curve_encode_row
+from l3cli.tonecode import code_table, curve_codes
 from l3cli.tonecurve import ToneCurve
 
 

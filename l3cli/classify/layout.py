@@ -1,9 +1,11 @@
 """The tile kernel's argument layout: what it needs of a class definition.
 
 :func:`kernel_tables` builds, once per :class:`~l3cli.classify.ClassDefinition`,
-the arrays and scalars the numba kernel (:mod:`l3cli.classify.kernel`) takes
+the arrays and scalars the numba kernel (:mod:`l3cli.classify.tile_kernel`) takes
 in the order of :class:`KernelTables`' fields, which is the kernel's argument
-order (a test checks it against the kernel's signature).
+order (a test checks it against the kernel's signature). :func:`pack_lanes`
+lays a table's transforms out for the render loops
+(:func:`l3cli.render_rows.affine4`).
 """
 
 from __future__ import annotations
@@ -16,7 +18,20 @@ from l3cli.classify.definition import ClassDefinition
 from l3cli.classify.features import CONTEXT_EPS, CONTEXT_RULES, orientation_centres
 from l3cli.classify.levels import level_lookup
 
-__all__ = ["KernelTables", "kernel_tables"]
+__all__ = ["MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER", "RENDER_LANES",
+           "TILE_COLS", "TILE_ROWS", "KernelTables", "kernel_tables", "pack_lanes", "row_groups"]
+
+
+#: Output rows and columns of one tile. A tile's padded band, its
+#: ring of horizontal sums and its output rows stay in the core's L2 cache.
+#: 64 rows rather than 32: the S - 1 rows of horizontal sums a tile shares with
+#: the tile above are computed twice, and halving that cost 4-5 % less CPU
+#: per render (9 MP, patch 5 and 7; 128 rows gave no more).
+TILE_ROWS = 64
+TILE_COLS = 512
+
+#: What the tile kernel does with each pixel's class (see :func:`l3cli.classify.kernel.run_tiles`).
+MODE_CLASSES, MODE_FEATURES, MODE_RENDER, MODE_DISPLAY = 0, 1, 2, 3
 
 
 class KernelTables(NamedTuple):
@@ -100,3 +115,33 @@ def kernel_tables(definition: ClassDefinition) -> KernelTables:
             hl_cnt=np.float32(np.ceil(definition.highlight_fraction * s * s - 1e-9)),
         )
     return tables["kernel"]
+
+
+# ------------------------------------------ the render loops' kernel layout
+#: Output lanes of the vectorised render path (tables with up to 4 outputs).
+RENDER_LANES = 4
+
+
+def row_groups(S: int) -> list[tuple[int, int]]:
+    """The patch rows of :func:`l3cli.render_rows.affine4` as ``(first row, rows)``: pairs, then a last
+    single row when ``S`` is odd (5: ``[(0, 2), (2, 2), (4, 1)]``)."""
+    return [(r, min(2, S - r)) for r in range(0, S, 2)]
+
+
+def pack_lanes(k: np.ndarray) -> np.ndarray:
+    """Kernels (n_classes, S*S + 1, 4) in :func:`l3cli.render_rows.affine4`'s layout, (n_classes, 4 (S*S + 1)).
+
+    Per row group (:func:`row_groups`), per tap of the row, per lane ``l``
+    and row ``j`` of the group: ``4 * m * dx + m * l + j`` (``m`` rows in the
+    group); then the constant's 4 lanes.
+    """
+    nc, q, lanes = k.shape
+    S = int(round((q - 1) ** 0.5))
+    if S * S + 1 != q or lanes != RENDER_LANES:
+        raise ValueError(f"kernels of shape {k.shape} are not (n, S*S + 1, 4)")
+    parts = []
+    for r0, m in row_groups(S):
+        g = k[:, r0 * S:(r0 + m) * S].reshape(nc, m, S, lanes)  # (class, row, dx, lane)
+        parts.append(g.transpose(0, 2, 3, 1).reshape(nc, S * lanes * m))
+    parts.append(k[:, S * S])
+    return np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=np.float32)

@@ -15,7 +15,7 @@ in a third of the time (0.042 s of CPU per 9-MP frame, measured):
   buffer refilled a byte at a time (the same byte unstuffing, the same
   hand-over to LibRaw where a code would need bits past the end), the sign
   extension without a branch;
-* the IDCT (:func:`_idct`) performs exactly dcraw's float32 operations, in
+* the IDCT (:func:`l3cli.io.dng_lossy_tile.idct`) performs exactly dcraw's float32 operations, in
   its order and with no fused multiply-add, 8 lanes at a time: each lane
   is one of dcraw's sums;
 * the final rounding (``(int)(v + 0.5)`` in double, clipped to 0..65535)
@@ -46,22 +46,18 @@ from __future__ import annotations
 
 import io
 import logging
-import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numba as nb
 import numpy as np
-from llvmlite import ir
-from numba import types
-from numba.extending import intrinsic
 
 from l3cli import buffers
 from l3cli.io import fd2
 from l3cli.io.dng_direct import quiet_probe
-from l3cli.startup import lean_cache
+from l3cli.io.dng_lossy_tables import BASIS, SQRT1_2, ZIGZAG, fast_ac, huffman_table
+from l3cli.kernel_store import Stored
 
 __all__ = ["LossyTiles", "decode", "libraw_metadata", "probe", "read"]
 
@@ -75,22 +71,6 @@ _OPCODE_LISTS = (51008, 51009, 51022)
 _MASKED_AREAS = 50830  # LibRaw measures black there, in the pixels it is not given here
 _DNG_VERSION = 50706
 _MAX_PIXELS = 1 << 29  # larger raws (or tags claiming so) are left to LibRaw's own limits
-
-#: JPEG zig-zag order: position in the 8x8 block (row-major) of the i-th coefficient.
-_ZIGZAG = np.array([
-    0, 1, 8, 16, 9, 2, 3, 10, 17, 24, 32, 25, 18, 11, 4, 5,
-    12, 19, 26, 33, 40, 48, 41, 34, 27, 20, 13, 6, 7, 14, 21, 28,
-    35, 42, 49, 56, 57, 50, 43, 36, 29, 22, 15, 23, 30, 37, 44, 51,
-    58, 59, 52, 45, 38, 31, 39, 46, 53, 60, 61, 54, 47, 55, 62, 63], dtype=np.int64)
-
-#: dcraw's IDCT basis, ``(float) (cos((k & 31) pi / 16) / 2)`` with ``k = (2x + 1) u``,
-#: as ``_BASIS[u, x]``.
-_BASIS = np.array([[math.cos((((2 * x + 1) * u) & 31) * math.pi / 16) / 2 for x in range(8)]
-                   for u in range(8)], dtype=np.float32)
-_SQRT1_2 = np.float32(math.sqrt(0.5))
-_F32 = ir.FloatType()
-_I32 = ir.IntType(32)
-
 
 @dataclass(frozen=True)
 class LossyTiles:
@@ -149,52 +129,6 @@ def _probe(source: str | os.PathLike | bytes) -> LossyTiles | None:
         return None
 
 
-def _huffman_table(counts: bytes, values: bytes) -> np.ndarray:
-    """dcraw's lookup table for one DHT table: ``[max_len, (len << 8 | value) x 2**max_len]``."""
-    longest = 16
-    while longest and not counts[longest - 1]:
-        longest -= 1
-    table = np.zeros(1 + (1 << longest), dtype=np.uint16)
-    table[0] = longest
-    h, k = 1, 0
-    for length in range(1, longest + 1):
-        for _ in range(counts[length - 1]):
-            if k >= len(values):
-                raise ValueError("DHT values run short")
-            span = 1 << (longest - length)
-            stop = min(h + span, (1 << longest) + 1)
-            table[h:stop] = length << 8 | values[k]
-            h, k = stop, k + 1
-    return table
-
-
-#: Bits looked at by the AC decoder's one-step table (:func:`_fast_ac`).
-FAST_BITS = 10
-
-
-def _fast_ac(ac: np.ndarray) -> np.ndarray:
-    """One lookup per AC coefficient whose code and value bits fit in :data:`FAST_BITS`.
-
-    For each ``FAST_BITS``-bit prefix: ``coef << 16 | run << 8 | bits used``,
-    from the Huffman table ``ac`` (:func:`_huffman_table`) and the sign
-    extension of T.81 F.2.2.1; 0 where the prefix holds no whole
-    (code, value) pair, or an end-of-block or run-of-16 code (the full path
-    decodes those).
-    """
-    longest = int(ac[0])
-    prefix = np.arange(1 << FAST_BITS, dtype=np.int64)
-    idx = (prefix << (longest - FAST_BITS) if longest >= FAST_BITS
-           else prefix >> (FAST_BITS - longest))
-    entry = ac[1 + idx].astype(np.int64)
-    code_len, size, run = entry >> 8, entry & 15, (entry >> 4) & 15
-    total = code_len + size
-    ok = (code_len > 0) & (code_len <= longest) & (size > 0) & (total <= FAST_BITS)
-    bits = (prefix >> np.maximum(FAST_BITS - total, 0)) & ((1 << size) - 1)
-    top = (1 << size) - 1
-    coef = np.where(bits <= top >> 1, bits - top, bits)
-    return np.where(ok, (coef << 16) | (run << 8) | total, 0).astype(np.int64)
-
-
 def _tile_header(data: bytes | memoryview, start: int, count: int
                  ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, int] | None:
     """Parse one tile's JPEG header: (scan start, quant, DC table, AC table, lines, samples)."""
@@ -225,7 +159,7 @@ def _tile_header(data: bytes | memoryview, start: int, count: int
                     return None
                 counts = body[k + 1:k + 17]
                 n = sum(counts)
-                table = _huffman_table(counts, body[k + 17:k + 17 + n])
+                table = huffman_table(counts, body[k + 17:k + 17 + n])
                 if cls_id == 0x00:
                     dc = table
                 else:
@@ -248,187 +182,19 @@ def _tile_header(data: bytes | memoryview, start: int, count: int
     return None
 
 
-@intrinsic
-def _idct(typingctx, w0_t, basis_t, out_t):
-    """dcraw's 8x8 IDCT of ``w0`` into ``out`` (float32[64] each, row-major), vectorised.
-
-    ``w1[r, :] = sum_c w0[r, c] * basis[c, :]`` and then
-    ``out[r, :] = sum_c w1[c, :] * basis[c, r]``, each sum starting at 0 and
-    taken over ``c = 0..7`` in order, one multiply and one add per term (no
-    fused multiply-add): in each of the 8 lanes exactly dcraw's operations,
-    so exactly its values.
-    """
-    sig = types.void(w0_t, basis_t, out_t)
-
-    def codegen(context, builder, sig, args):
-        vt = ir.VectorType(_F32, 8)
-        ptrs = [context.make_array(t)(context, builder, a).data
-                for t, a in zip(sig.args, args, strict=True)]
-        w0, basis, out = ptrs
-
-        def row(ptr, r):
-            p = builder.gep(ptr, [ir.Constant(ir.IntType(64), 8 * r)])
-            return builder.load(builder.bitcast(p, vt.as_pointer()), align=4)
-
-        def splat(value):
-            v = builder.insert_element(ir.Constant(vt, ir.Undefined), value,
-                                       ir.Constant(_I32, 0))
-            return builder.shuffle_vector(v, ir.Constant(vt, ir.Undefined),
-                                          ir.Constant(ir.VectorType(_I32, 8), [0] * 8))
-
-        B = [row(basis, c) for c in range(8)]
-        W0 = [row(w0, r) for r in range(8)]
-        W1 = []
-        for r in range(8):
-            acc = ir.Constant(vt, None)
-            for c in range(8):
-                term = builder.fmul(splat(builder.extract_element(W0[r], ir.Constant(_I32, c))),
-                                    B[c])
-                acc = builder.fadd(acc, term)
-            W1.append(acc)
-        for r in range(8):
-            acc = ir.Constant(vt, None)
-            for c in range(8):
-                term = builder.fmul(W1[c], splat(builder.extract_element(B[c],
-                                                                         ir.Constant(_I32, r))))
-                acc = builder.fadd(acc, term)
-            p = builder.gep(out, [ir.Constant(ir.IntType(64), 8 * r)])
-            builder.store(acc, builder.bitcast(p, vt.as_pointer()), align=4)
-        return context.get_dummy_value()
-
-    return sig, codegen
+#: The tile decoder (:mod:`l3cli.io.dng_lossy_tile`): stored machine code when there is
+#: some for this machine, else numba's (:mod:`l3cli.kernel_store`).
+_decode_tile = Stored("dng-lossy-tile", [str(Path(__file__).with_name(f)) for f in (
+    "dng_lossy_tile.py", "dng_lossy_tables.py")], lambda: _numba_decode_tile())
 
 
-@nb.njit(inline="always")
-def _fill(buf, pos, end, acc, nbits, stopped):  # pragma: no cover - numba
-    """Top the bit buffer up to more than 56 bits; stop at a marker or the end."""
-    while nbits <= 56 and not stopped:
-        if pos >= end:
-            stopped = True
-        elif buf[pos] == 0xFF:
-            if pos + 1 < end and buf[pos + 1] == 0:  # a stuffed 0xFF data byte
-                acc = (acc << np.uint64(8)) | np.uint64(0xFF)
-                nbits += 8
-                pos += 2
-            else:
-                stopped = True
-        else:
-            acc = (acc << np.uint64(8)) | np.uint64(buf[pos])
-            nbits += 8
-            pos += 1
-    return pos, acc, nbits, stopped
+def _numba_decode_tile() -> Any:
+    from l3cli.startup import preload_scipy_blas
 
+    preload_scipy_blas()  # numba's first use, without scipy.linalg's __init__
+    from l3cli.io.dng_lossy_tile import decode_tile
 
-@nb.njit(inline="always")
-def _peek(acc, nbits, n):  # pragma: no cover - numba
-    """The next ``n`` bits (zeros past the end of the data: looked at, never consumed)."""
-    if n == 0:
-        return np.int64(0)
-    mask = np.uint64((1 << n) - 1)
-    if nbits >= n:
-        return np.int64((acc >> np.uint64(nbits - n)) & mask)
-    return np.int64((acc << np.uint64(n - nbits)) & mask)
-
-
-@nb.njit(inline="always")
-def _extend(v, length):  # pragma: no cover - numba
-    """JPEG's sign extension of a ``length``-bit magnitude (T.81 F.2.2.1)."""
-    top = (1 << length) - 1
-    return v - (top if v <= top >> 1 else 0)  # no branch: the sign is a coin toss
-
-
-@lean_cache
-@nb.njit(cache=True, nogil=True)
-def _decode_tile(buf, pos, end, quant, dc, ac, fast, lines, samples, tile_width, trow, tcol,
-                 curve, out, zigzag, basis, sqrt1_2):  # pragma: no cover - numba
-    """Decode one tile's scan into ``out``: 0 when done, -1 if the data ran out."""
-    raw_height, raw_width = out.shape
-    dc_bits = np.int64(dc[0])
-    ac_bits = np.int64(ac[0])
-    acc = np.uint64(0)
-    nbits = np.int64(0)  # valid bits at the bottom of acc
-    stopped = False  # a marker (or the end of the data) was reached
-    vpred = np.int64(16384)  # dcraw's DC predictor: 8 x the 12-bit level shift 2048
-    w0 = np.zeros(64, dtype=np.float32)
-    w2 = np.zeros(64, dtype=np.float32)
-    codes = np.zeros(64, dtype=np.int64)
-    for jrow in range(0, lines - 7, 8):
-        for jcol in range(0, samples - 7, 8):
-            w0[:] = 0
-            # ---- DC: a Huffman-coded length, then that many bits of difference
-            if nbits < 32:
-                pos, acc, nbits, stopped = _fill(buf, pos, end, acc, nbits, stopped)
-            entry = np.int64(dc[1 + _peek(acc, nbits, dc_bits)])
-            nbits -= entry >> 8
-            length = entry & 0xFF
-            if length == 16:  # DNG >= 1.1: the code for -32768
-                diff = np.int64(-32768)
-            else:
-                if length > 16 or nbits < length:
-                    return -1
-                diff = _extend(_peek(acc, nbits, length), length)
-                nbits -= length
-            if nbits < 0:
-                return -1
-            vpred += diff * quant[0]
-            if vpred < -(1 << 30) or vpred > 1 << 30:
-                return -1  # dcraw's int would near overflow: LibRaw's own path
-            w0[0] = np.float32(vpred)
-            # ---- AC: (run, length) codes, each followed by `length` bits
-            k = 1
-            while k < 64:
-                if nbits < 32:
-                    pos, acc, nbits, stopped = _fill(buf, pos, end, acc, nbits, stopped)
-                f = np.int64(fast[_peek(acc, nbits, FAST_BITS)])
-                if f != 0:  # code and value within the next FAST_BITS bits
-                    nbits -= f & 0xFF
-                    k += (f >> 8) & 15
-                    if nbits < 0 or k > 63:
-                        return -1
-                    w0[zigzag[k]] = np.float32((f >> 16) * quant[k])
-                    k += 1
-                    continue
-                entry = np.int64(ac[1 + _peek(acc, nbits, ac_bits)])
-                nbits -= entry >> 8
-                if nbits < 0:
-                    return -1
-                skip = (entry >> 4) & 15
-                length = entry & 15
-                k += skip
-                if length == 0 and skip < 15:
-                    break  # end of block
-                if k > 63 or nbits < length:
-                    return -1  # past the block (dcraw would read past its tables)
-                coef = _extend(_peek(acc, nbits, length), length)
-                nbits -= length
-                w0[zigzag[k]] = np.float32(coef * quant[k])
-                k += 1
-            # ---- IDCT (dcraw's float32 operations, in its order), round, linearise
-            for c in range(8):
-                w0[c] *= sqrt1_2
-            for c in range(8):
-                w0[8 * c] *= sqrt1_2
-            _idct(w0, basis, w2)
-            # dcraw's CLIP((int)(v + 0.5)): the double sum truncated, clipped to 0..65535
-            inside = True
-            for q in range(64):
-                d = np.float64(w2[q]) + 0.5
-                inside &= (d > -2147483649.0) & (d < 2147483648.0)  # an int, as in C
-                codes[q] = min(max(np.int64(d), 0), 65535)
-            if not inside:
-                return -1  # C's conversion would be undefined: LibRaw's own path
-            y0 = trow + jcol // tile_width + jrow * 2
-            x0 = tcol + jcol % tile_width
-            if y0 + 14 < raw_height and x0 + 7 < raw_width:
-                for r in range(8):
-                    for j in range(8):
-                        out[y0 + 2 * r, x0 + j] = curve[codes[8 * r + j]]
-            else:  # a block over the raw's right or bottom edge
-                for r in range(8):
-                    for j in range(8):
-                        if y0 + 2 * r < raw_height and x0 + j < raw_width:
-                            out[y0 + 2 * r, x0 + j] = curve[codes[8 * r + j]]
-    return 0
+    return decode_tile
 
 
 def decode(data: bytes | memoryview, tiles: LossyTiles) -> np.ndarray | None:
@@ -458,9 +224,9 @@ def decode(data: bytes | memoryview, tiles: LossyTiles) -> np.ndarray | None:
             return None
         if lines % 8 or tiles.tile_width % 8:  # whole blocks in each half row
             return None
-        if _decode_tile(buf, scan, offset + count, quant, dc, ac, _fast_ac(ac), lines, samples,
-                        tiles.tile_width, trow, tcol, tiles.curve, out, _ZIGZAG, _BASIS.ravel(),
-                        _SQRT1_2) != 0:
+        if _decode_tile(buf, scan, offset + count, quant, dc, ac, fast_ac(ac), lines, samples,
+                        tiles.tile_width, trow, tcol, tiles.curve, out, ZIGZAG, BASIS.ravel(),
+                        SQRT1_2) != 0:
             return None
         tcol += tiles.tile_width
         if tcol >= tiles.raw_width:
@@ -509,7 +275,8 @@ def _matches_this_libraw() -> bool:
             and tuple(rawpy.libraw_version) >= (0, 22))
 
 
-def read(path: str | os.PathLike) -> tuple[Any, np.ndarray, np.ndarray] | None:
+def read(path: str | os.PathLike, *, compile: bool = True
+         ) -> tuple[Any, np.ndarray, np.ndarray] | None:
     """A lossy-JPEG DNG decoded here, with LibRaw's metadata; None for any other file.
 
     Returns (LibRaw's handle, for the metadata; the visible mosaic, a view;
@@ -517,12 +284,14 @@ def read(path: str | os.PathLike) -> tuple[Any, np.ndarray, np.ndarray] | None:
     caller to release). None when the file is not of the layout this
     decoder takes, or anything in it is unexpected: LibRaw then reads the
     file as usual (:func:`l3cli.io.raw.read_raw`), and reports any damage.
+    With ``compile`` False, also None unless the decoder's machine code is
+    stored (:mod:`l3cli.kernel_store`): no numba import.
     """
     path = Path(path)
     if not _matches_this_libraw():
         return None
     tiles = probe(path)  # the tags only: most DNGs are not lossy
-    if tiles is None:
+    if tiles is None or not (compile or _decode_tile.stored()):
         return None
     try:
         data = path.read_bytes()

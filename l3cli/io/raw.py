@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 import os
-import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -353,15 +352,16 @@ def _read_rawpy(path: Path, libraw_only: bool = False, libraw: bool = False) -> 
     failure: Exception | None = None
     fast = None
     if path.suffix.lower() == ".dng" and not libraw:
+        from l3cli import kernel_store
         from l3cli.io import dng_direct  # uncompressed and lossless JPEG: numpy, imagecodecs
 
         fast = dng_direct.read(path)
-        # dng_lossy runs on numba: worth it where numba is loaded anyway (render, train), not
-        # for a quick look at a file or two (l3 info: ~0.2 s to import numba and the kernel)
-        if fast is None and not libraw_only and "numba" in sys.modules:
+        if fast is None and not libraw_only:
             from l3cli.io import dng_lossy
 
-            fast = dng_lossy.read(path)
+            # its compiled decoder: stored code loads in milliseconds; numba only where it is
+            # loaded anyway (render, train), not for a quick look (l3 info: ~0.3 s to import)
+            fast = dng_lossy.read(path, compile=kernel_store.in_use())
     with fd2.captured(str(path)) as said:
         try:
             if fast is not None:
@@ -427,10 +427,11 @@ def read_raw(path: str | os.PathLike, *, libraw_only: bool = False,
         A raw file LibRaw opens, a headerless ``.raw`` with ``.raw.toml``
         sidecar, or a ``.tif``/``.png`` mosaic with a ``.toml`` sidecar.
     libraw_only
-        Let LibRaw decode lossy-JPEG DNGs too. Otherwise, in a process that
-        has imported numba, :mod:`l3cli.io.dng_lossy` decodes them (the same
-        values, in a third of the time; it runs on numba, which a caller
-        may be still importing in another thread). Uncompressed and
+        Let LibRaw decode lossy-JPEG DNGs too. Otherwise
+        :mod:`l3cli.io.dng_lossy` decodes them (the same values, in a third
+        of the time) where its machine code is stored
+        (:mod:`l3cli.kernel_store`) or the process runs compiled kernels
+        already (:func:`l3cli.kernel_store.in_use`). Uncompressed and
         lossless-JPEG DNGs are still read by :mod:`l3cli.io.dng_direct`
         (numpy and imagecodecs, no numba).
     libraw

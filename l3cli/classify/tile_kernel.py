@@ -1,0 +1,394 @@
+"""The tile kernel's numba source: classification, and in render modes the render.
+
+Imported only where the kernel is compiled or loaded by numba;
+:func:`l3cli.classify.kernel.run_tiles` runs it, preferably from stored
+machine code (:mod:`l3cli.kernel_store`), which does not import numba.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+
+# OpenMP threads that wait passively instead of spinning: on a shared or busy
+# machine spinning workers steal the cores the kernels need (2x slower
+# training measured under load); set OMP_WAIT_POLICY yourself to override.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba as nb  # noqa: E402
+import numpy as np  # noqa: E402
+
+from l3cli.classify.layout import (  # noqa: E402
+    MODE_CLASSES,
+    MODE_DISPLAY,
+    MODE_FEATURES,
+    MODE_RENDER,
+    TILE_ROWS,
+)
+from l3cli.render_rows import (  # noqa: E402
+    curve_encode_row,
+    curve_row,
+    encode_row,
+    render_row4,
+    render_row_any,
+    row_pairs,
+)
+
+__all__ = ["slp_vectorize", "tile_kernel"]
+
+
+@contextlib.contextmanager
+def slp_vectorize():
+    """Compile with LLVM's SLP vectoriser (numba leaves it off by default).
+
+    It turns the render kernel's per-output multiply-adds into one SIMD
+    multiply-add over the output lanes. Only the tile kernel is compiled
+    inside this context; the classification arithmetic has no fast-math
+    flags, so vectorised and scalar code give bit-identical features.
+    """
+    old = nb.config.SLP_VECTORIZE
+    nb.config.SLP_VECTORIZE = 1
+    try:
+        yield
+    finally:
+        nb.config.SLP_VECTORIZE = old
+
+
+@functools.cache
+def tile_kernel(S: int, PW: int):
+    """The classifier (and renderer) compiled for patch size ``S``.
+
+    ``S`` (and the CFA period's width ``PW``, for the structure tensor's
+    ``S - PW``-tap sums) are compile-time constants, so the tap loops unroll
+    and the loops along a row vectorise. Runs tiles ``t_lo`` to ``t_hi``
+    (row-major) of ``TILE_ROWS`` x ``TILE_COLS`` output pixels without the
+    GIL, so threads share an image's tiles (:func:`l3cli.classify.kernel.run_tiles`);
+    each tile copies its padded band from the
+    mosaic (mirror indices at the image borders), reduces every band row to
+    horizontal S-tap sums of ``x`` and ``x²`` per channel present in the row
+    (channel masks along the row) and an OR of saturated-channel bits, kept
+    in a ring of S rows, and finishes each output row from its S ring rows:
+    per channel mean and standard deviation, response level, relative
+    contrast, saturation pattern, class. Every sum runs in a fixed order in
+    float32 without fast-math, so a pixel's features and class depend on its
+    patch only, never on the tiling or on vectorisation.
+    """
+    r = S // 2
+    TR = TILE_ROWS
+
+    # no numba cache: the machine code is stored by l3cli.kernel_store, whose key covers
+    # the callees' sources too (numba's cache would not need the object code kept)
+    @nb.njit(nogil=True)
+    def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
+               lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
+               xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
+               mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
+               cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
+               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, t_lo, t_hi):
+        W = mosaic.shape[1]
+        ph, pw = idx_pattern.shape
+        nch = cnt_inv.shape[1]
+        nl = ccuts.shape[0]
+        ncc = ccuts.shape[1]
+        nlut = lut.shape[0]
+        ccf = ccuts.ravel()
+        n_cx = xcuts.shape[0] + 1 if ctx_mode else 1
+        n_ob = ori_c.shape[0]
+        extra = n_or > 1 or n_cx > 1 or n_hl > 1
+        n_ext = n_or * n_cx * n_hl
+        twp_max = tc + S - 1
+        # along-row tables in tile coordinates (tile columns start at multiples of pw)
+        mask = np.zeros((ph, nch, twp_max), dtype=np.float32)
+        bitv = np.zeros((ph, twp_max), dtype=np.int32)
+        row_has = np.zeros((ph, nch), dtype=np.bool_)  # channel present in a row phase
+        for py in range(ph):
+            for xx in range(twp_max):
+                c = idx_pattern[py, (xx - r) % pw]
+                mask[py, c, xx] = 1.0
+                bitv[py, xx] = 1 << c
+                row_has[py, c] = True
+        ci_row = np.zeros((ph, nch, tc), dtype=np.float32)
+        wc_row = np.zeros((ph, nch, tc), dtype=np.float32)
+        g_row = np.zeros((ph, tc), dtype=np.int32)
+        for py in range(ph):
+            for x in range(tc):
+                pos = py * pw + x % pw
+                g_row[py, x] = group[pos]
+                for c in range(nch):
+                    ci_row[py, c, x] = cnt_inv[pos, c]
+                    wc_row[py, c, x] = wc[pos, c]
+        n_rt = (nrows + TR - 1) // TR
+        n_ct = (W + tc - 1) // tc
+        for t in range(max(t_lo, 0), min(t_hi, n_rt * n_ct)):
+            i0 = (t // n_ct) * TR
+            i1 = min(nrows, i0 + TR)
+            x0 = (t % n_ct) * tc
+            x1 = min(W, x0 + tc)
+            tw = x1 - x0
+            twp = tw + S - 1
+            nbr = i1 - i0 + S - 1
+            # padded band of the tile: row k is padded row y0 + i0 + k (image row - r)
+            pb = np.empty((nbr, twp), dtype=np.float32)
+            inner = x0 - r >= 0 and x0 - r + twp <= W
+            for k in range(nbr):
+                src = yi[y0 + i0 + k]
+                if inner:
+                    for xx in range(twp):
+                        pb[k, xx] = mosaic[src, x0 - r + xx]
+                else:
+                    for xx in range(twp):
+                        pb[k, xx] = mosaic[src, xi[x0 + xx]]
+            if n_out <= 4 and (mode == MODE_RENDER or mode == MODE_DISPLAY):
+                pb2 = np.empty((nbr - 1, 2 * twp), dtype=np.float32)  # row pairs (render_rows)
+                row_pairs(pb, pb2, nbr - 1)
+            else:
+                pb2 = pb
+            ring_s = np.empty((S, nch, tw), dtype=np.float32)
+            ring_q = np.empty((S, nch, tw), dtype=np.float32)
+            ring_b = np.empty((S, tw), dtype=np.int32)
+            mv = np.empty(twp, dtype=np.float32)
+            mq = np.empty(twp, dtype=np.float32)
+            bits = np.empty(twp, dtype=np.int32)
+            lev = np.empty(tw, dtype=np.float32)
+            levi = lev.view(np.int32)
+            spr = np.empty(tw, dtype=np.float32)
+            va = np.empty(tw, dtype=np.float32)
+            vq = np.empty(tw, dtype=np.float32)
+            satr = np.empty(tw, dtype=np.int32)
+            clsr = np.empty(tw, dtype=np.int32)
+            lbr = np.empty(tw, dtype=np.int32)
+            kbr = np.empty(tw, dtype=np.int32)
+            ccr = np.empty(tw, dtype=np.float32)
+            rows_c = np.empty(S, dtype=np.int64)
+            if n_or > 1:  # structure-tensor sums (see classify.features)
+                ring_xx = np.empty((S, tw), dtype=np.float32)
+                ring_yy = np.empty((S, tw), dtype=np.float32)
+                ring_xy = np.empty((S, tw), dtype=np.float32)
+            else:
+                ring_xx = np.empty((1, 1), dtype=np.float32)
+                ring_yy = ring_xx
+                ring_xy = ring_xx
+            gxx = np.empty(twp, dtype=np.float32)
+            gyy = np.empty(twp, dtype=np.float32)
+            gxy = np.empty(twp, dtype=np.float32)
+            exb = np.empty(tw, dtype=np.int32)
+            ring_n = np.empty((S if n_hl > 1 else 1, tw), dtype=np.float32)
+            ind = np.empty(twp, dtype=np.float32)
+            jxx = np.empty(tw, dtype=np.float32)
+            jyy = np.empty(tw, dtype=np.float32)
+            jxy = np.empty(tw, dtype=np.float32)
+            bst = np.empty(tw, dtype=np.float32)
+            crow = np.empty(ctx.shape[1], dtype=np.float32)
+            # display mode: a row's float outputs (+ 1 lane of spill), then its encoding
+            rowf = np.empty(tw * n_out + 4 if mode == MODE_DISPLAY else 1, dtype=np.float32)
+            lin = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
+            for k in range(nbr):
+                slot = k % S
+                py = (y0 + i0 + k - r) % ph
+                for c in range(nch):
+                    if not row_has[py, c]:
+                        continue  # the ring slot is never read for this channel
+                    for xx in range(twp):
+                        u = pb[k, xx] * mask[py, c, xx]
+                        mv[xx] = u
+                        mq[xx] = u * pb[k, xx]
+                    for x in range(tw):
+                        a = mv[x]
+                        q = mq[x]
+                        for dx in range(1, S):
+                            a += mv[x + dx]
+                            q += mq[x + dx]
+                        ring_s[slot, c, x] = a
+                        ring_q[slot, c, x] = q
+                for xx in range(twp):
+                    bits[xx] = bitv[py, xx] if pb[k, xx] >= sat_thr else 0
+                for x in range(tw):
+                    b = bits[x]
+                    for dx in range(1, S):
+                        b |= bits[x + dx]
+                    ring_b[slot, x] = b
+                if n_hl > 1:  # saturated pixels per row window
+                    for xx in range(twp):
+                        ind[xx] = np.float32(1.0) if pb[k, xx] >= sat_thr else np.float32(0.0)
+                    for x in range(tw):
+                        a = ind[x]
+                        for dx in range(1, S):
+                            a += ind[x + dx]
+                        ring_n[slot, x] = a
+                if n_or > 1 and k >= ph:
+                    # quads of band rows k - ph and k: same-colour differences
+                    for xx in range(twp - PW):
+                        gx = (pb[k - ph, xx + PW] - pb[k - ph, xx]) + (pb[k, xx + PW] - pb[k, xx])
+                        gy = (pb[k, xx] - pb[k - ph, xx]) + (pb[k, xx + PW] - pb[k - ph, xx + PW])
+                        gxx[xx] = gx * gx
+                        gyy[xx] = gy * gy
+                        gxy[xx] = gx * gy
+                    for x in range(tw):
+                        a = gxx[x]
+                        q = gyy[x]
+                        e = gxy[x]
+                        for dx in range(1, S - PW):
+                            a += gxx[x + dx]
+                            q += gyy[x + dx]
+                            e += gxy[x + dx]
+                        ring_xx[slot, x] = a
+                        ring_yy[slot, x] = q
+                        ring_xy[slot, x] = e
+                i = k - (S - 1)  # tile output row whose window is now complete
+                if i < 0:
+                    continue
+                po = (y0 + i0 + i) % ph
+                for x in range(tw):
+                    lev[x] = 0.0
+                    spr[x] = 0.0
+                for c in range(nch):
+                    # rows of the window that hold channel c (others are all zero)
+                    nrow = 0
+                    for dy in range(S):
+                        if row_has[(y0 + i0 + i + dy - r) % ph, c]:
+                            rows_c[nrow] = (i + dy) % S
+                            nrow += 1
+                    if nrow == 0:
+                        continue
+                    sl = rows_c[0]
+                    for x in range(tw):
+                        va[x] = ring_s[sl, c, x]
+                        vq[x] = ring_q[sl, c, x]
+                    for kk in range(1, nrow):  # rows outside, pixels inside: vectorised
+                        sl = rows_c[kk]
+                        for x in range(tw):
+                            va[x] += ring_s[sl, c, x]
+                            vq[x] += ring_q[sl, c, x]
+                    for x in range(tw):
+                        ci = ci_row[po, c, x]
+                        m = va[x] * ci
+                        var = vq[x] * ci - m * m
+                        lev[x] += m * wc_row[po, c, x]
+                        spr[x] += np.sqrt(max(var, np.float32(0.0))) * wc_row[po, c, x]
+                for x in range(tw):
+                    b = ring_b[i % S, x]
+                    for dy in range(1, S):
+                        b |= ring_b[(i + dy) % S, x]
+                    satr[x] = b
+                    spr[x] = spr[x] / (max(lev[x], np.float32(0.0)) + eps)  # now the contrast
+                if mode == MODE_FEATURES:
+                    for x in range(tw):
+                        out_lev[i0 + i, x0 + x] = lev[x]
+                        out_con[i0 + i, x0 + x] = spr[x]
+                        out_sat[i0 + i, x0 + x] = satr[x]
+                    continue
+                # level bin: a lookup on the float's leading bits, then at most two
+                # comparisons with the cut points of the bucket (see levels.level_lookup);
+                # the table reads cannot vectorise (gathers), the rest does
+                for x in range(tw):
+                    kb = (levi[x] >> lut_shift) - lut_base
+                    kbr[x] = min(max(kb, 0), nlut - 1)
+                for x in range(tw):
+                    kb = kbr[x]
+                    lv = lev[x]
+                    lbr[x] = lut[kb] + np.int32(cuts[kb, 0] <= lv) + np.int32(cuts[kb, 1] <= lv)
+                for x in range(tw):
+                    clsr[x] = ((g_row[po, x] * n_sat + satr[x]) * nl + lbr[x]) * (ncc + 1)
+                for j in range(ncc):  # contrast bin
+                    for x in range(tw):
+                        kbr[x] = lbr[x] * ncc + j
+                    for x in range(tw):
+                        ccr[x] = ccf[kbr[x]]
+                    for x in range(tw):
+                        clsr[x] += np.int32(spr[x] >= ccr[x])
+                if extra:
+                    for x in range(tw):
+                        exb[x] = 0
+                    if n_or > 1:
+                        # structure tensor: vertical sums of the quad rows (vectorised
+                        # along the row), then the nearest angle-bin centre
+                        sl = (i + ph) % S
+                        for x in range(tw):
+                            jxx[x] = ring_xx[sl, x]
+                            jyy[x] = ring_yy[sl, x]
+                            jxy[x] = ring_xy[sl, x]
+                        for dy in range(ph + 1, S):
+                            sl = (i + dy) % S
+                            for x in range(tw):
+                                jxx[x] += ring_xx[sl, x]
+                                jyy[x] += ring_yy[sl, x]
+                                jxy[x] += ring_xy[sl, x]
+                        for x in range(tw):
+                            u = jxx[x] - jyy[x]
+                            v = np.float32(2.0) * jxy[x]
+                            tt = jxx[x] + jyy[x]
+                            jxx[x] = u
+                            jyy[x] = v
+                            jxy[x] = u * u + v * v - coh2 * (tt * tt)  # > 0: oriented
+                            bst[x] = u * ori_c[0] + v * ori_s[0]
+                            exb[x] = 1
+                        for j in range(1, n_ob):
+                            cj = ori_c[j]
+                            sj = ori_s[j]
+                            for x in range(tw):
+                                pr = jxx[x] * cj + jyy[x] * sj
+                                take = pr > bst[x]
+                                bst[x] = pr if take else bst[x]
+                                exb[x] = np.int32(j + 1) if take else exb[x]
+                        for x in range(tw):
+                            exb[x] = exb[x] if jxy[x] > np.float32(0.0) else np.int32(0)
+                    if n_cx > 1:
+                        # context guide: rows interpolated once per row, columns per pixel
+                        yy = y0 + i0 + i
+                        r0 = ctx_r0[yy]
+                        r1 = ctx_r1[yy]
+                        wy = ctx_wy[yy]
+                        for j in range(ctx.shape[1]):
+                            crow[j] = ctx[r0, j] * (np.float32(1.0) - wy) + ctx[r1, j] * wy
+                        for x in range(tw):
+                            xx = x0 + x
+                            wx = ctx_wx[xx]
+                            bst[x] = (crow[ctx_c0[xx]] * (np.float32(1.0) - wx)
+                                      + crow[ctx_c1[xx]] * wx)
+                        if ctx_mode == 2:
+                            for x in range(tw):
+                                bst[x] = max(lev[x], np.float32(0.0)) / (
+                                    max(bst[x], np.float32(0.0)) + ctx_eps)
+                        for x in range(tw):
+                            exb[x] = exb[x] * n_cx
+                        for j in range(n_cx - 1):
+                            cj = xcuts[j]
+                            for x in range(tw):
+                                exb[x] += np.int32(bst[x] >= cj)
+                    if n_hl > 1:
+                        for x in range(tw):
+                            bst[x] = ring_n[i % S, x]
+                        for dy in range(1, S):
+                            sl = (i + dy) % S
+                            for x in range(tw):
+                                bst[x] += ring_n[sl, x]
+                        for x in range(tw):
+                            exb[x] = exb[x] * n_hl + np.int32(bst[x] >= hl_cnt)
+                    for x in range(tw):
+                        clsr[x] = clsr[x] * n_ext + exb[x]
+                o = ((i0 + i) * W + x0) * n_out
+                if mode == MODE_CLASSES:
+                    for x in range(tw):
+                        out_cls[i0 + i, x0 + x] = clsr[x]
+                elif mode == MODE_DISPLAY:  # render the row, then encode it while in cache
+                    if n_out <= 4:
+                        render_row4(pb2, pb, i, tw, S, clsr, K, rowf, 0, n_out)
+                    else:
+                        render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
+                    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tonecode)
+                        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale,
+                                         ct_walk, out8, out16, enc_bits, o)
+                    else:
+                        if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
+                            curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+                        encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp,
+                                   shift, lin, out8, out16, enc_bits, o)
+                elif n_out <= 4:
+                    render_row4(pb2, pb, i, tw, S, clsr, K, outf, o, n_out)
+                else:
+                    render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
+                if mode == MODE_RENDER and cv_base.shape[1] > 1:  # learned tone curve
+                    curve_row(outf, o, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+
+    return kernel

@@ -1,0 +1,142 @@
+"""Stored machine code (l3cli.kernel_store): loaded without numba, the same results."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numba
+import numpy as np
+import pytest
+
+from l3cli import kernel_store
+from l3cli.kernel_store import Stored, typekey
+from tests.conftest import REPO
+from tests.test_render_pipeline import _raws, table_path  # noqa: F401 - fixture
+
+
+def _values():
+    a = np.arange(24, dtype=np.float32).reshape(4, 6)
+    ro = a.copy()
+    ro.flags.writeable = False
+    return [a, np.asfortranarray(a), a[:, ::2], a[0], ro, a.astype(np.uint16),
+            np.zeros((2, 3, 4), np.float32), 3, -(1 << 40), 2.5, True, False, np.float32(1.5),
+            np.int32(7), np.uint8(3), (1, 2.0), (a, 1)]
+
+
+def test_typekey_tells_apart_what_numba_tells_apart():
+    """Two arguments get the same key exactly when numba gives them the same type (the
+    stored code for one key is numba's code for that type)."""
+    vals = _values()
+    keys = [typekey(v) for v in vals]
+    types = [numba.typeof(v) for v in vals]
+    for i in range(len(vals)):
+        for j in range(len(vals)):
+            assert (keys[i] == keys[j]) == (types[i] == types[j]), (vals[i], vals[j])
+    with pytest.raises(TypeError):
+        typekey(object())
+
+
+def _source(tmp_path, body: str):
+    src = tmp_path / "kernel_src.py"
+    src.write_text(textwrap.dedent(body))
+    return src
+
+
+def _add_kernel():
+    def add(a, b, out):  # pragma: no cover - compiled
+        for i in range(a.size):
+            out[i] = a[i] * np.float32(2.0) + b
+        return 0
+
+    return numba.njit(nogil=True)(add)
+
+
+def test_stored_code_loads_and_damage_falls_back_to_numba(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    src = _source(tmp_path, "x = 1\n")
+    a = np.arange(5, dtype=np.float32)
+    want = a * 2 + 1
+
+    def run(stored):
+        out = np.zeros(5, np.float32)
+        assert stored(a, np.float32(1.0), out) == 0
+        np.testing.assert_array_equal(out, want)
+        return stored.function(a, np.float32(1.0), out)
+
+    first = Stored("test-add", [src], _add_kernel)
+    assert not first.stored()
+    assert isinstance(run(first), numba.core.dispatcher.Dispatcher)  # compiled, then stored
+    assert first.stored()
+    files = list((tmp_path / "cache" / "l3cli-kernels").glob("test-add-*.bin"))
+    assert len(files) == 1
+    loaded = run(Stored("test-add", [src], _add_kernel))
+    assert not isinstance(loaded, numba.core.dispatcher.Dispatcher)  # the stored code
+
+    files[0].write_bytes(files[0].read_bytes()[:-100])  # truncated
+    assert isinstance(run(Stored("test-add", [src], _add_kernel)),
+                      numba.core.dispatcher.Dispatcher)  # numba again, and stored again
+    assert not isinstance(run(Stored("test-add", [src], _add_kernel)),
+                          numba.core.dispatcher.Dispatcher)
+
+    src.write_text("x = 2\n")  # a source changed: another key, nothing stored for it
+    changed = Stored("test-add", [src], _add_kernel)
+    assert not changed.stored()
+    assert isinstance(run(changed), numba.core.dispatcher.Dispatcher)
+    assert len(list((tmp_path / "cache" / "l3cli-kernels").glob("test-add-*.bin"))) == 2
+
+
+def test_no_writable_folder_still_runs(tmp_path, monkeypatch):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    monkeypatch.setattr(kernel_store, "store_dirs", lambda: [ro / "kernels"])
+    src = _source(tmp_path, "y = 1\n")
+    out = np.zeros(3, np.float32)
+    try:
+        Stored("test-ro", [src], _add_kernel)(np.ones(3, np.float32), np.float32(0.5), out)
+    finally:
+        ro.chmod(0o700)
+    np.testing.assert_array_equal(out, [2.5, 2.5, 2.5])
+    if os.geteuid() != 0:  # root writes anywhere
+        assert not (ro / "kernels").exists()
+
+
+def test_a_fresh_process_renders_from_stored_code_without_numba(tmp_path, table_path):  # noqa: F811
+    """The render kernel's stored code: a new process renders without importing numba,
+    bit for bit what numba's kernel renders in this one."""
+    from l3cli.io.raw import read_raw
+    from l3cli.render import render_mosaic, table_for_task
+
+    raw = _raws(tmp_path, 1, seed=7)[0]
+    want = render_mosaic(table_for_task(table_path), read_raw(raw).mosaic)  # stores if new
+    code = ("import sys, json\n"
+            "from l3cli.render import render_mosaic, table_for_task\n"
+            "from l3cli.io.raw import read_raw\n"
+            f"t = table_for_task({str(table_path)!r}); m = read_raw({str(raw)!r}).mosaic\n"
+            "img = render_mosaic(t, m)\n"
+            "print(json.dumps({'numba': 'numba' in sys.modules, 'img': img.ravel().tolist()}))\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert not got["numba"]
+    np.testing.assert_array_equal(np.asarray(got["img"], np.float32), want.ravel())
+
+
+@pytest.mark.parametrize("threads", ["1", "3"])
+def test_tile_threads_do_not_change_a_render(tmp_path, table_path, monkeypatch, threads):  # noqa: F811
+    """Threads share an image's tiles: any number of them renders the same pixels."""
+    from l3cli.classify.kernel import tile_threads
+    from l3cli.render import render_mosaic, table_for_task
+
+    mosaic = np.random.default_rng(2).random((150, 1100), dtype=np.float32)  # 3 x 3 tiles
+    t = table_for_task(table_path)
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "2")
+    want = render_mosaic(t, mosaic)
+    monkeypatch.setenv("NUMBA_NUM_THREADS", threads)
+    assert tile_threads() == int(threads)
+    np.testing.assert_array_equal(render_mosaic(t, mosaic), want)
