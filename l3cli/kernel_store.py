@@ -29,7 +29,10 @@ back to numba; a failure to store is logged at debug level only.
 
 Where: ``$NUMBA_CACHE_DIR/l3cli-kernels`` when set, else the package's
 ``__pycache__/kernels`` when writable, else ``$XDG_CACHE_HOME/l3cli/kernels``
-(``~/.cache``).
+(``~/.cache``). A file holds one function's object code for one key, with a
+header naming the key and the code's SHA-256 (checked on every load). Code
+not loaded for :data:`PRUNE_DAYS` is removed when new code is stored; the
+folder may be deleted at any time (the next run compiles again).
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ import os
 import sys
 import tempfile
 import threading
+import time
 import types
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -57,6 +61,8 @@ __all__ = ["Stored", "in_use", "load", "save", "store_dirs", "stored_any", "type
 log = logging.getLogger(__name__)
 
 _MAGIC = b"l3cli-kernel 1\n"
+#: Stored code not loaded for this many days is removed when code is next stored.
+PRUNE_DAYS = 30
 #: ``NUMBA_*`` settings that do not change machine code (left out of the key).
 _RUNTIME_ONLY = {"NUMBA_NUM_THREADS", "NUMBA_CACHE_DIR", "NUMBA_DEBUG_CACHE",
                  "NUMBA_THREADING_LAYER", "NUMBA_DISABLE_PERFORMANCE_WARNINGS"}
@@ -210,7 +216,10 @@ def load(name: str, sources: Sequence[str | os.PathLike], types_: str) -> Callab
                 data = path.read_bytes()
             except OSError:
                 continue
-            return _link(path, data, f"{name} {digest} {types_}")
+            fn = _link(path, data, f"{name} {digest} {types_}")
+            with contextlib.suppress(OSError):
+                os.utime(path)  # in use: not pruned (save())
+            return fn
     except Exception as exc:  # noqa: BLE001 - numba is the fallback
         log.debug("stored kernel %s not loaded: %s", name, exc)
     return None
@@ -222,8 +231,9 @@ def _link(path: Path, data: bytes, digest: str) -> Callable:
     end = data.index(b"\n", len(_MAGIC))
     head = json.loads(data[len(_MAGIC):end])
     obj = data[end + 1:]
-    if head.get("digest") != digest or len(obj) != head.get("size"):
-        raise ValueError(f"{path}: stored for another key, or truncated")
+    if (head.get("digest") != digest or len(obj) != head.get("size")
+            or hashlib.sha256(obj).hexdigest() != head.get("sha256")):
+        raise ValueError(f"{path}: stored for another key, truncated or damaged")
     llvm, dynfunc = _loader()
     with _lock:
         # a target machine per engine: the engine owns it (and disposes of it with itself)
@@ -260,6 +270,7 @@ def save(name: str, sources: Sequence[str | os.PathLike], types_: str, dispatche
         obj = payload[0]
         digest = _digest(sources)
         head = {"digest": f"{name} {digest} {types_}", "size": len(obj),
+                "sha256": hashlib.sha256(obj).hexdigest(),
                 "wrapper": cres.fndesc.llvm_cpython_wrapper_name, "env": cres.fndesc.env_name,
                 "module": cres.fndesc.modname, "qualname": cres.fndesc.qualname}
         blob = _MAGIC + json.dumps(head).encode() + b"\n" + obj
@@ -280,10 +291,20 @@ def save(name: str, sources: Sequence[str | os.PathLike], types_: str, dispatche
             except BaseException:
                 Path(tmp).unlink(missing_ok=True)
                 raise
+            _prune(folder)
             return _file(folder, name, digest, types_)
         except OSError as exc:
             log.debug("kernel %s not stored in %s: %s", name, folder, exc)
     return None
+
+
+def _prune(folder: Path) -> None:
+    """Remove stored code not loaded for :data:`PRUNE_DAYS` (older sources, other numbas)."""
+    old = time.time() - PRUNE_DAYS * 86400
+    for path in folder.glob("*.bin"):
+        with contextlib.suppress(OSError):
+            if path.stat().st_mtime < old:
+                path.unlink()
 
 
 class Stored:

@@ -76,17 +76,33 @@ def test_stored_code_loads_and_damage_falls_back_to_numba(tmp_path, monkeypatch)
     loaded = run(Stored("test-add", [src], _add_kernel))
     assert not isinstance(loaded, numba.core.dispatcher.Dispatcher)  # the stored code
 
-    files[0].write_bytes(files[0].read_bytes()[:-100])  # truncated
-    assert isinstance(run(Stored("test-add", [src], _add_kernel)),
-                      numba.core.dispatcher.Dispatcher)  # numba again, and stored again
-    assert not isinstance(run(Stored("test-add", [src], _add_kernel)),
-                          numba.core.dispatcher.Dispatcher)
+    for damage in (lambda b: b[:-100], lambda b: b[:-50] + bytes([b[-50] ^ 1]) + b[-49:]):
+        files[0].write_bytes(damage(files[0].read_bytes()))  # truncated, one bit flipped
+        assert isinstance(run(Stored("test-add", [src], _add_kernel)),
+                          numba.core.dispatcher.Dispatcher)  # numba again, and stored again
+        assert not isinstance(run(Stored("test-add", [src], _add_kernel)),
+                              numba.core.dispatcher.Dispatcher)
 
     src.write_text("x = 2\n")  # a source changed: another key, nothing stored for it
     changed = Stored("test-add", [src], _add_kernel)
     assert not changed.stored()
     assert isinstance(run(changed), numba.core.dispatcher.Dispatcher)
     assert len(list((tmp_path / "cache" / "l3cli-kernels").glob("test-add-*.bin"))) == 2
+
+
+def test_code_not_loaded_for_a_month_is_pruned_when_code_is_stored(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    folder = tmp_path / "cache" / "l3cli-kernels"
+    folder.mkdir(parents=True)
+    stale, recent = folder / "old-0-0.bin", folder / "new-0-0.bin"
+    for f in (stale, recent):
+        f.write_bytes(b"x")
+    month = (kernel_store.PRUNE_DAYS + 1) * 86400
+    os.utime(stale, (stale.stat().st_atime - month, stale.stat().st_mtime - month))
+    a, out = np.ones(2, np.float32), np.zeros(2, np.float32)
+    Stored("test-prune", [_source(tmp_path, "z = 1\n")], _add_kernel)(a, np.float32(0.0), out)
+    assert not stale.exists() and recent.exists()
+    assert len(list(folder.glob("test-prune-*.bin"))) == 1
 
 
 def test_no_writable_folder_still_runs(tmp_path, monkeypatch):
@@ -140,3 +156,24 @@ def test_tile_threads_do_not_change_a_render(tmp_path, table_path, monkeypatch, 
     monkeypatch.setenv("NUMBA_NUM_THREADS", threads)
     assert tile_threads() == int(threads)
     np.testing.assert_array_equal(render_mosaic(t, mosaic), want)
+
+
+@pytest.mark.parametrize("fmt", ["jpg", "tiff"])
+def test_l3_render_imports_no_numba(tmp_path, table_path, fmt):  # noqa: F811
+    """The whole command: `l3 render` of raws to JPEG or TIFF runs without importing numba
+    once the kernel's code is stored (the first run here stores it)."""
+    raws = [str(r) for r in _raws(tmp_path, 2, seed=5)]
+    code = ("import atexit, sys\n"
+            "atexit.register(lambda: print('NUMBA', 'numba' in sys.modules))\n"
+            "from l3cli.cli.main import main\n"
+            f"sys.argv = ['l3', '-q', 'render', {str(table_path)!r}, *{raws!r}, '-o', "
+            f"{str(tmp_path / 'out')!r}, '--format', {fmt!r}]\n"
+            "main()\n")
+    lines = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
+                             text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        lines.append(out.stdout.strip().splitlines()[-1])
+    assert lines[-1] == "NUMBA False"
+    assert len(list((tmp_path / "out").iterdir())) == 2
