@@ -107,9 +107,9 @@ def main() -> None:
     if a.child:
         memory_child(*a.child)
         return
-    import numba
     import rawpy
 
+    from l3cli.classify.kernel import tile_threads
     from l3cli.io.raw import write_raw
     from l3cli.render import render_display, render_mosaic
     from l3cli.table import save_table
@@ -153,7 +153,7 @@ def main() -> None:
         rows[k] = min(v)
     t_l3 = rows["l3 render"][0]
     print(f"12 MP render benchmark: {w}x{h} RGGB, table 4 positions x 40 levels x 2 contrasts "
-          f"x 8 saturation patterns, numba threads {numba.get_num_threads()}, "
+          f"x 8 saturation patterns, tile threads {tile_threads()}, "
           f"cpus {os.cpu_count()}, load average {os.getloadavg()[0]:.1f}\n")
     print("| method | wall s | MP/s | l3 speed-up (wall) | process CPU s |")
     print("|---|---|---|---|---|")

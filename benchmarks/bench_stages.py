@@ -22,7 +22,7 @@ the process CPU seconds (user + system, best of ``--repeat``) of
 * writing JPEG (quality 95, 4:4:4) and uncompressed 16-bit TIFF
   (:func:`l3cli.io.image.write_image`).
 
-Run it on one core with one numba thread for per-stage numbers (the machine
+Run it on one core with one tile thread for per-stage numbers (the machine
 may be shared: CPU time, not wall time). Prints a Markdown table.
 """
 
@@ -78,9 +78,8 @@ def main() -> None:
     if not a.dng.exists():
         print(f"(skipped: {a.dng} is not here; it is in the shared data set)")
         return
-    import numba
-
     from l3cli.classify import classify
+    from l3cli.classify.kernel import tile_threads
     from l3cli.io.encode import display_encode
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
@@ -121,7 +120,7 @@ def main() -> None:
         lambda: write_image(tmp / "a.tif", out16, space="srgb", compression="none"),
         a.repeat), ""))
     print(f"Per-stage CPU of one {w}x{h} ({w * h / 1e6:.1f} MP) raw ({a.dng.name}), "
-          f"numba threads {numba.get_num_threads()}, load average {os.getloadavg()[0]:.1f}, "
+          f"tile threads {tile_threads()}, load average {os.getloadavg()[0]:.1f}, "
           f"best of {a.repeat}\n")
     print("| stage | CPU s | note |")
     print("|---|---|---|")
