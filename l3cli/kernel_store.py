@@ -282,9 +282,7 @@ def save(name: str, sources: Sequence[str | os.PathLike], types_: str, dispatche
             folder.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".bin")
             try:
-                umask = os.umask(0)
-                os.umask(umask)
-                os.chmod(tmp, 0o666 & ~umask)  # as numba's cache files (mkstemp makes 0600)
+                os.chmod(tmp, 0o644)  # readable as numba's cache files are (mkstemp: 0600)
                 with os.fdopen(fd, "wb") as f:
                     f.write(blob)
                 os.replace(tmp, _file(folder, name, digest, types_))
@@ -295,6 +293,12 @@ def save(name: str, sources: Sequence[str | os.PathLike], types_: str, dispatche
             return _file(folder, name, digest, types_)
         except OSError as exc:
             log.debug("kernel %s not stored in %s: %s", name, folder, exc)
+    with _lock:
+        if not _runtime.get("warned"):
+            _runtime["warned"] = True
+            log.warning("compiled kernels cannot be stored (no writable folder among %s): "
+                        "every run compiles them again; set NUMBA_CACHE_DIR to a writable "
+                        "folder", ", ".join(str(f) for f in store_dirs()))
     return None
 
 
