@@ -56,7 +56,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Stored", "in_use", "load", "save", "store_dirs", "stored_any", "typekey"]
+__all__ = ["Stored", "in_use", "load", "prepare", "save", "store_dirs", "stored_any",
+           "typekey"]
 
 log = logging.getLogger(__name__)
 
@@ -200,6 +201,17 @@ def _loader() -> tuple[Any, Any]:
             llvm.initialize_native_asmprinter()
             _runtime["dynfunc"] = dynfunc
         return sys.modules["llvmlite.binding"], _runtime["dynfunc"]
+
+
+def prepare() -> None:
+    """Do the per-process part of loading now: llvmlite's and numba's runtime libraries,
+    the machine's key (for a thread to run while the main thread imports: the
+    libraries' loading and llvmlite's calls release the GIL). Never raises."""
+    try:
+        _machine_key()
+        _loader()
+    except Exception as exc:  # noqa: BLE001 - load() reports and falls back
+        log.debug("kernel store not prepared: %s", exc)
 
 
 def load(name: str, sources: Sequence[str | os.PathLike], types_: str) -> Callable | None:

@@ -59,9 +59,16 @@ def render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None,
         # the prefetched decodes' mosaics come from the pipeline's buffer pool
         stack.enter_context(buffers.recycling(2 * (IN_FLIGHT + 1)))
         # the first raws decode (on the core start-up leaves idle) while the
-        # render code (numba) imports and loads
-        prefetch = (stack.enter_context(Prefetch(raws, count=IN_FLIGHT))
-                    if raws and workers is None and scheduler is None else None)
+        # render code imports and its machine code loads
+        prefetch = None
+        if raws and workers is None and scheduler is None:
+            import threading
+
+            from l3cli import kernel_store
+
+            threading.Thread(target=kernel_store.prepare, name="l3-kernel-store",
+                             daemon=True).start()
+            prefetch = stack.enter_context(Prefetch(raws, count=IN_FLIGHT))
         _render(table_path, raws, output, fmt, compression, half, quality, white_balance,
                 workers, scheduler, prefetch, from_folder)
 
