@@ -368,6 +368,8 @@ class Stored:
                 if fn is None:
                     if not compile:
                         return None
+                    log.info("compiling %s for this machine (once: its code is stored for "
+                             "later runs)", self.name)
                     fn = self._dispatcher()
                     sig = tuple(fn.typeof_pyval(a) for a in args)
                     with self._context():

@@ -55,7 +55,7 @@ def _add_kernel():
     return numba.njit(nogil=True)(add)
 
 
-def test_stored_code_loads_and_damage_falls_back_to_numba(tmp_path, monkeypatch):
+def test_stored_code_loads_and_damage_falls_back_to_numba(tmp_path, monkeypatch, caplog):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
     src = _source(tmp_path, "x = 1\n")
     a = np.arange(5, dtype=np.float32)
@@ -69,7 +69,9 @@ def test_stored_code_loads_and_damage_falls_back_to_numba(tmp_path, monkeypatch)
 
     first = Stored("test-add", [src], _add_kernel)
     assert not first.stored()
-    assert isinstance(run(first), numba.core.dispatcher.Dispatcher)  # compiled, then stored
+    with caplog.at_level("INFO", logger="l3cli.kernel_store"):
+        assert isinstance(run(first), numba.core.dispatcher.Dispatcher)  # compiled, stored
+    assert "compiling test-add for this machine" in caplog.text  # what `l3 -v` shows
     assert first.stored()
     files = list((tmp_path / "cache" / "l3cli-kernels").glob("test-add-*.bin"))
     assert len(files) == 1
