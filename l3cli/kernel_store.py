@@ -166,20 +166,15 @@ def stored_any(name: str, sources: Sequence[str | os.PathLike]) -> bool:
 
 
 def _extension(name: str, rel: str) -> types.ModuleType:
-    """numba's C extension module ``name`` (file ``rel`` under numba), loaded on its own.
+    """numba's C extension module ``name`` (file ``rel`` under numba), loaded on its own
+    (:func:`l3cli.startup.extension_module`: a later ``import numba`` uses this one)."""
+    from l3cli.startup import extension_module
 
-    Registered under its own name, so a later ``import numba`` uses this one.
-    """
-    if name in sys.modules:
-        return sys.modules[name]
     nbdir = _numba_dir()
-    found = glob.glob(str(nbdir / rel) + ".cpython-*") if nbdir is not None else []
-    if not found:
+    module = (extension_module(name, nbdir / os.path.dirname(rel)) if nbdir is not None
+              else None)
+    if module is None:
         raise ImportError(f"numba's {rel} not found")
-    spec = importlib.util.spec_from_file_location(name, found[0])
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    sys.modules[name] = module
     return module
 
 
@@ -237,13 +232,13 @@ def load(name: str, sources: Sequence[str | os.PathLike], types_: str) -> Callab
     return None
 
 
-def _link(path: Path, data: bytes, digest: str) -> Callable:
+def _link(path: Path, data: bytes, key: str) -> Callable:
     if not data.startswith(_MAGIC):
         raise ValueError(f"{path}: not a stored kernel")
     end = data.index(b"\n", len(_MAGIC))
     head = json.loads(data[len(_MAGIC):end])
     obj = data[end + 1:]
-    if (head.get("digest") != digest or len(obj) != head.get("size")
+    if (head.get("digest") != key or len(obj) != head.get("size")
             or hashlib.sha256(obj).hexdigest() != head.get("sha256")):
         raise ValueError(f"{path}: stored for another key, truncated or damaged")
     llvm, dynfunc = _loader()
@@ -278,7 +273,7 @@ def save(name: str, sources: Sequence[str | os.PathLike], types_: str, dispatche
         cres = dispatcher.overloads.get(sig)
         if cres is None or cres.objectmode or cres.environment.consts:
             return None
-        _, kind, payload = cres.library.serialize_using_object_code()
+        _, _, payload = cres.library.serialize_using_object_code()
         obj = payload[0]
         digest = _digest(sources)
         head = {"digest": f"{name} {digest} {types_}", "size": len(obj),
@@ -335,7 +330,7 @@ class Stored:
         callees'): any change to them is a new key.
     dispatcher
         Returns the numba dispatcher (imports numba); called only when no
-        stored code fits.
+        stored code fits (after :func:`l3cli.startup.preload_scipy_blas`).
     context
         Optional: returns a context manager to hold while numba compiles (its
         compiler settings).
@@ -370,6 +365,9 @@ class Stored:
                         return None
                     log.info("compiling %s for this machine (once: its code is stored for "
                              "later runs)", self.name)
+                    from l3cli.startup import preload_scipy_blas
+
+                    preload_scipy_blas()  # numba's first use, without scipy.linalg's __init__
                     fn = self._dispatcher()
                     sig = tuple(fn.typeof_pyval(a) for a in args)
                     with self._context():

@@ -52,9 +52,9 @@ import threading
 import time
 from typing import Any, NoReturn
 
-__all__ = ["Interrupted", "arm_exit_now", "exit_now", "handle_signals", "interrupt_status",
-           "lean_cache", "pause_gc", "preload_scipy_blas", "resume_gc", "signals_deferred",
-           "single_threaded_blas"]
+__all__ = ["Interrupted", "arm_exit_now", "exit_now", "extension_module", "handle_signals",
+           "interrupt_status", "lean_cache", "pause_gc", "preload_scipy_blas", "resume_gc",
+           "signals_deferred", "single_threaded_blas"]
 
 log = logging.getLogger(__name__)
 
@@ -329,30 +329,43 @@ _preload_lock = threading.Lock()
 
 def _preload_scipy_blas() -> None:
     try:
-        import glob
-        import importlib.machinery
-        import importlib.util
-
         import scipy
 
         folder = os.path.join(scipy.__path__[0], "linalg")
         for name in ("cython_blas", "cython_lapack"):
-            full = f"scipy.linalg.{name}"
-            if full in sys.modules:
-                continue
-            files = [f for suffix in importlib.machinery.EXTENSION_SUFFIXES
-                     for f in glob.glob(os.path.join(folder, name + suffix))]
-            if not files:
+            if extension_module(f"scipy.linalg.{name}", folder) is None:
                 return
-            spec = importlib.util.spec_from_file_location(full, files[0])
-            if spec is None or spec.loader is None:
-                return
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[full] = module
-            try:
-                spec.loader.exec_module(module)
-            except BaseException:
-                del sys.modules[full]
-                raise
     except Exception as exc:  # noqa: BLE001 - an optimisation only
         log.debug("scipy BLAS preload skipped: %s", exc)
+
+
+def extension_module(full: str, folder: str | os.PathLike) -> Any:
+    """The C extension module ``full`` loaded from its file in ``folder``, without its
+    package's ``__init__``; None when no such file is there.
+
+    Registered in ``sys.modules`` under ``full``, so a later import of the
+    package uses this very module. An error in the module's own initialisation
+    propagates (and leaves nothing registered).
+    """
+    import glob
+    import importlib.machinery
+    import importlib.util
+
+    if full in sys.modules:
+        return sys.modules[full]
+    stem = full.rsplit(".", 1)[-1]
+    files = [f for suffix in importlib.machinery.EXTENSION_SUFFIXES
+             for f in glob.glob(os.path.join(os.fspath(folder), stem + suffix))]
+    if not files:
+        return None
+    spec = importlib.util.spec_from_file_location(full, files[0])
+    if spec is None or spec.loader is None:
+        return None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[full] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[full]
+        raise
+    return module

@@ -63,15 +63,13 @@ KERNEL_SOURCES = tuple(str(p) for p in (
 
 def tile_threads() -> int:
     """Threads that share an image's tiles: ``NUMBA_NUM_THREADS`` when set, else the
-    CPUs this process may run on."""
+    CPUs this process may run on (:func:`l3cli.parallel.cpu_count`)."""
+    from l3cli.parallel import cpu_count
+
     try:
         return max(1, int(os.environ["NUMBA_NUM_THREADS"]))
     except (KeyError, ValueError):
-        pass
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
+        return cpu_count()
 
 
 @functools.cache
@@ -81,9 +79,6 @@ def _kernel(S: int, PW: int) -> Any:
     from l3cli.kernel_store import Stored
 
     def dispatcher() -> Any:
-        from l3cli.startup import preload_scipy_blas
-
-        preload_scipy_blas()  # numba's first use, without scipy.linalg's __init__
         from l3cli.classify.tile_kernel import tile_kernel
 
         return tile_kernel(S, PW)
@@ -115,6 +110,9 @@ class _Batch:
                 self.done.set()
 
 
+# The threads are l3's own daemon threads, not a ThreadPoolExecutor's: an executor's
+# threads are not daemons, and a live one makes startup.exit_now fall back to the
+# interpreter's full teardown.
 _work: queue.SimpleQueue = queue.SimpleQueue()
 _workers: list[threading.Thread] = []
 _workers_lock = threading.Lock()
@@ -151,7 +149,8 @@ if hasattr(os, "register_at_fork"):
 
 
 def _run_split(fn: Any, args: tuple, n_tiles: int) -> None:
-    """``fn(*args, t_lo, t_hi)`` over tiles ``0..n_tiles``, in ranges shared by the threads."""
+    """``fn(*args, t_lo, t_hi)`` over tiles ``0..n_tiles``, in ranges shared by the threads
+    (``fn``: the compiled kernel, resolved once for the call)."""
     k = min(tile_threads(), n_tiles)
     if k <= 1:
         fn(*args, 0, n_tiles)
@@ -265,7 +264,8 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     args = (mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o, lev_o, con_o, sat_o,
             K, n_out, outf, *(curve if curve is not None else _NO_CURVE), *display, bits, out8,
             out16, *(codes if codes is not None and mode == MODE_DISPLAY else _NO_CODES))
-    _run_split(_kernel(S, pw), args, n_tiles)
+    # resolved once (argument types, loaded code), not once per range
+    _run_split(_kernel(S, pw).function(*args, 0, n_tiles), args, n_tiles)
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,

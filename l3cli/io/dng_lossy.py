@@ -189,9 +189,6 @@ _decode_tile = Stored("dng-lossy-tile", [str(Path(__file__).with_name(f)) for f 
 
 
 def _numba_decode_tile() -> Any:
-    from l3cli.startup import preload_scipy_blas
-
-    preload_scipy_blas()  # numba's first use, without scipy.linalg's __init__
     from l3cli.io.dng_lossy_tile import decode_tile
 
     return decode_tile
@@ -207,6 +204,7 @@ def decode(data: bytes | memoryview, tiles: LossyTiles) -> np.ndarray | None:
     # every pixel is written: the tiles cover the raw and the blocks their tiles (checked)
     out = buffers.empty((tiles.raw_height, tiles.raw_width), np.uint16)
     trow = tcol = 0
+    run = None  # the decoder, resolved on the first tile (the tiles' argument types agree)
     for offset, count in zip(tiles.offsets, tiles.counts, strict=True):
         if trow >= tiles.raw_height:
             break
@@ -224,9 +222,10 @@ def decode(data: bytes | memoryview, tiles: LossyTiles) -> np.ndarray | None:
             return None
         if lines % 8 or tiles.tile_width % 8:  # whole blocks in each half row
             return None
-        if _decode_tile(buf, scan, offset + count, quant, dc, ac, fast_ac(ac), lines, samples,
-                        tiles.tile_width, trow, tcol, tiles.curve, out, ZIGZAG, BASIS.ravel(),
-                        SQRT1_2) != 0:
+        args = (buf, scan, offset + count, quant, dc, ac, fast_ac(ac), lines, samples,
+                tiles.tile_width, trow, tcol, tiles.curve, out, ZIGZAG, BASIS.ravel(), SQRT1_2)
+        run = run or _decode_tile.function(*args)
+        if run(*args) != 0:
             return None
         tcol += tiles.tile_width
         if tcol >= tiles.raw_width:
