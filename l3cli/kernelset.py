@@ -42,7 +42,7 @@ import numpy as np
 
 from l3cli import buffers
 from l3cli.classify import MODE_DISPLAY, MODE_RENDER, check_mosaic, run_tiles
-from l3cli.classify.layout import RENDER_LANES, pack_lanes
+from l3cli.classify.layout import RENDER_LANES, pack_taps
 from l3cli.errors import InputError, TableError
 from l3cli.table import TransformTable
 
@@ -58,7 +58,7 @@ _RGB = ("R", "G", "B")
 
 
 def pack_kernels(table: TransformTable | np.ndarray) -> np.ndarray:
-    """Kernels in the render kernel's layout (a copy: ~1 MB, < 1 ms).
+    """Kernels in the render kernel's layout (a copy: ~1 MB, a few ms).
 
     Parameters
     ----------
@@ -68,10 +68,10 @@ def pack_kernels(table: TransformTable | np.ndarray) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32 (n_classes, (S*S + 1) * L). Tables of up to 4 outputs: ``L = 4``
-        lanes (zero-padded), in the row-pair layout of
-        :func:`l3cli.render_rows.pack_lanes`; otherwise ``L = n_out``,
-        tap-major (patch row-major, then the constant).
+        float32. Tables of up to 4 outputs: 4 outputs (zero-padded) in the
+        tap-lane layout of :func:`l3cli.render_rows.pack_taps`, (n_classes,
+        4 S L + 4); otherwise (n_classes, (S*S + 1) * n_out), tap-major
+        (patch row-major, then the constant).
     """
     kernels = table.kernels if isinstance(table, TransformTable) else table
     k = np.asarray(kernels, dtype=np.float32)  # (n_classes, q, n_out)
@@ -80,7 +80,7 @@ def pack_kernels(table: TransformTable | np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(k.reshape(nc, q * n_out))
     packed = np.zeros((nc, q, RENDER_LANES), dtype=np.float32)
     packed[:, :, :n_out] = k
-    return pack_lanes(packed)
+    return pack_taps(packed)
 
 
 def tone_curve_arrays(table: TransformTable) -> tuple[np.ndarray, ...] | None:

@@ -3,26 +3,24 @@
 The tile kernel (:mod:`l3cli.classify.kernel`) classifies a row of a tile
 and, in render mode, hands the row's classes to one of these loops while the
 tile's padded band is still in cache; :func:`l3cli.render.pack_kernels` lays
-the table's kernels out for them (:func:`pack_lanes` for up to 4 outputs).
+the table's kernels out for them (:func:`pack_taps` for up to 4 outputs).
 
-For up to 4 outputs a pixel is :func:`affine4`: per patch row a chain of
-multiply-adds over the row's taps, 4 output lanes wide, and the rows' sums
-added to the constant in row order. Two patch rows' chains run side by side
-in one 8-lane register (:func:`row_groups`): their patch values come from
-the band's *row pairs* (``pb2[k, 2 * x + j] = pb[k + j, x]``, one 8-byte load
-broadcast to the 8 lanes) and their kernels are interleaved to match. Every
-lane computes the very same sequence of rounded operations as one row at a
-time does, so the pixels are bit for bit those of the one-row loop; the
-loads and multiply-adds per pixel fall by about a third (the affine part of
-a render 30 % faster, measured). numba cannot express this layout (LLVM's
-SLP vectoriser leaves the 8 chains scalar), hence the LLVM intrinsic.
-
-Three-output tables (every RGB table) render four pixels per call, their
-instructions interleaved tap by tap: a pixel's chains are serial (each
-multiply-add waits for the one before), four pixels' chains are not, so the
-CPU overlaps them (the default table's 7x7 display render of a 9-MP raw on
-one AVX2 core: 0.264-0.295 s before, 0.232-0.246 s after, docs/performance.md;
-the pixels are unchanged, bit for bit).
+For up to 4 outputs a pixel is :func:`affine_taps`, vectorised over the
+*taps* of a patch row: the row's ``S`` values are one unaligned load of
+``L`` lanes (:func:`tap_lanes`: 8 for patches up to 7; the lanes past the
+patch meet zero taps), and per output one multiply-add per patch row
+accumulates lane by lane (the first row's product, then the next rows'
+fused multiply-adds, in row order). The 4 outputs' lanes are then summed as
+one horizontal-add tree (per output ``((l0 + l1) + (l2 + l3)) + ((l4 + l5)
++ (l6 + l7))``, after adding lanes ``j`` and ``8 + j`` for 16 lanes) and the
+constant added last. A 7x7 three-output pixel is 7 loads of the patch, 21
+multiply-adds and 21 kernel loads and one tree: about half the instructions
+of the former layout (patch rows in pairs, the 4 outputs as lanes; 25
+broadcasts, 25 multiply-adds and 25 kernel loads per pixel, then the rows'
+sums one by one). numba cannot express this (LLVM's vectorisers leave the
+chains scalar), hence the LLVM intrinsic. The order of every rounded
+operation is fixed, so a pixel depends on its patch and class only (a test
+checks a plain loop of the same order, bit for bit).
 """
 
 from __future__ import annotations
@@ -34,48 +32,37 @@ from numba import types
 from numba.core import cgutils, errors
 from numba.extending import intrinsic
 
-from l3cli.classify.layout import RENDER_LANES, pack_lanes, row_groups  # re-exported
+from l3cli.classify.layout import RENDER_LANES, pack_taps, tap_lanes  # re-exported
 from l3cli.io.encode_rows import encode_row, encode_rows  # re-exported: the tile kernel's
 from l3cli.startup import lean_cache
 
-__all__ = ["RENDER_LANES", "affine4", "curve_encode_row", "curve_row", "encode_row", "encode_rows",
-           "pack_lanes", "render_row4", "render_row_any", "row_groups", "row_pairs"]
-
-@nb.njit(cache=True)
-def row_pairs(pb, pb2, nrows):
-    """``pb2[k, 2 x + j] = pb[k + j, x]`` for band rows ``k < nrows`` (:func:`affine4`'s input)."""
-    w = pb.shape[1]
-    for k in range(nrows):
-        for x in range(w):
-            pb2[k, 2 * x] = pb[k, x]
-            pb2[k, 2 * x + 1] = pb[k + 1, x]
-
+__all__ = ["RENDER_LANES", "affine_taps", "curve_encode_row", "curve_row", "encode_row",
+           "encode_rows", "pack_taps", "render_row4", "render_row_any", "tap_lanes"]
 
 _F32 = ir.FloatType()
 _I32 = ir.IntType(32)
 
 
 @intrinsic
-def affine4(typingctx, pb2_t, pb_t, i_t, x_t, cls_t, k_t, s_t, n_t):
-    """The 4 output lanes of each of the ``N`` pixels from column ``x`` of tile row ``i``.
+def affine_taps(typingctx, pb_t, i_t, x_t, cls_t, k_t, s_t, n_t):
+    """The 4 output values of the pixel at column ``x`` of tile row ``i``.
 
-    ``affine4(pb2, pb, i, x, cls_row, K, S, N)``: ``pb`` the tile's padded band
-    (float32, C order), ``pb2`` its row pairs (:func:`row_pairs`), ``cls_row``
-    the row's classes (pixel ``x + p`` has class ``cls_row[x + p]``), ``K`` the
-    kernels in :func:`pack_lanes`' layout, ``S`` the patch size and ``N`` the
-    pixels, compile-time constants. Returns a ``4 N``-tuple of float32, pixel
-    after pixel. The pixels' instructions are interleaved (tap after tap, one
-    multiply-add of each pixel), so their independent chains overlap in the
-    CPU; each pixel's own sequence of rounded operations is the one-pixel one.
+    ``affine_taps(pb, i, x, cls_row, K, S, NOUT)``: ``pb`` the tile's padded
+    band (float32, C order, at least ``tap_lanes(S) - S`` columns past the
+    last patch, finite), ``cls_row`` the row's classes, ``K`` the kernels in
+    :func:`pack_taps`' layout, ``S`` the patch size and ``NOUT`` (3 or 4) the
+    outputs to compute, compile-time constants (with 3 the 4th is the
+    constant alone). Returns 4 float32.
     """
     for t in (s_t, n_t):
         if not isinstance(t, types.IntegerLiteral):
             raise errors.RequireLiteralValue(t)
-    S, N = s_t.literal_value, n_t.literal_value
-    sig = types.UniTuple(types.float32, 4 * N)(pb2_t, pb_t, i_t, x_t, cls_t, k_t, s_t, n_t)
+    S, NOUT = s_t.literal_value, n_t.literal_value
+    L = tap_lanes(S)
+    sig = types.UniTuple(types.float32, 4)(pb_t, i_t, x_t, cls_t, k_t, s_t, n_t)
 
     def codegen(context, builder, sig, args):
-        pb2, pb, i, x, cls_row, K, _, _ = args
+        pb, i, x, cls_row, K, _, _ = args
         intp = context.get_value_type(types.intp)
 
         def idx(v, t):  # an index as intp
@@ -93,97 +80,75 @@ def affine4(typingctx, pb2_t, pb_t, i_t, x_t, cls_t, k_t, s_t, n_t):
             vt = ir.VectorType(_F32, n)
             return builder.load(builder.bitcast(ptr, vt.as_pointer()), align=4)
 
-        def lanes(values):
-            return ir.Constant(ir.VectorType(_I32, len(values)), values)
+        def shuffle(a, b, lanes):
+            return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(_I32, len(lanes)),
+                                                            lanes))
 
-        i, x = idx(i, sig.args[2]), idx(x, sig.args[3])
-        cls = context.make_array(sig.args[4])(context, builder, cls_row)
-        xs = [builder.add(x, const(p)) for p in range(N)]
-        krows = []
-        for xp in xs:
-            c = builder.load(builder.gep(cls.data, [xp]))
-            krows.append(at(K, sig.args[5], idx(c, sig.args[4].dtype), const(0)))
-        accs = [vload(builder.gep(kr, [const(4 * S * S)]), 4) for kr in krows]  # constants
-        base = 0
-        for r0, m in row_groups(S):
-            vt = ir.VectorType(_F32, 4 * m)
-            # fmuladd: fused where the CPU has FMA, else multiply then add, as numba's
-            # `contract` flag makes the scalar loop (same pixels on any CPU)
-            fma = cgutils.get_or_insert_function(
-                builder.module, ir.FunctionType(vt, [vt, vt, vt]), f"llvm.fmuladd.v{4 * m}f32")
-            sums = [ir.Constant(vt, None)] * N  # +0: the first multiply-add is the product
-            for dx in range(S):
-                for p in range(N):
-                    col = builder.add(xs[p], const(dx))
-                    if m == 2:
-                        v = vload(at(pb2, sig.args[0], builder.add(i, const(r0)),
-                                     builder.mul(col, const(2))), 2)
-                    else:
-                        one = builder.load(at(pb, sig.args[1], builder.add(i, const(r0)), col),
-                                           align=4)
-                        v = builder.insert_element(
-                            ir.Constant(ir.VectorType(_F32, 1), ir.Undefined), one,
-                            ir.Constant(_I32, 0))
-                    v = builder.shuffle_vector(v, ir.Constant(v.type, ir.Undefined),
-                                               lanes([j for _ in range(4) for j in range(m)]))
-                    kv = vload(builder.gep(krows[p], [const(base + 4 * m * dx)]), 4 * m)
-                    sums[p] = builder.call(fma, [v, kv, sums[p]])
-            for j in range(m):  # the group's rows, in order, onto the sum
-                for p in range(N):
-                    row = sums[p] if m == 1 else builder.shuffle_vector(
-                        sums[p], ir.Constant(vt, ir.Undefined),
-                        lanes([m * lane + j for lane in range(4)]))
-                    accs[p] = builder.fadd(accs[p], row)
-            base += 4 * m * S
-        out = [builder.extract_element(acc, ir.Constant(_I32, lane))
-               for acc in accs for lane in range(4)]
+        i, x = idx(i, sig.args[1]), idx(x, sig.args[2])
+        cls = context.make_array(sig.args[3])(context, builder, cls_row)
+        c = builder.load(builder.gep(cls.data, [x]))
+        krow = at(K, sig.args[4], idx(c, sig.args[3].dtype), const(0))
+        vt = ir.VectorType(_F32, L)
+        # fmuladd: fused where the CPU has FMA, else multiply then add, as numba's
+        # `contract` flag makes the scalar loop (same pixels on any CPU)
+        fma = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(vt, [vt, vt, vt]), f"llvm.fmuladd.v{L}f32")
+        accs = [None] * NOUT
+        for dy in range(S):
+            p = vload(at(pb, sig.args[0], builder.add(i, const(dy)), x), L)
+            for o in range(NOUT):
+                kv = vload(builder.gep(krow, [const((dy * RENDER_LANES + o) * L)]), L)
+                accs[o] = builder.fmul(p, kv) if dy == 0 else builder.call(fma, [p, kv, accs[o]])
+        v8 = ir.VectorType(_F32, 8)
+        sums = []
+        for o in range(RENDER_LANES):
+            if o >= NOUT:
+                sums.append(ir.Constant(v8, None))  # +0 lanes: the 4th output's constant alone
+            elif L == 8:
+                sums.append(accs[o])
+            else:  # 16 lanes: lane j + lane 8 + j
+                sums.append(builder.fadd(shuffle(accs[o], accs[o], list(range(8))),
+                                         shuffle(accs[o], accs[o], list(range(8, 16)))))
+
+        def hadd(a, b):  # [a0+a1, a2+a3, b0+b1, b2+b3, a4+a5, a6+a7, b4+b5, b6+b7]
+            return builder.fadd(shuffle(a, b, [0, 2, 8, 10, 4, 6, 12, 14]),
+                                shuffle(a, b, [1, 3, 9, 11, 5, 7, 13, 15]))
+
+        h = hadd(hadd(sums[0], sums[1]), hadd(sums[2], sums[3]))
+        total = builder.fadd(shuffle(h, h, [0, 1, 2, 3]), shuffle(h, h, [4, 5, 6, 7]))
+        kc = vload(builder.gep(krow, [const(RENDER_LANES * S * L)]), RENDER_LANES)
+        res = builder.fadd(total, kc)
+        out = [builder.extract_element(res, ir.Constant(_I32, lane))
+               for lane in range(RENDER_LANES)]
         return context.make_tuple(builder, sig.return_type, out)
 
     return sig, codegen
 
 
 @lean_cache
-@nb.njit(cache=True, fastmath={"contract"})
-def render_row4(pb2, pb, i, tw, S, cls_row, K, outf, o, n_out):
+@nb.njit(cache=True)
+def render_row4(pb, i, tw, S, cls_row, K, outf, o, n_out):
     """Render the ``tw`` pixels of tile row ``i`` for tables of <= 4 outputs
-    (:func:`affine4`: 3 outputs four pixels per call while a pixel follows, the
-    rest one; ``S`` must be a compile-time constant of the caller)."""
+    (:func:`affine_taps`; ``S`` must be a compile-time constant of the caller)."""
     nb.literally(S)
-    x = 0
     if n_out == 3:
-        while x + 4 < tw:  # a pixel follows: every 4th lane lands on a value written next
-            r = affine4(pb2, pb, i, x, cls_row, K, S, 4)
-            for k in range(16):
-                outf[o + k - k // 4] = r[k]
-            o += 12
-            x += 4
-    while x < tw:
-        a0, a1, a2, a3 = affine4(pb2, pb, i, x, cls_row, K, S, 1)
-        o = _store(outf, o, n_out, a0, a1, a2, a3, x + 1 < tw)
-        x += 1
-
-
-@nb.njit(inline="always")
-def _store(outf, o, n_out, a0, a1, a2, a3, more):
-    """One pixel's ``n_out`` values at ``outf[o:]``; returns the next pixel's offset. With
-    3 outputs and ``more`` (a pixel follows) the 4th lane is stored too (the SLP vector
-    store): it lands on the next pixel's first value, which is written next."""
-    if n_out == 3:
-        outf[o] = a0
-        outf[o + 1] = a1
-        outf[o + 2] = a2
-        if more:
-            outf[o + 3] = a3
-    elif n_out == 4:
-        outf[o] = a0
-        outf[o + 1] = a1
-        outf[o + 2] = a2
-        outf[o + 3] = a3
-    else:
+        for x in range(tw):
+            a0, a1, a2, _ = affine_taps(pb, i, x, cls_row, K, S, 3)
+            outf[o] = a0
+            outf[o + 1] = a1
+            outf[o + 2] = a2
+            o += 3
+        return
+    for x in range(tw):
+        a0, a1, a2, a3 = affine_taps(pb, i, x, cls_row, K, S, 4)
         outf[o] = a0
         if n_out > 1:
             outf[o + 1] = a1
-    return o + n_out
+        if n_out > 2:
+            outf[o + 2] = a2
+        if n_out > 3:
+            outf[o + 3] = a3
+        o += n_out
 
 
 @lean_cache

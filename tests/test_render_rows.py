@@ -1,11 +1,12 @@
-"""The row-pair render (:func:`l3cli.render_rows.affine4`) against the one-row-at-a-time loop.
+"""The tap-lane render (:func:`l3cli.render_rows.affine_taps`) against a plain loop of its order.
 
-The render computes two patch rows' multiply-add chains side by side; each
-lane must still see the same rounded operations as the plain loop below
-(per patch row a chain of fused multiply-adds over its taps, starting from
-the rounded product, and the rows' sums added to the constant in row order),
-so the pixels are bit for bit equal, for every patch size and output count.
-Tables of more than 4 outputs take the generic loop, checked the same way.
+The render vectorises over a patch row's taps; a pixel must still be a fixed
+sequence of rounded operations (per output, per tap column a chain of fused
+multiply-adds over the patch rows, starting from the first row's product;
+the columns summed as a horizontal-add tree; the constant added last), so
+the pixels are bit for bit those of the plain loop below, for every patch
+size and output count. Tables of more than 4 outputs take the generic loop
+(one chain over all taps in raster order), checked the same way.
 """
 
 from __future__ import annotations
@@ -16,38 +17,55 @@ import pytest
 
 from l3cli.classify import classify
 from l3cli.render import render_mosaic
-from l3cli.render_rows import pack_lanes, row_groups
+from l3cli.render_rows import pack_taps, tap_lanes
 from tests.test_table import make_table
 
 
+@nb.njit
+def _tree(s):
+    """The tap lanes' sum in the render's order: lanes j and 8 + j, then the 8-lane tree."""
+    if s.size == 16:
+        s = s[:8] + s[8:]
+    return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]))
+
+
 @nb.njit(fastmath={"contract"})
-def _plain_loop(padded, cls, k, row_sums):
-    """out[y, x, q] = const + the taps: with ``row_sums`` one chain per patch row, the rows'
-    sums added in order (the row-pair path); without, one chain over all taps in raster
-    order (the generic loop of tables with more than 4 outputs)."""
+def _plain_loop(padded, cls, k, tap_lanes_):
+    """out[y, x, q]: with ``tap_lanes_`` (L) the tap-lane order (zero lanes past the
+    patch); with 0 one chain over all taps in raster order from the constant (the
+    generic loop of tables with more than 4 outputs)."""
     h, w = cls.shape
     nc, q, n_out = k.shape
     S = int(round((q - 1) ** 0.5))
     out = np.empty((h, w, n_out), np.float32)
+    lanes = np.zeros(max(tap_lanes_, 1), np.float32)
     for y in range(h):
         for x in range(w):
             c = cls[y, x]
             for o in range(n_out):
-                a = k[c, S * S, o]
-                for dy in range(S):
-                    r = np.float32(0.0) if row_sums else a
-                    for dx in range(S):
+                if tap_lanes_ == 0:
+                    a = k[c, S * S, o]
+                    for dy in range(S):
+                        for dx in range(S):
+                            a += padded[y + dy, x + dx] * k[c, dy * S + dx, o]
+                    out[y, x, o] = a
+                    continue
+                lanes[:] = 0.0
+                for dx in range(S):
+                    r = padded[y, x + dx] * k[c, dx, o]
+                    for dy in range(1, S):
                         r += padded[y + dy, x + dx] * k[c, dy * S + dx, o]
-                    a = a + r if row_sums else r
-                out[y, x, o] = a
+                    lanes[dx] = r
+                out[y, x, o] = _tree(lanes) + k[c, S * S, o]
     return out
 
 
-def _check_against_plain_loop(t, m, *, row_sums):
+def _check_against_plain_loop(t, m, *, tap_order):
     got = render_mosaic(t, m)
     yi, xi = t.definition.mirror_maps(*m.shape)
+    S = t.definition.patch
     want = _plain_loop(np.ascontiguousarray(m[np.ix_(yi, xi)]), classify(m, t.definition),
-                       t.kernels.astype(np.float32), row_sums)
+                       t.kernels.astype(np.float32), tap_lanes(S) if tap_order else 0)
     assert got.shape == want.shape
     np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
 
@@ -56,13 +74,12 @@ def _check_against_plain_loop(t, m, *, row_sums):
     *((p, n) for p in (1, 3, 5, 7) for n in (1, 2, 3, 4)),
     pytest.param(9, 3, marks=pytest.mark.slow),  # the tuning's other patch: a kernel compile
 ])
-def test_row_pair_render_is_bit_identical_to_the_one_row_loop(patch, n_out):
+def test_tap_lane_render_is_bit_identical_to_its_plain_loop(patch, n_out):
     t = make_table("RGGB", patch=patch, n_out=n_out, seed=patch + n_out)
     rng = np.random.default_rng(patch * 10 + n_out)
-    # two tile rows, two tile columns; the second tile 21 pixels wide (the 4-pixel
-    # groups of 3-output tables end with a single pixel)
-    m = (rng.random((70, 533)) * 1.1).astype(np.float32)
-    _check_against_plain_loop(t, m, row_sums=True)
+    # two tile rows, two tile columns, the second 21 pixels wide; values of both signs
+    m = (rng.random((70, 533)) * 1.1 - 0.05).astype(np.float32)
+    _check_against_plain_loop(t, m, tap_order=True)
 
 
 @pytest.mark.parametrize("n_out", [5, 6])
@@ -71,24 +88,23 @@ def test_tables_of_more_than_4_outputs_render_every_output(n_out):
     t = make_table("RGGB", patch=5, n_out=n_out, seed=n_out)
     rng = np.random.default_rng(n_out)
     m = (rng.random((40, 90)) * 1.1).astype(np.float32)
-    _check_against_plain_loop(t, m, row_sums=False)
+    _check_against_plain_loop(t, m, tap_order=False)
 
 
-def test_pack_lanes_layout():
-    """Row groups and the interleaved layout, entry by entry."""
-    assert row_groups(5) == [(0, 2), (2, 2), (4, 1)]
-    assert row_groups(1) == [(0, 1)]
-    S = 3
-    k = np.arange(2 * (S * S + 1) * 4, dtype=np.float32).reshape(2, S * S + 1, 4)
-    p = pack_lanes(k)
-    assert p.shape == (2, 4 * (S * S + 1))
-    # group (0, 2): index 8 dx + 2 lane + row; group (2, 1) from 24: 4 dx + lane; constant at 36
-    for c in range(2):
-        for dx in range(S):
-            for lane in range(4):
-                for j in range(2):
-                    assert p[c, 8 * dx + 2 * lane + j] == k[c, j * S + dx, lane]
-                assert p[c, 24 + 4 * dx + lane] == k[c, 2 * S + dx, lane]
-        np.testing.assert_array_equal(p[c, 36:], k[c, S * S])
+def test_pack_taps_layout():
+    """Per patch row, per output, the row's taps then zero lanes; the constants last."""
+    assert [tap_lanes(s) for s in (1, 3, 5, 7, 9)] == [8, 8, 8, 8, 16]
+    for S in (3, 9):
+        L = tap_lanes(S)
+        k = np.arange(2 * (S * S + 1) * 4, dtype=np.float32).reshape(2, S * S + 1, 4) + 1
+        p = pack_taps(k)
+        assert p.shape == (2, 4 * S * L + 4)
+        for c in range(2):
+            for dy in range(S):
+                for o in range(4):
+                    row = p[c, (dy * 4 + o) * L:(dy * 4 + o + 1) * L]
+                    np.testing.assert_array_equal(row[:S], k[c, dy * S:(dy + 1) * S, o])
+                    assert not row[S:].any()
+            np.testing.assert_array_equal(p[c, 4 * S * L:], k[c, S * S])
     with pytest.raises(ValueError, match="not"):
-        pack_lanes(np.zeros((2, 10, 3), np.float32))
+        pack_taps(np.zeros((2, 10, 3), np.float32))

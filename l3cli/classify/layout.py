@@ -3,9 +3,9 @@
 :func:`kernel_tables` builds, once per :class:`~l3cli.classify.ClassDefinition`,
 the arrays and scalars the numba kernel (:mod:`l3cli.classify.tile_kernel`) takes
 in the order of :class:`KernelTables`' fields, which is the kernel's argument
-order (a test checks it against the kernel's signature). :func:`pack_lanes`
+order (a test checks it against the kernel's signature). :func:`pack_taps`
 lays a table's transforms out for the render loops
-(:func:`l3cli.render_rows.affine4`).
+(:func:`l3cli.render_rows.affine_taps`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from l3cli.classify.features import CONTEXT_EPS, CONTEXT_RULES, orientation_cent
 from l3cli.classify.levels import level_lookup
 
 __all__ = ["MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER", "RENDER_LANES",
-           "TILE_COLS", "TILE_ROWS", "KernelTables", "kernel_tables", "pack_lanes", "row_groups"]
+           "TILE_COLS", "TILE_ROWS", "KernelTables", "kernel_tables", "pack_taps", "tap_lanes"]
 
 
 #: Output rows and columns of one tile. A tile's padded band, its
@@ -122,26 +122,25 @@ def kernel_tables(definition: ClassDefinition) -> KernelTables:
 RENDER_LANES = 4
 
 
-def row_groups(S: int) -> list[tuple[int, int]]:
-    """The patch rows of :func:`l3cli.render_rows.affine4` as ``(first row, rows)``: pairs, then a last
-    single row when ``S`` is odd (5: ``[(0, 2), (2, 2), (4, 1)]``)."""
-    return [(r, min(2, S - r)) for r in range(0, S, 2)]
+def tap_lanes(S: int) -> int:
+    """Lanes of one patch row in :func:`l3cli.render_rows.affine_taps`: ``S`` taps padded
+    to whole 8-lane vectors (8 for patches up to 7, 16 for 9)."""
+    return 8 * -(-S // 8)
 
 
-def pack_lanes(k: np.ndarray) -> np.ndarray:
-    """Kernels (n_classes, S*S + 1, 4) in :func:`l3cli.render_rows.affine4`'s layout, (n_classes, 4 (S*S + 1)).
+def pack_taps(k: np.ndarray) -> np.ndarray:
+    """Kernels (n_classes, S*S + 1, 4) in :func:`l3cli.render_rows.affine_taps`' layout,
+    (n_classes, 4 S L + 4) with ``L = tap_lanes(S)``.
 
-    Per row group (:func:`row_groups`), per tap of the row, per lane ``l``
-    and row ``j`` of the group: ``4 * m * dx + m * l + j`` (``m`` rows in the
-    group); then the constant's 4 lanes.
+    Per patch row ``dy``, per output ``o``: the row's ``S`` taps and ``L - S``
+    zeros (entry ``(dy * 4 + o) * L + dx``); then the 4 constants.
     """
     nc, q, lanes = k.shape
     S = int(round((q - 1) ** 0.5))
     if S * S + 1 != q or lanes != RENDER_LANES:
         raise ValueError(f"kernels of shape {k.shape} are not (n, S*S + 1, 4)")
-    parts = []
-    for r0, m in row_groups(S):
-        g = k[:, r0 * S:(r0 + m) * S].reshape(nc, m, S, lanes)  # (class, row, dx, lane)
-        parts.append(g.transpose(0, 2, 3, 1).reshape(nc, S * lanes * m))
-    parts.append(k[:, S * S])
-    return np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=np.float32)
+    L = tap_lanes(S)
+    taps = np.zeros((nc, S, lanes, L), dtype=np.float32)  # (class, dy, output, dx)
+    taps[..., :S] = k[:, :S * S].reshape(nc, S, S, lanes).transpose(0, 1, 3, 2)
+    return np.ascontiguousarray(np.concatenate([taps.reshape(nc, -1), k[:, S * S]], axis=1),
+                                dtype=np.float32)

@@ -32,7 +32,7 @@ from l3cli.render_rows import (  # noqa: E402
     encode_row,
     render_row4,
     render_row_any,
-    row_pairs,
+    tap_lanes,
 )
 
 __all__ = ["slp_vectorize", "tile_kernel"]
@@ -76,6 +76,7 @@ def tile_kernel(S: int, PW: int):
     """
     r = S // 2
     TR = TILE_ROWS
+    PAD = tap_lanes(S) - S
 
     # no numba cache: the machine code is stored by l3cli.kernel_store, whose key covers
     # the callees' sources too (numba's cache would not need the object code kept)
@@ -129,7 +130,9 @@ def tile_kernel(S: int, PW: int):
             twp = tw + S - 1
             nbr = i1 - i0 + S - 1
             # padded band of the tile: row k is padded row y0 + i0 + k (image row - r)
-            pb = np.empty((nbr, twp), dtype=np.float32)
+            # (+ zeros past the last patch: the render's vector loads of a patch row,
+            # render_rows.affine_taps, read tap_lanes(S) values)
+            pb = np.empty((nbr, twp + PAD), dtype=np.float32)
             inner = x0 - r >= 0 and x0 - r + twp <= W
             for k in range(nbr):
                 src = yi[y0 + i0 + k]
@@ -139,11 +142,8 @@ def tile_kernel(S: int, PW: int):
                 else:
                     for xx in range(twp):
                         pb[k, xx] = mosaic[src, xi[x0 + xx]]
-            if n_out <= 4 and (mode == MODE_RENDER or mode == MODE_DISPLAY):
-                pb2 = np.empty((nbr - 1, 2 * twp), dtype=np.float32)  # row pairs (render_rows)
-                row_pairs(pb, pb2, nbr - 1)
-            else:
-                pb2 = pb
+                for xx in range(twp, twp + PAD):
+                    pb[k, xx] = np.float32(0.0)
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
             ring_q = np.empty((S, nch, tw), dtype=np.float32)
             ring_b = np.empty((S, tw), dtype=np.int32)
@@ -373,7 +373,7 @@ def tile_kernel(S: int, PW: int):
                         out_cls[i0 + i, x0 + x] = clsr[x]
                 elif mode == MODE_DISPLAY:  # render the row, then encode it while in cache
                     if n_out <= 4:
-                        render_row4(pb2, pb, i, tw, S, clsr, K, rowf, 0, n_out)
+                        render_row4(pb, i, tw, S, clsr, K, rowf, 0, n_out)
                     else:
                         render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
                     if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tonecode)
@@ -385,7 +385,7 @@ def tile_kernel(S: int, PW: int):
                         encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp,
                                    shift, lin, out8, out16, enc_bits, o)
                 elif n_out <= 4:
-                    render_row4(pb2, pb, i, tw, S, clsr, K, outf, o, n_out)
+                    render_row4(pb, i, tw, S, clsr, K, outf, o, n_out)
                 else:
                     render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
                 if mode == MODE_RENDER and cv_base.shape[1] > 1:  # learned tone curve
