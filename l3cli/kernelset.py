@@ -68,9 +68,9 @@ def pack_kernels(table: TransformTable | np.ndarray) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32. Tables of up to 4 outputs: 4 outputs (zero-padded) in the
-        tap-lane layout of :func:`l3cli.render_rows.pack_taps`, (n_classes,
-        4 S L + 4); otherwise (n_classes, (S*S + 1) * n_out), tap-major
+        float32. Tables of up to 4 outputs: 3 outputs (three-output tables) or
+        4 (zero-padded) in the tap-lane layout of
+        :func:`l3cli.render_rows.pack_taps`, (n_classes, 3 or 4 S L + 4); otherwise (n_classes, (S*S + 1) * n_out), tap-major
         (patch row-major, then the constant).
     """
     kernels = table.kernels if isinstance(table, TransformTable) else table
@@ -80,7 +80,7 @@ def pack_kernels(table: TransformTable | np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(k.reshape(nc, q * n_out))
     packed = np.zeros((nc, q, RENDER_LANES), dtype=np.float32)
     packed[:, :, :n_out] = k
-    return pack_taps(packed)
+    return pack_taps(packed, 3 if n_out == 3 else RENDER_LANES)
 
 
 def tone_curve_arrays(table: TransformTable) -> tuple[np.ndarray, ...] | None:

@@ -50,9 +50,9 @@ def affine_taps(typingctx, pb_t, i_t, x_t, cls_t, k_t, s_t, n_t):
     ``affine_taps(pb, i, x, cls_row, K, S, NOUT)``: ``pb`` the tile's padded
     band (float32, C order, at least ``tap_lanes(S) - S`` columns past the
     last patch, finite), ``cls_row`` the row's classes, ``K`` the kernels in
-    :func:`pack_taps`' layout, ``S`` the patch size and ``NOUT`` (3 or 4) the
-    outputs to compute, compile-time constants (with 3 the 4th is the
-    constant alone). Returns 4 float32.
+    :func:`pack_taps`' layout for ``NOUT`` (3 or 4) outputs, ``S`` the patch
+    size and ``NOUT`` compile-time constants (with 3 the 4th value is the
+    4th constant alone). Returns 4 float32.
     """
     for t in (s_t, n_t):
         if not isinstance(t, types.IntegerLiteral):
@@ -97,7 +97,7 @@ def affine_taps(typingctx, pb_t, i_t, x_t, cls_t, k_t, s_t, n_t):
         for dy in range(S):
             p = vload(at(pb, sig.args[0], builder.add(i, const(dy)), x), L)
             for o in range(NOUT):
-                kv = vload(builder.gep(krow, [const((dy * RENDER_LANES + o) * L)]), L)
+                kv = vload(builder.gep(krow, [const((dy * NOUT + o) * L)]), L)
                 accs[o] = builder.fmul(p, kv) if dy == 0 else builder.call(fma, [p, kv, accs[o]])
         v8 = ir.VectorType(_F32, 8)
         sums = []
@@ -116,7 +116,7 @@ def affine_taps(typingctx, pb_t, i_t, x_t, cls_t, k_t, s_t, n_t):
 
         h = hadd(hadd(sums[0], sums[1]), hadd(sums[2], sums[3]))
         total = builder.fadd(shuffle(h, h, [0, 1, 2, 3]), shuffle(h, h, [4, 5, 6, 7]))
-        kc = vload(builder.gep(krow, [const(RENDER_LANES * S * L)]), RENDER_LANES)
+        kc = vload(builder.gep(krow, [const(NOUT * S * L)]), RENDER_LANES)
         res = builder.fadd(total, kc)
         out = [builder.extract_element(res, ir.Constant(_I32, lane))
                for lane in range(RENDER_LANES)]
@@ -131,24 +131,25 @@ def render_row4(pb, i, tw, S, cls_row, K, outf, o, n_out):
     """Render the ``tw`` pixels of tile row ``i`` for tables of <= 4 outputs
     (:func:`affine_taps`; ``S`` must be a compile-time constant of the caller)."""
     nb.literally(S)
+    ou = np.uint64(o)  # unsigned: no negative-index wrap-around code in the stores
     if n_out == 3:
         for x in range(tw):
             a0, a1, a2, _ = affine_taps(pb, i, x, cls_row, K, S, 3)
-            outf[o] = a0
-            outf[o + 1] = a1
-            outf[o + 2] = a2
-            o += 3
+            outf[ou] = a0
+            outf[ou + np.uint64(1)] = a1
+            outf[ou + np.uint64(2)] = a2
+            ou += np.uint64(3)
         return
     for x in range(tw):
         a0, a1, a2, a3 = affine_taps(pb, i, x, cls_row, K, S, 4)
-        outf[o] = a0
+        outf[ou] = a0
         if n_out > 1:
-            outf[o + 1] = a1
+            outf[ou + np.uint64(1)] = a1
         if n_out > 2:
-            outf[o + 2] = a2
+            outf[ou + np.uint64(2)] = a2
         if n_out > 3:
-            outf[o + 3] = a3
-        o += n_out
+            outf[ou + np.uint64(3)] = a3
+        ou += np.uint64(n_out)
 
 
 @lean_cache

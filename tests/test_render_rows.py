@@ -94,17 +94,19 @@ def test_tables_of_more_than_4_outputs_render_every_output(n_out):
 def test_pack_taps_layout():
     """Per patch row, per output, the row's taps then zero lanes; the constants last."""
     assert [tap_lanes(s) for s in (1, 3, 5, 7, 9)] == [8, 8, 8, 8, 16]
-    for S in (3, 9):
+    for S, outputs in ((3, 4), (9, 4), (7, 3)):
         L = tap_lanes(S)
         k = np.arange(2 * (S * S + 1) * 4, dtype=np.float32).reshape(2, S * S + 1, 4) + 1
-        p = pack_taps(k)
-        assert p.shape == (2, 4 * S * L + 4)
+        p = pack_taps(k, outputs)
+        assert p.shape == (2, outputs * S * L + 4)
         for c in range(2):
             for dy in range(S):
-                for o in range(4):
-                    row = p[c, (dy * 4 + o) * L:(dy * 4 + o + 1) * L]
+                for o in range(outputs):
+                    row = p[c, (dy * outputs + o) * L:(dy * outputs + o + 1) * L]
                     np.testing.assert_array_equal(row[:S], k[c, dy * S:(dy + 1) * S, o])
                     assert not row[S:].any()
-            np.testing.assert_array_equal(p[c, 4 * S * L:], k[c, S * S])
+            np.testing.assert_array_equal(p[c, outputs * S * L:], k[c, S * S])
     with pytest.raises(ValueError, match="not"):
         pack_taps(np.zeros((2, 10, 3), np.float32))
+    with pytest.raises(ValueError, match="not 3 or 4"):
+        pack_taps(np.zeros((2, 10, 4), np.float32), 2)

@@ -128,19 +128,22 @@ def tap_lanes(S: int) -> int:
     return 8 * -(-S // 8)
 
 
-def pack_taps(k: np.ndarray) -> np.ndarray:
+def pack_taps(k: np.ndarray, outputs: int = RENDER_LANES) -> np.ndarray:
     """Kernels (n_classes, S*S + 1, 4) in :func:`l3cli.render_rows.affine_taps`' layout,
-    (n_classes, 4 S L + 4) with ``L = tap_lanes(S)``.
+    (n_classes, outputs S L + 4) with ``L = tap_lanes(S)``.
 
-    Per patch row ``dy``, per output ``o``: the row's ``S`` taps and ``L - S``
-    zeros (entry ``(dy * 4 + o) * L + dx``); then the 4 constants.
+    Per patch row ``dy``, per output ``o`` of the first ``outputs`` (3 for
+    three-output tables: no block of zeros to load past): the row's ``S`` taps
+    and ``L - S`` zeros (entry ``(dy * outputs + o) * L + dx``); then the 4
+    constants.
     """
     nc, q, lanes = k.shape
     S = int(round((q - 1) ** 0.5))
-    if S * S + 1 != q or lanes != RENDER_LANES:
-        raise ValueError(f"kernels of shape {k.shape} are not (n, S*S + 1, 4)")
+    if S * S + 1 != q or lanes != RENDER_LANES or outputs not in (3, 4):
+        raise ValueError(f"kernels of shape {k.shape} are not (n, S*S + 1, 4), "
+                         f"or {outputs} outputs not 3 or 4")
     L = tap_lanes(S)
-    taps = np.zeros((nc, S, lanes, L), dtype=np.float32)  # (class, dy, output, dx)
-    taps[..., :S] = k[:, :S * S].reshape(nc, S, S, lanes).transpose(0, 1, 3, 2)
+    taps = np.zeros((nc, S, outputs, L), dtype=np.float32)  # (class, dy, output, dx)
+    taps[..., :S] = k[:, :S * S, :outputs].reshape(nc, S, S, outputs).transpose(0, 1, 3, 2)
     return np.ascontiguousarray(np.concatenate([taps.reshape(nc, -1), k[:, S * S]], axis=1),
                                 dtype=np.float32)
