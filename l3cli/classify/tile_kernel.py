@@ -80,7 +80,9 @@ def tile_kernel(S: int, PW: int):
 
     # no numba cache: the machine code is stored by l3cli.kernel_store, whose key covers
     # the callees' sources too (numba's cache would not need the object code kept)
-    @nb.njit(nogil=True)
+    # error_model="numpy": no zero-division checks, whose branch per pixel kept the
+    # contrast's division scalar (its divisor is at least eps > 0; the values are the same)
+    @nb.njit(nogil=True, error_model="numpy")
     def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
                lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
                xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
