@@ -136,16 +136,18 @@ def tile_kernel(S: int, PW: int):
             # render_rows.affine_taps, read tap_lanes(S) values)
             pb = np.empty((nbr, twp + PAD), dtype=np.float32)
             inner = x0 - r >= 0 and x0 - r + twp <= W
+            c0 = np.uint64(x0 - r) if inner else np.uint64(0)
             for k in range(nbr):
-                src = yi[y0 + i0 + k]
-                if inner:
+                src = mosaic[yi[y0 + i0 + k]]
+                dst = pb[k]
+                if inner:  # unsigned offsets: a vector copy (signed ones are checked per value)
                     for xx in range(twp):
-                        pb[k, xx] = mosaic[src, x0 - r + xx]
+                        dst[xx] = src[c0 + np.uint64(xx)]
                 else:
                     for xx in range(twp):
-                        pb[k, xx] = mosaic[src, xi[x0 + xx]]
+                        dst[xx] = src[xi[x0 + xx]]
                 for xx in range(twp, twp + PAD):
-                    pb[k, xx] = np.float32(0.0)
+                    dst[xx] = np.float32(0.0)
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
             ring_q = np.empty((S, nch, tw), dtype=np.float32)
             ring_b = np.empty((S, tw), dtype=np.int32)
@@ -287,7 +289,7 @@ def tile_kernel(S: int, PW: int):
                     kb = (levi[x] >> lut_shift) - lut_base
                     kbr[x] = min(max(kb, 0), nlut - 1)
                 for x in range(tw):
-                    kb = kbr[x]
+                    kb = np.uint64(kbr[x])  # clamped above: unsigned, no wrap-around code
                     lv = lev[x]
                     lbr[x] = lut[kb] + np.int32(cuts[kb, 0] <= lv) + np.int32(cuts[kb, 1] <= lv)
                 for x in range(tw):
