@@ -68,10 +68,11 @@ def pack_kernels(table: TransformTable | np.ndarray) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32. Tables of up to 4 outputs: 3 outputs (three-output tables) or
-        4 (zero-padded) in the tap-lane layout of
-        :func:`l3cli.render_rows.pack_taps`, (n_classes, 3 or 4 S L + 4); otherwise (n_classes, (S*S + 1) * n_out), tap-major
-        (patch row-major, then the constant).
+        float32. Tables of up to 4 outputs: the tap-lane layout of
+        :func:`l3cli.render_rows.pack_taps` for 3 outputs (three-output tables)
+        or 4 (zero-padded), (n_classes, outputs * S * L + 4). Otherwise
+        (n_classes, (S*S + 1) * n_out), tap-major (patch row-major, then the
+        constant).
     """
     kernels = table.kernels if isinstance(table, TransformTable) else table
     k = np.asarray(kernels, dtype=np.float32)  # (n_classes, q, n_out)

@@ -184,8 +184,8 @@ def tile_kernel(S: int, PW: int):
             jxy = np.empty(tw, dtype=np.float32)
             bst = np.empty(tw, dtype=np.float32)
             crow = np.empty(ctx.shape[1], dtype=np.float32)
-            # display mode: a row's float outputs (+ 1 lane of spill), then its encoding
-            rowf = np.empty(tw * n_out + 4 if mode == MODE_DISPLAY else 1, dtype=np.float32)
+            # display mode: a row's float outputs, then its encoding
+            rowf = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
             lin = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
             for k in range(nbr):
                 slot = k % S
