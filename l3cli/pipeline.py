@@ -42,6 +42,7 @@ import numpy as np
 from l3cli import buffers
 from l3cli.errors import L3Error
 from l3cli.progress import progress
+from l3cli.startup import signals_deferred
 
 __all__ = ["IN_FLIGHT", "Prefetch", "RenderTurns", "render_one",
            "render_pipeline", "warm_up"]
@@ -130,7 +131,11 @@ class Prefetch:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name="l3-prefetch", daemon=True)
-        self._thread.start()
+        try:
+            self._thread.start()
+        except BaseException:  # a signal inside start: the thread runs, and nobody would stop it
+            self.__exit__()
+            raise
 
     @property
     def path(self) -> str | None:
@@ -363,10 +368,14 @@ def render_pipeline(table: Any, jobs: Sequence[tuple[str | os.PathLike, str | os
             finally:
                 turns.done(i)  # also when it failed before its render
 
-        futures: list[Future[tuple[Path, tuple[float, float, float]]] | None] = [
-            pool.submit(job, i, raw, out) for i, (raw, out) in enumerate(jobs)
-        ]
+        futures: list[Future[tuple[Path, tuple[float, float, float]]] | None] = []
         try:
+            for i, (raw, out) in enumerate(jobs):
+                # a signal inside submit, after it started a worker thread and before the
+                # pool recorded it, would leave a thread that the pool's shutdown does not
+                # wait for: its file written after the interrupted run's clean-up
+                with signals_deferred():
+                    futures.append(pool.submit(job, i, raw, out))
             for i, fut in enumerate(_locked(progress(futures, label="render",
                                                      length=len(futures),
                                                      enabled=show_progress))):

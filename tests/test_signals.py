@@ -255,6 +255,38 @@ def test_signal_right_after_the_output_folder_is_made(work: Path) -> None:
     _check_output(output)
 
 
+@pytest.mark.parametrize("thread", ["l3-render_0", "l3-render_1"])
+def test_signal_while_a_render_thread_starts(work: Path, thread: str) -> None:
+    """A signal just after a render worker thread started, before its pool recorded
+    it (inside ``pool.submit``): the pool still waits for that thread, so no render
+    thread is alive when the interrupted run's clean-up removes its outputs (one
+    that was once wrote its file after the clean-up)."""
+    args, output = _commands(work)["render"]
+    _prepare(work, output)
+    code = ("import os, pathlib, signal, sys, threading\n"
+            "real = threading.Thread.start\n"
+            "def start(self):\n"
+            "    real(self)\n"
+            f"    if self.name == {thread!r}:\n"
+            "        os.kill(os.getpid(), signal.SIGINT)  # handled before start returns\n"
+            "threading.Thread.start = start\n"
+            "rmdir = pathlib.Path.rmdir\n"
+            "def cleanup(self):\n"
+            "    alive = [t.name for t in threading.enumerate()\n"
+            "             if t.name.startswith('l3-render') and t.is_alive()]\n"
+            "    print('render threads at clean-up:', alive, file=sys.stderr)\n"
+            "    rmdir(self)\n"
+            "pathlib.Path.rmdir = cleanup\n"
+            f"sys.argv = ['l3', *{args!r}]\n"
+            "from l3cli.cli.main import main\nmain()\n")
+    p = subprocess.run([sys.executable, "-c", code], cwd=work, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 128 + signal.SIGINT, p.stderr
+    assert "Traceback" not in p.stderr and "Aborted" in p.stderr, p.stderr
+    assert "render threads at clean-up: []" in p.stderr, p.stderr
+    _check_output(output)
+
+
 def _cluster_up(pid: int) -> bool:
     """A local cluster's worker processes are running."""
     try:
