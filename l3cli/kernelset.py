@@ -362,13 +362,15 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
     ``xyz`` tables, one 3x3) and display-encodes it while it is in cache
     (:func:`l3cli.render_rows.encode_row`), 8 or 16 bits: no float image is
     held and no second pass is made. With a tone curve and no 3x3 after it,
-    8 bits take the curve and the encoding as one lookup per value
-    (:mod:`l3cli.tonecode`: the same codes). Only ``lab`` tables (whose conversion
+    the curve and the encoding are one lookup per value (:mod:`l3cli.tonecode`:
+    for 8 bits the same codes; for 16 bits interpolated, the same codes or one
+    next to them). Only ``lab`` tables (whose conversion
     is colour-science's) and adaptations that are not linear in the table's
     space render bands of about :data:`DISPLAY_BAND_PIXELS` to float and
     encode them one after another. Either way the integers are those of
     :func:`l3cli.io.encode.display_encode` applied to :func:`render_mosaic`'s
-    output (a test checks it; a post matrix may move a value by one code).
+    output (a test checks it; a post matrix, or the 16-bit composed lookup, may move a
+    value by one code).
 
     Parameters
     ----------
@@ -408,12 +410,12 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
                                  matrix=np.ascontiguousarray(params.matrix @ ks.post))
     if params is not None and ks.adapt is None:
         codes = None
-        if ks.curve is not None and not params.use_matrix and bits == 8 and ks.n_out == 3:
+        if ks.curve is not None and not params.use_matrix and ks.n_out == 3:
             from l3cli.tonecode import code_table_for
 
             with lock:
                 codes = code_table_for(ks.curve, params.thr, bits)
-            if codes is not None and codes.walk != 1:  # the general loop is slower than
+            if codes is not None and codes.walk > 1:  # the general loop is slower than
                 codes = None  # curve-then-encode (measured): only the one-comparison loop
         with lock:
             run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=ks.kernels,

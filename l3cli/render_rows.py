@@ -36,7 +36,8 @@ from l3cli.classify.layout import RENDER_LANES, pack_taps, tap_lanes  # re-expor
 from l3cli.io.encode_rows import encode_row, encode_rows  # re-exported: the tile kernel's
 from l3cli.startup import lean_cache
 
-__all__ = ["RENDER_LANES", "affine_taps", "curve_encode_row", "curve_row", "encode_row",
+__all__ = ["RENDER_LANES", "affine_taps", "curve_code16_row", "curve_encode_row", "curve_row",
+           "encode_row",
            "encode_rows", "pack_taps", "render_row4", "render_row_any", "tap_lanes"]
 
 _F32 = ir.FloatType()
@@ -200,6 +201,52 @@ def curve_row(outf, o, tw, n_out, base, slope, lo, step_inv):  # pragma: no cove
             i = np.uint64(np.uint32(np.int32(t)))
             outf[k] = bf[off + i] + (t - np.float32(i)) * sf[off + i]
             k += step
+
+
+@lean_cache
+@nb.njit(cache=True, nogil=True)
+def curve_code16_row(src, tw, tab, lo, scale, out16, o):  # pragma: no cover - compiled
+    """16-bit codes of the ``tw`` pixels of 3 values at ``src[0:]`` into ``out16`` from ``o``.
+
+    Per value its position on the grid of :func:`l3cli.tonecode.interpolated_codes`
+    (clamped to the grid; the index clamped again after the conversion, as a NaN
+    converts to an arbitrary integer), then the floor of its node's code + 1/2
+    plus the fraction times the step to the next node, clipped to [0, 65535]
+    (the nodes continue the encoder's end pieces past 0 and 1): the code of the
+    curve followed by the encoder, or one next to it. A loop over pixels with the
+    channels written out and unsigned indices, as :func:`curve_encode_row`'s.
+    """
+    cells = tab.shape[1] // 2 - 1
+    top = np.float32(cells)
+    last = np.uint32(cells - 1)
+    tf = tab.ravel()
+    two = np.uint64(2)
+    one = np.uint64(1)
+    c1 = np.uint64(tab.shape[1])
+    c2 = c1 + c1
+    l0, l1, l2 = lo[0], lo[1], lo[2]
+    s0, s1, s2 = scale[0], scale[1], scale[2]
+    mx = np.uint32(65535)
+    hi = np.float32(65535.0)
+    ou = np.uint64(o)
+    k = np.uint64(0)
+    for _ in range(tw):
+        ta = min(max((src[k] - l0) * s0, np.float32(0.0)), top)
+        tb = min(max((src[k + one] - l1) * s1, np.float32(0.0)), top)
+        td = min(max((src[k + two] - l2) * s2, np.float32(0.0)), top)
+        ia = min(np.uint32(np.int32(ta)), last)
+        ib = min(np.uint32(np.int32(tb)), last)
+        id_ = min(np.uint32(np.int32(td)), last)
+        ja = two * np.uint64(ia)
+        jb = c1 + two * np.uint64(ib)
+        jd = c2 + two * np.uint64(id_)
+        xa = max(tf[ja] + (ta - np.float32(ia)) * tf[ja + one], np.float32(0.0))
+        xb = max(tf[jb] + (tb - np.float32(ib)) * tf[jb + one], np.float32(0.0))
+        xd = max(tf[jd] + (td - np.float32(id_)) * tf[jd + one], np.float32(0.0))
+        out16[ou + k] = min(np.uint32(np.int32(min(xa, hi))), mx)
+        out16[ou + k + one] = min(np.uint32(np.int32(min(xb, hi))), mx)
+        out16[ou + k + two] = min(np.uint32(np.int32(min(xd, hi))), mx)
+        k += np.uint64(3)
 
 
 @lean_cache

@@ -166,7 +166,8 @@ def test_encoder_kernel_loads_from_numba_cache_in_a_new_process(tmp_path):
 @pytest.mark.parametrize("bits", [8, 16])
 def test_display_render_applies_a_learned_tone_curve(bits):
     """A table with a tone curve (l3cli.tonecurve): the curve runs in the kernel before
-    the encoding, so the display render equals the float render (curve applied) encoded."""
+    the encoding, so the display render equals the float render (curve applied) encoded
+    (16 bits: the composed lookup is interpolated, within one code)."""
     from l3cli.tonecurve import ToneCurve
 
     t = _table("RGGB", 7, 3, "linear-srgb", seed=5)
@@ -176,6 +177,10 @@ def test_display_render_applies_a_learned_tone_curve(bits):
     m = _mosaic(45, 1100, seed=7)
     got = render_display(t, m, bits)
     want = display_encode(render_mosaic(t, m), "linear-srgb", bits)
-    np.testing.assert_array_equal(got, want)
+    if bits == 8:
+        np.testing.assert_array_equal(got, want)
+    else:
+        d = got.astype(np.int64) - want
+        assert np.abs(d).max() <= 1 and np.mean(d != 0) < 0.01
     t_plain = _table("RGGB", 7, 3, "linear-srgb", seed=5)
     assert (render_display(t_plain, m, bits) != got).mean() > 0.1  # the curve changed it

@@ -1,4 +1,5 @@
-"""The tone curve and the 8-bit display encoding as one lookup (l3cli.tonecode)."""
+"""The tone curve and the display encoding as one lookup (l3cli.tonecode): exact
+thresholds for 8 bits, interpolated codes for 16."""
 
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ import pytest
 from l3cli.classify import ClassDefinition
 from l3cli.io.encode import display_encode, display_params, quantise_reference
 from l3cli.kernelset import KernelSet, render_display, render_mosaic
-from l3cli.render_rows import curve_encode_row
+from l3cli.render_rows import curve_code16_row, curve_encode_row
 from l3cli.table import TransformTable
-from l3cli.tonecode import code_table, curve_codes
+from l3cli.tonecode import code_table, curve_codes, interpolated_codes
 from l3cli.tonecurve import ToneCurve
 
 
@@ -137,11 +138,12 @@ def test_display_render_with_a_curve_uses_it_and_matches_the_float_render(patch,
     raw_out = render_mosaic(KernelSet.plain(dataclasses.replace(t, tone_lut=None)), m)
     ref = quantise_reference(_interp_reference(raw_out, *t.tone_lut), 8).astype(np.int64)
     assert np.abs(got - ref).max() <= 1
-    # 16 bits keeps the curve, then the encoder
+    # 16 bits: the interpolated lookup, within one code of curve-then-encode
     used.clear()
-    got16 = render_display(ks, m, 16)
-    assert used == []
-    np.testing.assert_array_equal(got16, display_encode(f, "linear-srgb", 16))
+    got16 = render_display(ks, m, 16).astype(np.int64)
+    assert used == [16]
+    d = got16 - display_encode(f, "linear-srgb", 16)
+    assert np.abs(d).max() <= 1 and np.mean(d != 0) < 0.01
 
 
 def tone_curve_arrays_of(lut, lo_hi):
@@ -150,3 +152,65 @@ def tone_curve_arrays_of(lut, lo_hi):
 
     return curve_arrays(lut, lo_hi)
 
+
+
+def _interpolated(v, ct):
+    flat = np.ascontiguousarray(v, np.float32).reshape(-1)
+    out16 = np.empty(flat.size, np.uint16)
+    curve_code16_row(flat, flat.size // 3, ct.thr, ct.lo, ct.scale, out16, 0)
+    return out16.reshape(v.shape).astype(np.int64)
+
+
+def _sweep(lo_hi, n=400_000):
+    """Every channel's curve range, densely, plus values beyond both ends."""
+    v = np.linspace(lo_hi[0] - 0.05, lo_hi[1] + 0.05, n).astype(np.float32)
+    return np.concatenate([v, _values(100_000, seed=4)])
+
+
+@pytest.mark.parametrize("space", ["linear-srgb", "srgb"])
+def test_16_bit_interpolated_codes_are_within_one_code_of_curve_then_encode(space):
+    """Against the curve then the encoder's thresholds (the sRGB transfer curve, or none
+    for an ``srgb`` table), over the whole range and the steep shadows."""
+    lut, lo_hi = _lut(space)
+    cv = tone_curve_arrays_of(lut, lo_hi)
+    thr = display_params(space, 3, 16).thr
+    ct = interpolated_codes(cv, thr)
+    assert ct is not None and ct.walk == 0
+    v = _sweep(lo_hi)
+    got = _interpolated(v, ct)
+    want = np.stack([curve_codes(v[:, c], c, cv, thr) for c in range(3)], axis=1)
+    d = got - want
+    assert np.abs(d).max() <= 1
+    assert np.mean(d != 0) < 0.01
+    assert got.min() == 0 and got.max() == 65535  # both ends reached
+
+
+def test_16_bit_interpolated_codes_refine_a_steep_curve_and_refuse_an_impossible_bound():
+    """A steeper curve needs more sub-cells for the same error; a bound no grid can meet
+    gives None (the render keeps curve-then-encode)."""
+    lut, lo_hi = _lut()
+    cv = tone_curve_arrays_of(lut, lo_hi)
+    thr = display_params("linear-srgb", 3, 16).thr
+    gentle = interpolated_codes(cv, thr)
+    steep_lut = (np.clip(lut, 0, None) ** 0.8).astype(np.float32)  # steeper near black
+    steep = interpolated_codes(tone_curve_arrays_of(steep_lut, lo_hi), thr)
+    assert steep is not None and steep.thr.shape[1] > gentle.thr.shape[1]
+    v = _sweep(lo_hi)
+    cv_s = tone_curve_arrays_of(steep_lut, lo_hi)
+    want = np.stack([curve_codes(v[:, c], c, cv_s, thr) for c in range(3)], axis=1)
+    assert np.abs(_interpolated(v, steep) - want).max() <= 1
+    assert interpolated_codes(cv, thr, max_error=1e-6) is None
+
+
+def test_16_bit_interpolated_codes_out_of_range_and_nan():
+    lut, lo_hi = _lut()
+    cv = tone_curve_arrays_of(lut, lo_hi)
+    thr = display_params("linear-srgb", 3, 16).thr
+    ct = interpolated_codes(cv, thr)
+    v = np.array([[-1e30] * 3, [-5.0] * 3, [5.0] * 3, [1e30] * 3, [np.inf] * 3,
+                  [-np.inf] * 3], np.float32)
+    got = _interpolated(v, ct)
+    want = np.stack([curve_codes(v[:, c], c, cv, thr) for c in range(3)], axis=1)
+    np.testing.assert_array_equal(got, want)  # the ends are nodes: exact
+    nan = _interpolated(np.full((4, 3), np.nan, np.float32), ct)
+    assert nan.min() >= 0 and nan.max() <= 65535

@@ -179,9 +179,10 @@ _NO_U16 = np.zeros(1, dtype=np.uint16)
 #: Encoder arguments when not in display mode (the order of ``DisplayParams``).
 _NO_DISPLAY = (False, np.eye(3), np.zeros(2, np.float32), np.zeros(1, np.uint16),
                np.zeros(2, np.float32), 0)
-#: No composed curve-and-encoding table (:mod:`l3cli.tonecode`): ``walk`` 0.
+#: No composed curve-and-encoding table (:mod:`l3cli.tonecode`): ``walk`` -1 (0 is an
+#: interpolated table).
 _NO_CODES = (np.zeros((1, 1), np.uint8), _NO_F32, np.zeros(1, np.float32),
-             np.zeros(1, np.float32), 0)
+             np.zeros(1, np.float32), -1)
 _NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
                          *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
 

@@ -27,6 +27,7 @@ from l3cli.classify.layout import (  # noqa: E402
     TILE_ROWS,
 )
 from l3cli.render_rows import (  # noqa: E402
+    curve_code16_row,
     curve_encode_row,
     curve_row,
     encode_row,
@@ -383,6 +384,8 @@ def tile_kernel(S: int, PW: int):
                     if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tonecode)
                         curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale,
                                          ct_walk, out8, out16, enc_bits, o)
+                    elif ct_walk == 0:  # 16 bits: the composed codes interpolated
+                        curve_code16_row(rowf, tw, ct_thr, ct_lo, ct_scale, out16, o)
                     else:
                         if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
                             curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
