@@ -208,17 +208,18 @@ def curve_row(outf, o, tw, n_out, base, slope, lo, step_inv):  # pragma: no cove
 def curve_code16_row(src, tw, tab, lo, scale, out16, o):  # pragma: no cover - compiled
     """16-bit codes of the ``tw`` pixels of 3 values at ``src[0:]`` into ``out16`` from ``o``.
 
-    Per value its position on the grid of :func:`l3cli.tonecode.interpolated_codes`
-    (clamped to the grid; the index clamped again after the conversion, as a NaN
-    converts to an arbitrary integer), then the floor of its node's code + 1/2
-    plus the fraction times the step to the next node, clipped to [0, 65535]
+    Per value its position on the grid of :func:`l3cli.tonecode.interpolated_codes`,
+    clamped to the grid's nodes ``[0, cells]`` (a NaN gives 0: the clamps are
+    written so that an unordered comparison picks the bound, so no index needs a
+    second clamp), then its node's code + 1/2 plus the fraction times the step to
+    the next node (the last node's step is 0), clamped to [0, 65535] and floored
     (the nodes continue the encoder's end pieces past 0 and 1): the code of the
-    curve followed by the encoder, or one next to it. A loop over pixels with the
-    channels written out and unsigned indices, as :func:`curve_encode_row`'s.
+    curve followed by the encoder, or one next to it. A loop over pixels with
+    the channels written out and unsigned indices, as :func:`curve_encode_row`'s.
     """
-    cells = tab.shape[1] // 2 - 1
-    top = np.float32(cells)
-    last = np.uint32(cells - 1)
+    top = np.float32(tab.shape[1] // 2 - 1)
+    zero = np.float32(0.0)
+    hi = np.float32(65535.0)
     tf = tab.ravel()
     two = np.uint64(2)
     one = np.uint64(1)
@@ -226,26 +227,33 @@ def curve_code16_row(src, tw, tab, lo, scale, out16, o):  # pragma: no cover - c
     c2 = c1 + c1
     l0, l1, l2 = lo[0], lo[1], lo[2]
     s0, s1, s2 = scale[0], scale[1], scale[2]
-    mx = np.uint32(65535)
-    hi = np.float32(65535.0)
     ou = np.uint64(o)
     k = np.uint64(0)
     for _ in range(tw):
-        ta = min(max((src[k] - l0) * s0, np.float32(0.0)), top)
-        tb = min(max((src[k + one] - l1) * s1, np.float32(0.0)), top)
-        td = min(max((src[k + two] - l2) * s2, np.float32(0.0)), top)
-        ia = min(np.uint32(np.int32(ta)), last)
-        ib = min(np.uint32(np.int32(tb)), last)
-        id_ = min(np.uint32(np.int32(td)), last)
+        ta = (src[k] - l0) * s0
+        tb = (src[k + one] - l1) * s1
+        td = (src[k + two] - l2) * s2
+        ta = ta if ta > zero else zero  # NaN: 0
+        tb = tb if tb > zero else zero
+        td = td if td > zero else zero
+        ta = ta if ta < top else top
+        tb = tb if tb < top else top
+        td = td if td < top else top
+        ia = np.uint32(np.int32(ta))
+        ib = np.uint32(np.int32(tb))
+        id_ = np.uint32(np.int32(td))
         ja = two * np.uint64(ia)
         jb = c1 + two * np.uint64(ib)
         jd = c2 + two * np.uint64(id_)
-        xa = max(tf[ja] + (ta - np.float32(ia)) * tf[ja + one], np.float32(0.0))
-        xb = max(tf[jb] + (tb - np.float32(ib)) * tf[jb + one], np.float32(0.0))
-        xd = max(tf[jd] + (td - np.float32(id_)) * tf[jd + one], np.float32(0.0))
-        out16[ou + k] = min(np.uint32(np.int32(min(xa, hi))), mx)
-        out16[ou + k + one] = min(np.uint32(np.int32(min(xb, hi))), mx)
-        out16[ou + k + two] = min(np.uint32(np.int32(min(xd, hi))), mx)
+        xa = tf[ja] + (ta - np.float32(ia)) * tf[ja + one]
+        xb = tf[jb] + (tb - np.float32(ib)) * tf[jb + one]
+        xd = tf[jd] + (td - np.float32(id_)) * tf[jd + one]
+        xa = xa if xa > zero else zero
+        xb = xb if xb > zero else zero
+        xd = xd if xd > zero else zero
+        out16[ou + k] = np.uint32(np.int32(xa if xa < hi else hi))
+        out16[ou + k + one] = np.uint32(np.int32(xb if xb < hi else hi))
+        out16[ou + k + two] = np.uint32(np.int32(xd if xd < hi else hi))
         k += np.uint64(3)
 
 
