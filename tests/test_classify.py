@@ -245,3 +245,20 @@ def test_kernel_tables_follow_the_kernel_arguments():
     assert len(names[names.index("ctx") : names.index("mode")]) == len(ContextGuide._fields)
     t = kernel_tables(ClassDefinition.build("RGGB", level_cuts=[0.01, 0.1]))
     assert t.n_sat == 8 and t.group.tolist() == [0, 1, 2, 3] and t.idx_pattern.shape == (2, 2)
+
+
+def test_a_replaced_definition_builds_its_own_tables():
+    """``dataclasses.replace`` (another patch, CFA phase or cuts) gives a definition whose
+    kernel tables are its own: a copy that kept the cached tables of the original (built
+    for patch 7) once sent the kernel out of its arrays."""
+    import dataclasses
+
+    d7 = ClassDefinition.build("RGGB", patch=7, level_cuts=[0.02, 0.1, 0.4], contrast_cuts=0.2)
+    rng = np.random.default_rng(2)
+    m = rng.uniform(0, 1, (40, 52)).astype(np.float32)
+    classify(m, d7)  # caches its tables
+    d5 = dataclasses.replace(d7, patch=5)
+    fresh = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.02, 0.1, 0.4],
+                                  contrast_cuts=0.2)
+    np.testing.assert_array_equal(classify(m, d5), classify(m, fresh))
+    assert d5._tables is not d7._tables

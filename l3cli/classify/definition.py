@@ -125,7 +125,9 @@ class ClassDefinition:
     context_rule: str = "mean"
     highlight_bins: int = 0
     highlight_fraction: float = 0.0
-    _tables: dict = field(default_factory=dict, repr=False, compare=False)
+    # not an init field: dataclasses.replace gives the copy its own (a copy that kept
+    # these, built for another patch or CFA, sent the kernel out of its arrays)
+    _tables: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         check_patch(self.patch)
