@@ -449,29 +449,42 @@ def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any],
         bottom, right = min(gm.bottom, h), min(gm.right, w)
         if bottom <= top or right <= left:
             continue
+        area = (slice(top, bottom, gm.row_pitch), slice(left, right, gm.col_pitch))
+        view = mosaic[area]  # the map's pixels, written in place
         rows = np.arange(top, bottom, gm.row_pitch)
         cols = np.arange(left, right, gm.col_pitch)
-        wv, iv = _interp_weights((rows + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
-        wh, ih = _interp_weights((cols + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
-        block = mosaic[np.ix_(rows, cols)]
-        which = np.zeros(block.shape, dtype=np.int64) if planes is None \
-            else np.asarray(planes)[np.ix_(rows, cols)]
+        # the bilinear interpolation is separable: gains = Av @ grid @ Ahᵀ, each row of
+        # Av and Ah holding a pixel's two weights on its axis (one matrix product per
+        # plane rather than four gathers of the grid per pixel)
+        av = _interp_matrix((rows + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
+        ah = _interp_matrix((cols + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
+        which = None if planes is None else np.asarray(planes)[area]
         for plane in range(gm.plane, gm.plane + gm.planes):
-            sel = which == plane
-            if not sel.any():
+            if which is None and plane != 0:  # a one-plane mosaic: plane 0 only
+                continue
+            sel = None if which is None else which == plane
+            if sel is not None and not sel.any():
                 continue
             grid = gm.gains[:, :, min(plane, gm.gains.shape[2] - 1)].astype(np.float64)
             # a map of one point on an axis is constant along it
             grid = np.pad(grid, ((0, grid.shape[0] == 1), (0, grid.shape[1] == 1)),
                           mode="edge")
-            g = ((1 - wv)[:, None] * ((1 - wh)[None, :] * grid[iv][:, ih]
-                                      + wh[None, :] * grid[iv][:, ih + 1])
-                 + wv[:, None] * ((1 - wh)[None, :] * grid[iv + 1][:, ih]
-                                  + wh[None, :] * grid[iv + 1][:, ih + 1]))
-            block = np.where(sel, np.minimum(block * g.astype(np.float32), np.float32(1.0)),
-                             block)
-        mosaic[np.ix_(rows, cols)] = block
+            g = ((av @ grid) @ ah.T).astype(np.float32)
+            np.multiply(view, g, out=g)
+            np.minimum(g, np.float32(1.0), out=g)
+            np.copyto(view, g, where=True if sel is None else sel)
     return mosaic
+
+
+def _interp_matrix(pos: np.ndarray, origin: float, spacing: float, points: int) -> np.ndarray:
+    """float64 (len(pos), max(points, 2)): each position's two bilinear weights on a map
+    axis (:func:`_interp_weights`), as the rows of a matrix."""
+    frac, idx = _interp_weights(pos, origin, spacing, points)
+    m = np.zeros((pos.size, max(points, 2)), dtype=np.float64)
+    k = np.arange(pos.size)
+    m[k, idx] = 1.0 - frac
+    m[k, idx + 1] += frac
+    return m
 
 
 def _interp_weights(pos: np.ndarray, origin: float, spacing: float, points: int
