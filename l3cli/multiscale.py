@@ -47,7 +47,7 @@ from l3cli.tablekeys import optional_group
 
 __all__ = ["MULTISCALE_RULE", "TRANSFERS", "Multiscale", "MultiscaleStats", "accumulate",
            "apply", "apply_stage", "bands", "classes", "decode", "default_transfer", "encode",
-           "energy", "level", "lowpass", "place_cuts", "radius", "solve"]
+           "energy", "gauss_taps", "level", "lowpass", "place_cuts", "radius", "solve"]
 
 #: The rule the stage's arrays follow (stored in the table; a reader refuses others).
 MULTISCALE_RULE = "gauss-bands-v1"
@@ -59,25 +59,31 @@ TRANSFERS = ("none", "srgb")
 
 def encode(v: np.ndarray, transfer: str) -> np.ndarray:
     """The stage's coding of ``v`` (float32): the sRGB transfer curve (IEC 61966-2-1)
-    extended to an odd function on all reals for ``"srgb"``, ``v`` itself for ``"none"``."""
+    extended to an odd function on all reals for ``"srgb"``, ``v`` itself for ``"none"``.
+
+    In float32 as numpy computes ``sign(v) * where(|v| <= 0.0031308, 12.92 |v|,
+    1.055 |v| ** (1 / 2.4) - 0.055)`` (:func:`l3cli.multiscale_kernel.transfer_rows`,
+    one parallel pass: a test checks it bit for bit against that expression).
+    """
     v = np.asarray(v, dtype=np.float32)
-    if transfer == "none":
-        return v
-    a = np.abs(v)
-    out = np.where(a <= np.float32(0.0031308), np.float32(12.92) * a,
-                   np.float32(1.055) * np.power(a, np.float32(1 / 2.4)) - np.float32(0.055))
-    return np.copysign(out, v).astype(np.float32, copy=False)
+    return v if transfer == "none" else _transfer(v, inverse=False)
 
 
 def decode(u: np.ndarray, transfer: str) -> np.ndarray:
-    """The inverse of :func:`encode`."""
+    """The inverse of :func:`encode` (``sign(u) * where(|u| <= 0.04045, |u| / 12.92,
+    ((|u| + 0.055) / 1.055) ** 2.4)`` in float32)."""
     u = np.asarray(u, dtype=np.float32)
-    if transfer == "none":
-        return u
-    a = np.abs(u)
-    out = np.where(a <= np.float32(0.04045), a / np.float32(12.92),
-                   np.power((a + np.float32(0.055)) / np.float32(1.055), np.float32(2.4)))
-    return np.copysign(out, u).astype(np.float32, copy=False)
+    return u if transfer == "none" else _transfer(u, inverse=True)
+
+
+def _transfer(v: np.ndarray, *, inverse: bool) -> np.ndarray:
+    from l3cli.multiscale_kernel import transfer_rows
+
+    src = np.asarray(v, order="C")  # (ascontiguousarray would make a 0-d array 1-d)
+    out = np.empty_like(src)
+    rows = src.shape[0] if src.ndim > 1 else 1
+    transfer_rows(src.reshape(rows, -1), out.reshape(rows, -1), inverse)
+    return out
 
 
 def default_transfer(output_space: str) -> str:
@@ -85,21 +91,52 @@ def default_transfer(output_space: str) -> str:
     return "srgb" if output_space in ("xyz", "linear-srgb") else "none"
 
 
-def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
+def gauss_taps(sigma: float) -> np.ndarray:
+    """float64 (radius + 1,): the normalised Gaussian's centre tap and its taps at
+    distance 1..radius (``scipy.ndimage``'s kernel: ``exp(-x² / (2 sigma²))`` over
+    ``|x| <= radius(sigma)``, divided by its sum)."""
+    r = radius(sigma)
+    x = np.arange(-r, r + 1)
+    phi = np.exp(-0.5 / (float(sigma) * float(sigma)) * x ** 2)
+    phi = phi / phi.sum()
+    return np.ascontiguousarray(phi[r:])
+
+
+def lowpass(image: np.ndarray, sigma: float, *, out: np.ndarray | None = None,
+            tmp: np.ndarray | None = None) -> np.ndarray:
     """Separable Gaussian low-pass of each channel of ``image`` (H, W, C), float32.
 
     Borders are mirrored (``scipy.ndimage``'s ``"reflect"``), the support is
-    :data:`TRUNCATE` standard deviations.
+    :data:`TRUNCATE` standard deviations: ``scipy.ndimage.gaussian_filter(image,
+    (sigma, sigma, 0), mode="reflect", truncate=TRUNCATE)`` bit for bit
+    (:func:`l3cli.multiscale_kernel.gauss_rows` and ``gauss_cols``, vectorised
+    along rows and parallel over them; a test checks it against scipy). ``out`` and
+    ``tmp`` (C-contiguous float32 of the image's shape, neither the image) are used
+    when given (the result goes to ``out``).
     """
-    from scipy.ndimage import gaussian_filter
+    from l3cli.multiscale_kernel import gauss_cols, gauss_rows
 
-    img = np.asarray(image, dtype=np.float32)
-    return gaussian_filter(img, sigma=(float(sigma), float(sigma), 0.0), mode="reflect",
-                           truncate=TRUNCATE)
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    if img.ndim != 3:
+        raise ValueError(f"lowpass takes (H, W, C) images, got shape {img.shape}")
+    w = gauss_taps(sigma)
+    h = img.shape[0]
+    tmp = np.empty_like(img) if tmp is None else tmp
+    out = np.empty_like(img) if out is None else out
+    if img.size:
+        gauss_rows(img.reshape(h, -1), w, tmp.reshape(h, -1))
+        gauss_cols(tmp, w, out)
+    return out
 
 
-def bands(y: np.ndarray, sigmas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def bands(y: np.ndarray, sigmas: np.ndarray, *, stack: np.ndarray | None = None,
+          work: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The band stack of ``y`` and its coarsest low-pass.
+
+    ``stack`` (the result's shape) and ``work`` (float32, at least 3 ``y.size``
+    values; the returned low-pass lies in it) are used when given: a caller
+    that runs many bands allocates them once (fresh memory is zeroed by the
+    kernel page by page: most of the stage's time when every band allocated).
 
     Returns
     -------
@@ -111,10 +148,14 @@ def bands(y: np.ndarray, sigmas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     y = np.asarray(y, dtype=np.float32)
     c = y.shape[2]
-    stack = np.empty(y.shape[:2] + (len(sigmas) * c,), dtype=np.float32)
+    if stack is None:
+        stack = np.empty(y.shape[:2] + (len(sigmas) * c,), dtype=np.float32)
+    if work is None:
+        work = np.empty(3 * y.size, dtype=np.float32)
+    lps = [work[k * y.size:(k + 1) * y.size].reshape(y.shape) for k in range(3)]
     finer = y
     for j, s in enumerate(sigmas):
-        lp = lowpass(y, s)
+        lp = lowpass(y, s, out=lps[j % 2], tmp=lps[2])  # the two last low-passes alternate
         np.subtract(finer, lp, out=stack[..., j * c:(j + 1) * c])
         finer = lp
     return stack, finer
@@ -125,11 +166,21 @@ def level(coarse: np.ndarray) -> np.ndarray:
     return np.asarray(coarse, dtype=np.float32).mean(axis=2, dtype=np.float32)
 
 
-def energy(y: np.ndarray, coarse: np.ndarray, sigma: float) -> np.ndarray:
-    """The local band energy: ``sqrt(G_sigma * mean_c (y - coarse)^2)`` (float32 (H, W))."""
-    d = np.asarray(y, dtype=np.float32) - coarse
+def energy(y: np.ndarray, coarse: np.ndarray, sigma: float, *,
+           work: np.ndarray | None = None) -> np.ndarray:
+    """The local band energy: ``sqrt(G_sigma * mean_c (y - coarse)^2)`` (float32 (H, W)).
+
+    ``work`` (float32, at least ``y.size + 2 H W`` values; the result lies in it) is
+    used when given (:func:`bands`)."""
+    y = np.asarray(y, dtype=np.float32)
+    hw = y.shape[0] * y.shape[1]
+    if work is None:
+        work = np.empty(y.size + 2 * hw, dtype=np.float32)
+    d = np.subtract(y, coarse, out=work[:y.size].reshape(y.shape))
     e = np.einsum("hwc,hwc->hw", d, d, dtype=np.float32) / np.float32(d.shape[2])
-    e = lowpass(e[:, :, None], sigma)[:, :, 0]
+    out = work[y.size:y.size + hw].reshape(y.shape[0], y.shape[1], 1)
+    e = lowpass(e[:, :, None], sigma, out=out,
+                tmp=work[y.size + hw:y.size + 2 * hw].reshape(out.shape))[:, :, 0]
     return np.sqrt(np.maximum(e, 0.0, out=e), out=e)
 
 
@@ -263,13 +314,35 @@ class Multiscale:
         return cls(np.asarray(sigmas), lc, ec, np.repeat(eye[None], nc, axis=0),
                    np.zeros(nc, np.int64), transfer)
 
-    def features(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def features(self, y: np.ndarray, *, work: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(stack, coarse, classes)`` of an image in the stage's coding
-        (``encode(render, transfer)``; :func:`bands`, :func:`classes`)."""
-        stack, coarse = bands(y, self.sigmas)
-        cls = classes(level(coarse), energy(y, coarse, self.sigmas[0]), self.level_cuts,
-                      self.energy_cuts)
+        (``encode(render, transfer)``; :func:`bands`, :func:`classes`).
+
+        ``work``: float32 of at least :meth:`work_size` values, used for every
+        temporary and the stack and coarse low-pass returned (None: fresh arrays).
+        """
+        y = np.asarray(y, dtype=np.float32)
+        stack = ew = bw = None
+        if work is not None:
+            n_st = y.size * len(self.sigmas)
+            stack = work[:n_st].reshape(y.shape[:2] + (y.shape[2] * len(self.sigmas),))
+            bw = work[n_st:n_st + 3 * y.size]
+            ew = work[n_st + 3 * y.size:self.work_size(y.shape)]
+        from l3cli.multiscale_kernel import class_rows
+
+        stack, coarse = bands(y, self.sigmas, stack=stack, work=bw)
+        en = energy(y, coarse, self.sigmas[0], work=ew)
+        # classes(level(coarse), en, ...) in one parallel pass (the same float32 steps)
+        cls = np.empty(y.shape[:2], dtype=np.int32)
+        class_rows(coarse, en, np.ascontiguousarray(self.level_cuts, dtype=np.float32),
+                   np.ascontiguousarray(self.energy_cuts, dtype=np.float32), cls)
         return stack, coarse, cls
+
+    def work_size(self, shape: tuple[int, ...]) -> int:
+        """float32 values :meth:`features` uses for an image of ``shape`` (H, W, C)."""
+        n = int(np.prod(shape))
+        return n * len(self.sigmas) + 3 * n + n + 2 * int(shape[0]) * int(shape[1])
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The table keys of the stage."""
@@ -330,15 +403,22 @@ def apply_stage(stage: Multiscale, y: np.ndarray, *, band_rows: int = BAND_ROWS)
     if y.ndim != 3 or y.shape[2] != stage.n_out:
         raise ValueError(f"the multiscale stage takes (H, W, {stage.n_out}) images, "
                          f"got {y.shape}")
+    from l3cli import buffers
+
     h = y.shape[0]
     halo = radius(stage.sigmas[0]) + radius(stage.sigmas[-1])
+    step = max(1, int(band_rows))
     out = np.empty_like(y)
-    for b0 in range(0, h, max(1, int(band_rows))):
-        b1 = min(h, b0 + max(1, int(band_rows)))
+    rows = min(h, step + 2 * halo)  # the tallest band with its halo
+    work = buffers.empty((stage.work_size((rows,) + y.shape[1:]),), np.float32)
+    for b0 in range(0, h, step):
+        b1 = min(h, b0 + step)
         a0, a1 = max(0, b0 - halo), min(h, b1 + halo)
-        stack, coarse, cls = stage.features(encode(y[a0:a1], stage.transfer))
+        stack, coarse, cls = stage.features(encode(y[a0:a1], stage.transfer), work=work)
         part = blend_bands(stack, coarse, cls, stage.blend)
         out[b0:b1] = decode(part[b0 - a0:b1 - a0], stage.transfer)
+        del stack, coarse
+    buffers.release(work)  # one allocation per image; recycled in a folder's render
     return out
 
 

@@ -224,3 +224,71 @@ def test_bands_of_rows_give_the_whole_image_bit_for_bit():
     for rows in (1, 17, 64, 156):
         np.testing.assert_array_equal(apply_stage(stage, y, band_rows=rows), whole)
     assert not np.allclose(whole, y, atol=1e-3)  # the blend did change the image
+
+
+@pytest.mark.parametrize("shape", [(157, 64, 3), (5, 7, 3), (40, 33, 1), (1, 90, 2)])
+@pytest.mark.parametrize("sigma", [1.0, 3.0, 9.0, 2.5])
+def test_lowpass_is_scipys_gaussian_filter_bit_for_bit(shape, sigma):
+    """The numba low-pass against ``scipy.ndimage.gaussian_filter`` (what the stage was
+    defined and trained with), including images smaller than the kernel (reflected
+    more than once)."""
+    from scipy.ndimage import gaussian_filter
+
+    from l3cli.multiscale import lowpass
+
+    img = np.random.default_rng(11).normal(0.3, 0.4, shape).astype(np.float32)
+    want = gaussian_filter(img, sigma=(sigma, sigma, 0.0), mode="reflect", truncate=TRUNCATE)
+    got = lowpass(img, sigma)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
+    # the taps are the Gaussian written out here
+    from l3cli.multiscale import gauss_taps
+
+    taps = _gauss_taps(sigma)
+    np.testing.assert_allclose(gauss_taps(sigma), taps[taps.size // 2:], rtol=1e-12)
+
+
+def test_srgb_coding_is_numpys_float32_expression_bit_for_bit():
+    """encode/decode (one numba pass) give numpy's float32 steps exactly, on values of
+    both signs, at the segment joins, tiny and large."""
+    from l3cli.multiscale import decode, encode
+
+    rng = np.random.default_rng(12)
+    v = np.concatenate([rng.normal(0, 2, 99_999), [0.0, -0.0, 0.0031308, -0.0031308,
+                                                    0.04045, 1e-38, -1e-30, 1e6, 1.0]])
+    v = v.astype(np.float32).reshape(-1, 9)
+    a = np.abs(v)
+    enc = np.copysign(np.where(a <= np.float32(0.0031308), np.float32(12.92) * a,
+                               np.float32(1.055) * np.power(a, np.float32(1 / 2.4))
+                               - np.float32(0.055)), v).astype(np.float32)
+    dec = np.copysign(np.where(a <= np.float32(0.04045), a / np.float32(12.92),
+                               np.power((a + np.float32(0.055)) / np.float32(1.055),
+                                        np.float32(2.4))), v).astype(np.float32)
+    np.testing.assert_array_equal(encode(v, "srgb").view(np.uint32), enc.view(np.uint32))
+    np.testing.assert_array_equal(decode(v, "srgb").view(np.uint32), dec.view(np.uint32))
+    assert encode(np.float32(0.5), "srgb").shape == ()
+
+
+def test_stage_classes_are_the_numpy_rule():
+    """The fused class pass (features) against classes(level(coarse), energy(...))."""
+    from l3cli.multiscale import bands, classes, energy, level
+
+    rng = np.random.default_rng(13)
+    ramp = np.linspace(0.05, 1.0, 80, dtype=np.float32)[None, :, None]  # levels vary
+    noise = rng.normal(0, 1, (60, 80, 3)).astype(np.float32)
+    y = ramp + noise * np.linspace(0.0, 0.1, 60, dtype=np.float32)[:, None, None]  # energy
+    stage = Multiscale(np.array([1.0, 3.0]), np.array([0.3, 0.5, 0.7]),
+                       np.array([[0.01, 0.05], [0.02, 0.06], [0.03, 0.07], [0.04, 0.08]]),
+                       rng.normal(size=(12, 6, 3)), np.ones(12, np.int64), "none")
+    stack, coarse, cls = stage.features(y)
+    s2, c2 = bands(y, stage.sigmas)
+    want = classes(level(c2), energy(y, c2, stage.sigmas[0]), stage.level_cuts,
+                   stage.energy_cuts)
+    np.testing.assert_array_equal(stack, s2)
+    np.testing.assert_array_equal(cls, want)
+    assert len(np.unique(cls)) > 4
+    work = np.empty(stage.work_size(y.shape), np.float32)  # the preallocated path
+    s3, c3, k3 = stage.features(y, work=work)
+    np.testing.assert_array_equal(s3, s2)
+    np.testing.assert_array_equal(c3, c2)
+    np.testing.assert_array_equal(k3, want)
