@@ -73,13 +73,14 @@ def main(argv: list[str] | None = None) -> None:
         rows.append((label, t / mp))
 
     per_mp("stage alone (apply_stage)", lambda: ms.apply_stage(stage, y))
+    per_mp("  sRGB coding + decoding", lambda: ms.decode(ms.encode(y, stage.transfer),
+                                                          stage.transfer))
     per_mp("  low-passes (bands)", lambda: ms.bands(y, stage.sigmas))
     stack, coarse = ms.bands(y, stage.sigmas)
     per_mp("  energy", lambda: ms.energy(y, coarse, stage.sigmas[0]))
-    lev, en = ms.level(coarse), ms.energy(y, coarse, stage.sigmas[0])
-    per_mp("  classes", lambda: ms.classes(lev, en, stage.level_cuts, stage.energy_cuts))
-    cls = ms.classes(lev, en, stage.level_cuts, stage.energy_cuts)
-    per_mp("  blend loop", lambda: ms._blend(stack, coarse, cls, stage.blend))
+    per_mp("  features (bands, energy, one class pass)", lambda: stage.features(y))
+    stack, coarse, cls = stage.features(y)
+    per_mp("  blend loop", lambda: ms.blend_bands(stack, coarse, cls, stage.blend))
     per_mp("render float, no stage", lambda: render_mosaic(plain, mosaic))
     per_mp("render float + stage", lambda: ms.apply(table, render_mosaic(plain, mosaic)))
     per_mp("render 8-bit display, no stage (fused)", lambda: render_display(plain, mosaic, 8))
