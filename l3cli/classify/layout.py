@@ -19,7 +19,8 @@ from l3cli.classify.features import CONTEXT_EPS, CONTEXT_RULES, orientation_cent
 from l3cli.classify.levels import level_lookup
 
 __all__ = ["MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER", "RENDER_LANES",
-           "TILE_COLS", "TILE_ROWS", "KernelTables", "kernel_tables", "pack_taps", "tap_lanes"]
+           "TILE_COLS", "TILE_ROWS", "KernelTables", "kernel_tables", "pack_taps", "tap_lanes",
+           "tap_tail"]
 
 
 #: Output rows and columns of one tile. A tile's padded band, its
@@ -124,18 +125,28 @@ RENDER_LANES = 4
 
 def tap_lanes(S: int) -> int:
     """Lanes of one patch row in :func:`l3cli.render_rows.affine_taps`: ``S`` taps padded
-    to whole 8-lane vectors (8 for patches up to 7, 16 for 9)."""
-    return 8 * -(-S // 8)
+    to whole 8-lane vectors (8 for patches up to 7, 16 for 11 and more); 8 for patch 9,
+    whose 9th column is a vector of its own (:func:`tap_tail`)."""
+    return 8 if tap_tail(S) else 8 * -(-S // 8)
+
+
+def tap_tail(S: int) -> bool:
+    """Whether patch ``S`` renders its last column apart (patch 9: 8 lanes per row, then
+    the 9th column's first 8 rows as one 8-lane vector and its last tap as another, 11
+    multiply-adds per output instead of 18 of 16 lanes)."""
+    return S == 9
 
 
 def pack_taps(k: np.ndarray, outputs: int = RENDER_LANES) -> np.ndarray:
     """Kernels (n_classes, S*S + 1, 4) in :func:`l3cli.render_rows.affine_taps`' layout,
-    (n_classes, outputs S L + 4) with ``L = tap_lanes(S)``.
+    (n_classes, outputs S L + 4) with ``L = tap_lanes(S)`` (patch 9: outputs (S + 2) 8 + 4).
 
     Per patch row ``dy``, per output ``o`` of the first ``outputs`` (3 for
     three-output tables: no block of zeros to load past): the row's ``S`` taps
     and ``L - S`` zeros (entry ``(dy * outputs + o) * L + dx``); then the 4
-    constants.
+    constants. Patch 9 (:func:`tap_tail`): per row and output the taps of columns
+    0-7; then per output the 9th column's taps of rows 0-7; then per output its
+    row 8 tap and 7 zeros; then the 4 constants.
     """
     nc, q, lanes = k.shape
     S = int(round((q - 1) ** 0.5))
@@ -143,7 +154,16 @@ def pack_taps(k: np.ndarray, outputs: int = RENDER_LANES) -> np.ndarray:
         raise ValueError(f"kernels of shape {k.shape} are not (n, S*S + 1, 4), "
                          f"or {outputs} outputs not 3 or 4")
     L = tap_lanes(S)
+    grid = k[:, :S * S, :outputs].reshape(nc, S, S, outputs).transpose(0, 1, 3, 2)
     taps = np.zeros((nc, S, outputs, L), dtype=np.float32)  # (class, dy, output, dx)
-    taps[..., :S] = k[:, :S * S, :outputs].reshape(nc, S, S, outputs).transpose(0, 1, 3, 2)
-    return np.ascontiguousarray(np.concatenate([taps.reshape(nc, -1), k[:, S * S]], axis=1),
-                                dtype=np.float32)
+    parts = [taps]
+    if tap_tail(S):
+        taps[...] = grid[..., :L]
+        col = grid[:, :L, :, L].transpose(0, 2, 1)  # (class, output, dy): column 8, rows 0-7
+        corner = np.zeros((nc, outputs, L), dtype=np.float32)
+        corner[..., 0] = grid[:, L, :, L]
+        parts += [col, corner]
+    else:
+        taps[..., :S] = grid
+    return np.ascontiguousarray(np.concatenate([p.reshape(nc, -1) for p in parts]
+                                               + [k[:, S * S]], axis=1), dtype=np.float32)

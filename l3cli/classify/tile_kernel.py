@@ -77,7 +77,7 @@ def tile_kernel(S: int, PW: int):
     """
     r = S // 2
     TR = TILE_ROWS
-    PAD = tap_lanes(S) - S
+    PAD = max(tap_lanes(S) - S, 0)
 
     # no numba cache: the machine code is stored by l3cli.kernel_store, whose key covers
     # the callees' sources too (numba's cache would not need the object code kept)
