@@ -94,10 +94,16 @@ def gauss_cols(src: np.ndarray, w: np.ndarray, dst: np.ndarray) -> None:  # prag
     n = wd * c
     for y in nb.prange(h):
         pad = np.empty((wd + 2 * r) * c, dtype=np.float64)  # the row, reflected at both ends
-        for x in range(-r, wd + r):
-            sx = _reflect(x, wd)
+        row = src[y].reshape(n)
+        rc = np.uint64(r * c)
+        for k in range(n):  # the inside: a plain copy (no index arithmetic per value)
+            pad[rc + np.uint64(k)] = np.float64(row[k])
+        for x in range(1, r + 1):  # the reflected ends
+            sl = _reflect(-x, wd)
+            sr = _reflect(wd - 1 + x, wd)
             for ch in range(c):
-                pad[(x + r) * c + ch] = np.float64(src[y, sx, ch])
+                pad[(r - x) * c + ch] = np.float64(src[y, sl, ch])
+                pad[(r + wd - 1 + x) * c + ch] = np.float64(src[y, sr, ch])
         acc = np.empty(_CHUNK, dtype=np.float64)
         d = dst[y].reshape(n)
         w0 = w[0]
