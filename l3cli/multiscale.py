@@ -162,8 +162,15 @@ def bands(y: np.ndarray, sigmas: np.ndarray, *, stack: np.ndarray | None = None,
 
 
 def level(coarse: np.ndarray) -> np.ndarray:
-    """The coarse level feature: the channel mean of the coarsest low-pass (float32 (H, W))."""
-    return np.asarray(coarse, dtype=np.float32).mean(axis=2, dtype=np.float32)
+    """The coarse level feature: the channel mean of the coarsest low-pass (float32 (H, W)),
+    as ``coarse.mean(axis=2, dtype=np.float32)`` (:func:`l3cli.multiscale_kernel.level_rows`;
+    a test checks it bit for bit)."""
+    from l3cli.multiscale_kernel import level_rows
+
+    c = np.ascontiguousarray(coarse, dtype=np.float32)
+    out = np.empty(c.shape[:2], dtype=np.float32)
+    level_rows(c, out)
+    return out
 
 
 def energy(y: np.ndarray, coarse: np.ndarray, sigma: float, *,
@@ -190,15 +197,19 @@ def classes(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
 
     ``level_cuts`` (n_levels - 1,) increasing; ``energy_cuts``
     (n_levels, n_energy - 1), increasing in each row. A value equal to a
-    cut falls in the bin above it.
+    cut falls in the bin above it (float32 comparisons;
+    :func:`l3cli.multiscale_kernel.class_rows`, one parallel pass).
     """
-    lb = np.searchsorted(np.asarray(level_cuts, dtype=np.float32), lev, side="right")
-    cuts = np.asarray(energy_cuts, dtype=np.float32)
-    n_energy = cuts.shape[1] + 1
-    eb = np.zeros(lev.shape, dtype=np.int32)
-    for j in range(cuts.shape[1]):
-        eb += en >= cuts[lb, j]
-    return (lb.astype(np.int32) * n_energy + eb).astype(np.int32)
+    from l3cli.multiscale_kernel import class_rows
+
+    lev2 = np.ascontiguousarray(lev, dtype=np.float32)
+    shape = lev2.shape
+    lev2 = lev2.reshape(shape[0] if lev2.ndim > 1 else 1, -1)
+    out = np.empty(lev2.shape, dtype=np.int32)
+    class_rows(lev2, np.ascontiguousarray(en, dtype=np.float32).reshape(lev2.shape),
+               np.ascontiguousarray(level_cuts, dtype=np.float32),
+               np.ascontiguousarray(energy_cuts, dtype=np.float32), out)
+    return out.reshape(shape)
 
 
 def place_cuts(lev: np.ndarray, en: np.ndarray, n_levels: int,
@@ -329,14 +340,9 @@ class Multiscale:
             stack = work[:n_st].reshape(y.shape[:2] + (y.shape[2] * len(self.sigmas),))
             bw = work[n_st:n_st + 3 * y.size]
             ew = work[n_st + 3 * y.size:self.work_size(y.shape)]
-        from l3cli.multiscale_kernel import class_rows
-
         stack, coarse = bands(y, self.sigmas, stack=stack, work=bw)
-        en = energy(y, coarse, self.sigmas[0], work=ew)
-        # classes(level(coarse), en, ...) in one parallel pass (the same float32 steps)
-        cls = np.empty(y.shape[:2], dtype=np.int32)
-        class_rows(coarse, en, np.ascontiguousarray(self.level_cuts, dtype=np.float32),
-                   np.ascontiguousarray(self.energy_cuts, dtype=np.float32), cls)
+        cls = classes(level(coarse), energy(y, coarse, self.sigmas[0], work=ew),
+                      self.level_cuts, self.energy_cuts)
         return stack, coarse, cls
 
     def work_size(self, shape: tuple[int, ...]) -> int:

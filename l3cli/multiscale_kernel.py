@@ -14,6 +14,9 @@
   9-MP image.
 * :func:`transfer_rows`: the stage's sRGB coding and its inverse, one pass with
   numpy's float32 arithmetic (the same ``powf``), in parallel over rows.
+* :func:`level_rows` and :func:`class_rows`: the coarse level and the coarse
+  classes, parallel over rows (numpy's mean over the short channel axis and its
+  per-pixel gathers of the cuts took 0.1 s per band).
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ import numpy as np
 
 from l3cli.startup import lean_cache
 
-__all__ = ["blend_rows", "class_rows", "gauss_cols", "gauss_rows", "transfer_rows"]
+__all__ = ["blend_rows", "class_rows", "gauss_cols", "gauss_rows", "level_rows",
+           "transfer_rows"]
 
 
 @lean_cache
@@ -149,25 +153,35 @@ def transfer_rows(src: np.ndarray, dst: np.ndarray, inverse: bool) -> None:  # p
 
 @lean_cache
 @nb.njit(cache=True, parallel=True)
-def class_rows(coarse: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
-               energy_cuts: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
-    """The coarse class of every pixel into ``out`` (H, W) int32: the level bin of the
-    channel mean of ``coarse`` (float32 ``((c0 + c1) + c2 ...) / C``, as numpy's mean
-    over a short last axis) among ``level_cuts``, times the energy bins, plus the bin of
-    ``en`` among its level's ``energy_cuts`` (float32; a value equal to a cut falls in
-    the bin above it: :func:`l3cli.multiscale.classes`)."""
+def level_rows(coarse: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """The channel mean of ``coarse`` (H, W, C) into ``out`` (H, W), float32
+    ``((c0 + c1) + c2 ...) / C`` as numpy's mean over a short last axis."""
     h, w, c = coarse.shape
-    nl = level_cuts.shape[0]
-    ne = energy_cuts.shape[1]
     cf = np.float32(c)
     for y in nb.prange(h):
         for x in range(w):
             s = coarse[y, x, 0]
             for ch in range(1, c):
                 s += coarse[y, x, ch]
-            lev = s / cf
+            out[y, x] = s / cf
+
+
+@lean_cache
+@nb.njit(cache=True, parallel=True)
+def class_rows(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
+               energy_cuts: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
+    """The coarse class of every pixel into ``out`` (H, W) int32: the bin of ``lev``
+    among ``level_cuts`` times the energy bins, plus the bin of ``en`` among its
+    level's ``energy_cuts`` (float32; a value equal to a cut falls in the bin above
+    it: :func:`l3cli.multiscale.classes`)."""
+    h, w = lev.shape
+    nl = level_cuts.shape[0]
+    ne = energy_cuts.shape[1]
+    for y in nb.prange(h):
+        for x in range(w):
+            v = lev[y, x]
             lb = 0
-            while lb < nl and level_cuts[lb] <= lev:
+            while lb < nl and level_cuts[lb] <= v:
                 lb += 1
             e = en[y, x]
             eb = 0

@@ -41,8 +41,8 @@ from l3cli.io.encode_rows import encode_row, encode_rows  # re-exported: the til
 from l3cli.startup import lean_cache
 
 __all__ = ["RENDER_LANES", "affine_taps", "curve_code16_row", "curve_encode_row", "curve_row",
-           "encode_row",
-           "encode_rows", "pack_taps", "render_row4", "render_row_any", "tap_lanes", "tap_tail"]
+           "encode_row", "encode_rows", "pack_taps", "render_row4", "render_row_any",
+           "tap_lanes", "tap_tail"]
 
 _F32 = ir.FloatType()
 _I32 = ir.IntType(32)

@@ -234,24 +234,31 @@ def test_signal_at_work(work: Path, command: str, sig: str) -> None:
     _check_output(output)
 
 
-def test_signal_right_after_the_output_folder_is_made(work: Path) -> None:
-    """A signal between the output folder's mkdir and its record (the moment
-    test_signal_at_work can hit on a loaded machine): the folder still goes."""
-    args, output = _commands(work)["render"]
-    _prepare(work, output)
-    code = ("import os, pathlib, signal, sys\n"
-            "real = pathlib.Path.mkdir\n"
-            "def mkdir(self, *a, **k):\n"
-            "    real(self, *a, **k)\n"
-            f"    if self == pathlib.Path({str(output)!r}):\n"
-            "        os.kill(os.getpid(), signal.SIGINT)  # handled before the next line\n"
-            "pathlib.Path.mkdir = mkdir\n"
-            f"sys.argv = ['l3', *{args!r}]\n"
+def _interrupted_render(work: Path, args: list[str], patch: str) -> str:
+    """Run ``l3 args`` in a Python whose code ``patch`` ran first (it sends the SIGINT);
+    check the run ended as an interrupted one does; its stderr."""
+    code = (patch + f"import sys\nsys.argv = ['l3', *{args!r}]\n"
             "from l3cli.cli.main import main\nmain()\n")
     p = subprocess.run([sys.executable, "-c", code], cwd=work, capture_output=True, text=True,
                        timeout=300)
     assert p.returncode == 128 + signal.SIGINT, p.stderr
     assert "Traceback" not in p.stderr and "Aborted" in p.stderr, p.stderr
+    return p.stderr
+
+
+def test_signal_right_after_the_output_folder_is_made(work: Path) -> None:
+    """A signal between the output folder's mkdir and its record (the moment
+    test_signal_at_work can hit on a loaded machine): the folder still goes."""
+    args, output = _commands(work)["render"]
+    _prepare(work, output)
+    _interrupted_render(work, args, (
+        "import os, pathlib, signal\n"
+        "real = pathlib.Path.mkdir\n"
+        "def mkdir(self, *a, **k):\n"
+        "    real(self, *a, **k)\n"
+        f"    if self == pathlib.Path({str(output)!r}):\n"
+        "        os.kill(os.getpid(), signal.SIGINT)  # handled before the next line\n"
+        "pathlib.Path.mkdir = mkdir\n"))
     _check_output(output)
 
 
@@ -263,27 +270,22 @@ def test_signal_while_a_render_thread_starts(work: Path, thread: str) -> None:
     that was once wrote its file after the clean-up)."""
     args, output = _commands(work)["render"]
     _prepare(work, output)
-    code = ("import os, pathlib, signal, sys, threading\n"
-            "real = threading.Thread.start\n"
-            "def start(self):\n"
-            "    real(self)\n"
-            f"    if self.name == {thread!r}:\n"
-            "        os.kill(os.getpid(), signal.SIGINT)  # handled before start returns\n"
-            "threading.Thread.start = start\n"
-            "rmdir = pathlib.Path.rmdir\n"
-            "def cleanup(self):\n"
-            "    alive = [t.name for t in threading.enumerate()\n"
-            "             if t.name.startswith('l3-render') and t.is_alive()]\n"
-            "    print('render threads at clean-up:', alive, file=sys.stderr)\n"
-            "    rmdir(self)\n"
-            "pathlib.Path.rmdir = cleanup\n"
-            f"sys.argv = ['l3', *{args!r}]\n"
-            "from l3cli.cli.main import main\nmain()\n")
-    p = subprocess.run([sys.executable, "-c", code], cwd=work, capture_output=True, text=True,
-                       timeout=300)
-    assert p.returncode == 128 + signal.SIGINT, p.stderr
-    assert "Traceback" not in p.stderr and "Aborted" in p.stderr, p.stderr
-    assert "render threads at clean-up: []" in p.stderr, p.stderr
+    err = _interrupted_render(work, args, (
+        "import os, pathlib, signal, sys, threading\n"
+        "real = threading.Thread.start\n"
+        "def start(self):\n"
+        "    real(self)\n"
+        f"    if self.name == {thread!r}:\n"
+        "        os.kill(os.getpid(), signal.SIGINT)  # handled before start returns\n"
+        "threading.Thread.start = start\n"
+        "rmdir = pathlib.Path.rmdir\n"
+        "def cleanup(self):\n"
+        "    alive = [t.name for t in threading.enumerate()\n"
+        "             if t.name.startswith('l3-render') and t.is_alive()]\n"
+        "    print('render threads at clean-up:', alive, file=sys.stderr)\n"
+        "    rmdir(self)\n"
+        "pathlib.Path.rmdir = cleanup\n"))
+    assert "render threads at clean-up: []" in err, err
     _check_output(output)
 
 
