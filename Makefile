@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.l3-installed
 SHARED ?= ../shared/data
 DEMO   ?= demo_out
 
-.PHONY: setup bytecode demo test test-fast fuzz bench bench-check lint clean
+.PHONY: setup bytecode demo test test-fast test-portable fuzz bench bench-check lint clean
 
 setup: $(STAMP) bytecode
 
@@ -28,6 +28,15 @@ test: $(STAMP) bytecode
 
 test-fast: $(STAMP) bytecode
 	$(PY) -m pytest -n 2 -q -m "not slow"
+
+# The suite three times, as three other machines would run it: as is; with numpy's
+# AVX-512 code paths off (scripts/npy_simd_off.py: on a CPU without AVX-512, every
+# SIMD path above numpy's baseline); with numba compiling for a generic x86-64 (or
+# the architecture's generic) target. Each must pass (tests/README.md).
+test-portable: $(STAMP) bytecode
+	$(PY) -m pytest -n 2 -q
+	NPY_DISABLE_CPU_FEATURES="$$($(PY) scripts/npy_simd_off.py)" $(PY) -m pytest -n 2 -q
+	NUMBA_CPU_NAME=generic $(PY) -m pytest -n 2 -q
 
 # Property-based fuzzing of the file readers and output planning with a large
 # budget (`make test` runs the same tests with a small one); prints the count.

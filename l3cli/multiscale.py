@@ -63,7 +63,8 @@ def encode(v: np.ndarray, transfer: str) -> np.ndarray:
 
     In float32 as numpy computes ``sign(v) * where(|v| <= 0.0031308, 12.92 |v|,
     1.055 |v| ** (1 / 2.4) - 0.055)`` (:func:`l3cli.multiscale_kernel.transfer_rows`,
-    one parallel pass: a test checks it bit for bit against that expression).
+    one parallel pass; a test checks it against that expression: the linear segment
+    bit for bit, the power segment within the two libraries' ``pow`` error).
     """
     v = np.asarray(v, dtype=np.float32)
     return v if transfer == "none" else _transfer(v, inverse=False)

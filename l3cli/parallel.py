@@ -348,6 +348,9 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             client = Client(cluster)
         with client:
             log.info("dask: %s", client)
+            from l3cli.startup import test_point
+
+            test_point("cluster")  # test-only: tests/test_signals.py
             yield client
     finally:
         if isinstance(sys.exc_info()[1], KeyboardInterrupt) and root > logging.DEBUG:

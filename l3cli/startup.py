@@ -54,7 +54,7 @@ from typing import Any, NoReturn
 
 __all__ = ["Interrupted", "arm_exit_now", "exit_now", "extension_module", "handle_signals",
            "interrupt_status", "lean_cache", "pause_gc", "preload_scipy_blas", "resume_gc",
-           "signals_deferred", "single_threaded_blas"]
+           "signals_deferred", "single_threaded_blas", "test_point"]
 
 log = logging.getLogger(__name__)
 
@@ -169,6 +169,48 @@ def handle_signals() -> None:
         if sig != signal.SIGINT and signal.getsignal(sig) == signal.SIG_IGN:
             continue
         signal.signal(sig, _on_signal)
+
+
+#: Test-only (``tests/test_signals.py``): the environment variable naming the point
+#: (:func:`test_point`) where a run stops until a signal arrives.
+TEST_PAUSE_ENV = "L3_TEST_PAUSE_AT"
+#: What :func:`test_point` writes to stderr when it stops (then the point's name).
+TEST_PAUSE_MARK = "l3-test-paused-at: "
+#: Seconds a paused run waits for its signal before it goes on (a test that forgot it).
+TEST_PAUSE_LIMIT_S = 300.0
+_paused: set[str] = set()
+
+
+def test_point(name: str) -> None:
+    """Test-only: stop at the point ``name`` until a signal arrives.
+
+    Where the environment variable ``L3_TEST_PAUSE_AT`` (:data:`TEST_PAUSE_ENV`)
+    names this point, the first thread to reach it writes
+    ``l3-test-paused-at: NAME`` to stderr and waits until :func:`handle_signals`
+    has caught a signal, so a test sends its signal at an exact moment of the
+    run whatever the machine's speed or load (no polling for a moment that
+    may pass). In the main thread the handler's :class:`Interrupted` ends the
+    wait; another thread returns once the signal is caught and the run unwinds
+    as it would. Points: ``start`` (the command is resolved, before it runs),
+    ``raw-read`` (the first raw file read), ``temporary`` (the first temporary
+    file or folder made), ``output-folder`` (the output folders made and recorded,
+    :class:`l3cli.cli.paths.OutputPlan`), ``cluster`` (a dask cluster's client
+    connected, :func:`l3cli.parallel.dask_client`). Otherwise a dictionary look-up, nothing more.
+
+    Examples
+    --------
+    >>> test_point("start")  # no L3_TEST_PAUSE_AT: returns at once
+    """
+    if os.environ.get(TEST_PAUSE_ENV) != name:
+        return
+    with _gc_lock:  # one pause per point and process
+        if name in _paused:
+            return
+        _paused.add(name)
+    os.write(2, f"{TEST_PAUSE_MARK}{name}\n".encode())
+    deadline = time.monotonic() + TEST_PAUSE_LIMIT_S
+    while not _first_signal and not _deferred and time.monotonic() < deadline:
+        time.sleep(0.005)  # the handler raises here (main thread), or the loop sees it
 
 
 def signal_received() -> int | None:

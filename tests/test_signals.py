@@ -7,10 +7,12 @@ that the run created, the previous output byte for byte, and no process
 started by the run still alive afterwards (found by a marker in their
 environment, which every descendant inherits, wherever it was re-parented).
 
-Moments: ``start`` (the handlers are installed, the command is loading),
-``work`` (the run has opened an input or created its temporary or output
-folder), ``workers`` (``--workers 2``: the local dask cluster's processes
-exist; slow).
+Moments: ``start`` (the command is resolved, before it runs), ``work`` (the
+run has read an input or created its temporary or output folder), ``workers``
+(``--workers 2``: the local dask cluster is up; slow). Each is a test point
+in l3 (:func:`l3cli.startup.test_point`, named by ``L3_TEST_PAUSE_AT``) where
+the run stops until the signal arrives, so no moment can pass unseen at any
+speed or load.
 """
 
 from __future__ import annotations
@@ -32,30 +34,6 @@ CFG = REPO / "sample_configs" / "bayer.toml"
 L3 = [sys.executable, "-c", "from l3cli.cli.main import main; main()"]
 SIGNALS = ["SIGINT", "SIGTERM", "SIGHUP"]
 PREVIOUS = b"the previous output, kept byte for byte\n"
-
-
-def _caught(pid: int, sig: int) -> bool:
-    """Whether process ``pid`` has a handler for ``sig`` (its /proc status SigCgt)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("SigCgt:"):
-                return bool(int(line.split()[1], 16) >> (sig - 1) & 1)
-    except OSError:
-        pass
-    return False
-
-
-def _open_files(pid: int) -> list[str]:
-    out = []
-    try:
-        for fd in os.listdir(f"/proc/{pid}/fd"):
-            try:
-                out.append(os.readlink(f"/proc/{pid}/fd/{fd}"))
-            except OSError:
-                continue
-    except OSError:
-        pass
-    return out
 
 
 def marked(mark: str) -> list[tuple[int, str]]:
@@ -88,27 +66,35 @@ def no_survivors(mark: str, wait: float = 5.0) -> list[tuple[int, str]]:
     return left
 
 
-def run_signalled(args: list[str], sig: str, ready, *, cwd: Path, group: bool = False,
-                  timeout: float = 60.0):
-    """Run ``l3 args``, send ``sig`` once ``ready(pid)`` holds; return (status, stderr, mark).
+def run_signalled(args: list[str], sig: str, point: str, *, cwd: Path, group: bool = False,
+                  timeout: float = 120.0):
+    """Run ``l3 args`` stopped at the test point ``point`` (``L3_TEST_PAUSE_AT``,
+    :func:`l3cli.startup.test_point`), send ``sig`` once it says it is there; return
+    (status, stderr, mark).
 
-    Fails the test if the command ends before the moment came.
+    The run waits at its point until the signal comes, so the moment cannot pass
+    whatever the machine's speed or load: the test reads the run's stderr (a blocking
+    read) until the point's line. Fails the test if the command ends before it.
     """
+    from l3cli.startup import TEST_PAUSE_ENV, TEST_PAUSE_MARK
+
     mark = uuid.uuid4().hex
-    env = {**os.environ, "L3_TEST_MARK": mark, "PYTHONWARNINGS": "ignore"}
-    p = subprocess.Popen([*L3, *args], cwd=cwd, env=env, stdout=subprocess.PIPE,
+    env = {**os.environ, "L3_TEST_MARK": mark, "PYTHONWARNINGS": "ignore",
+           TEST_PAUSE_ENV: point}
+    p = subprocess.Popen([*L3, *args], cwd=cwd, env=env, stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, start_new_session=True)
     signum = getattr(signal, sig)
+    want = f"{TEST_PAUSE_MARK}{point}".encode()
+    seen = b""
     try:
-        t0 = time.monotonic()
-        while not ready(p.pid):
-            if p.poll() is not None:
-                out, err = p.communicate()
-                pytest.fail(f"l3 {args} ended ({p.returncode}) before the moment came: "
-                            f"{err.decode()[-500:]}")
-            if time.monotonic() - t0 > timeout:
-                pytest.fail(f"l3 {args}: the moment did not come in {timeout} s")
-            time.sleep(0.005)
+        for line in p.stderr:  # blocks until the run writes a line or ends
+            seen += line
+            if line.strip() == want:
+                break
+        else:
+            p.wait()
+            pytest.fail(f"l3 {args} ended ({p.returncode}) before reaching {point!r}: "
+                        f"{seen.decode(errors='replace')[-500:]}")
         if group:
             os.killpg(p.pid, signum)
         else:
@@ -118,7 +104,7 @@ def run_signalled(args: list[str], sig: str, ready, *, cwd: Path, group: bool = 
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
             p.wait()
-    return p.returncode, err.decode(errors="replace"), mark
+    return p.returncode, (seen + (err or b"")).decode(errors="replace"), mark
 
 
 def check_ended_cleanly(status: int, err: str, mark: str, sig: str, folder: Path) -> None:
@@ -127,10 +113,6 @@ def check_ended_cleanly(status: int, err: str, mark: str, sig: str, folder: Path
     assert "Aborted" in err, err
     assert not [p for p in folder.rglob(".l3-tmp*")], list(folder.rglob("*"))
     assert no_survivors(mark) == []
-
-
-def handlers_installed(pid: int) -> bool:
-    return all(_caught(pid, getattr(signal, s)) for s in SIGNALS)
 
 
 @pytest.fixture(scope="module")
@@ -203,23 +185,14 @@ def test_signal_at_start(work: Path, command: str, sig: str) -> None:
     """Every command, each signal, while it loads: the same clean end."""
     args, output = _commands(work)[command]
     _prepare(work, output)
-    status, err, mark = run_signalled(args, sig, handlers_installed, cwd=work)
+    status, err, mark = run_signalled(args, sig, "start", cwd=work)
     check_ended_cleanly(status, err, mark, sig, work / "out")
     _check_output(output)
 
 
-def _working(command: str, w: Path):
-    """The moment ``command`` is at work: an input open, or its temporary/output folder made."""
-    inputs = str(w / "sim")
-
-    def ready(pid: int) -> bool:
-        if command == "simulate":
-            return any(p.name.startswith(".l3-tmp-") for p in (w / "out").iterdir())
-        if command == "render":
-            return (w / "out" / "r").exists()
-        return any(f.startswith(inputs) or f.endswith("t.npz") for f in _open_files(pid))
-
-    return ready
+#: The moment each command is at work (:func:`l3cli.startup.test_point`): simulate's
+#: temporary folder made, render's output folder made, train's first raw read.
+WORKING = {"simulate": "temporary", "render": "output-folder", "train": "raw-read"}
 
 
 @pytest.mark.parametrize("sig", SIGNALS)
@@ -229,7 +202,7 @@ def test_signal_at_work(work: Path, command: str, sig: str) -> None:
     wrote, the previous output intact."""
     args, output = _commands(work)[command]
     _prepare(work, output)
-    status, err, mark = run_signalled(args, sig, _working(command, work), cwd=work)
+    status, err, mark = run_signalled(args, sig, WORKING[command], cwd=work)
     check_ended_cleanly(status, err, mark, sig, work / "out")
     _check_output(output)
 
@@ -289,17 +262,6 @@ def test_signal_while_a_render_thread_starts(work: Path, thread: str) -> None:
     _check_output(output)
 
 
-def _cluster_up(pid: int) -> bool:
-    """A local cluster's worker processes are running."""
-    try:
-        import psutil
-
-        kids = psutil.Process(pid).children(recursive=True)
-        return sum("spawn_main" in " ".join(k.cmdline()) for k in kids) >= 2
-    except Exception:  # noqa: BLE001 - gone, or psutil absent: not yet
-        return False
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("group", [False, True], ids=["process", "group"])
 @pytest.mark.parametrize("sig", SIGNALS)
@@ -307,10 +269,9 @@ def test_signal_to_train_with_workers(work: Path, sig: str, group: bool) -> None
     """``train --workers 2``: the cluster and every process it started end with l3,
     whether the signal reaches l3 alone or its whole process group (a Ctrl-C in a
     terminal): no worker prints its own KeyboardInterrupt."""
-    pytest.importorskip("psutil")
     args, output = _commands(work)["train"]
     _prepare(work, output)
-    status, err, mark = run_signalled([*args, "--workers", "2"], sig, _cluster_up, cwd=work,
+    status, err, mark = run_signalled([*args, "--workers", "2"], sig, "cluster", cwd=work,
                                       group=group)
     check_ended_cleanly(status, err, mark, sig, work / "out")
     assert "KeyboardInterrupt" not in err

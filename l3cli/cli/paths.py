@@ -49,7 +49,7 @@ class OutputPlan:
         first, so the folder goes too.
         """
         from l3cli.errors import OutputError
-        from l3cli.startup import signals_deferred
+        from l3cli.startup import signals_deferred, test_point
 
         created: list[Path] = []
         try:
@@ -63,6 +63,8 @@ class OutputPlan:
                         raise OutputError(f"{folder}: cannot create the {self.what} folder "
                                           f"({exc.strerror or exc})") from exc
                     created.extend(missing)  # deepest first
+            if self.folders:
+                test_point("output-folder")
             yield self
         except BaseException as exc:
             if isinstance(exc, KeyboardInterrupt) and created:

@@ -203,16 +203,17 @@ def make_temp_dir(parent: str | os.PathLike, name: str) -> Path:
     Recorded until :func:`forget_temporary`: an interrupted run removes it
     whenever the signal arrives (:func:`remove_live_temporaries`).
     """
-    from l3cli.startup import signals_deferred
+    from l3cli.startup import signals_deferred, test_point
 
     _clean_once(parent)
     try:
         with signals_deferred():
             tmp = tempfile.mkdtemp(prefix=_tmp_prefix(name), dir=parent)
             _LIVE.add(tmp)
-        return Path(tmp)
     except OSError as exc:
         raise write_error(Path(parent) / name, exc) from exc
+    test_point("temporary")
+    return Path(tmp)
 
 
 def fsync_path(path: str | os.PathLike, *, folder: bool = False) -> None:
@@ -261,7 +262,7 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
                           "choose another output")
     suffix = path.suffix if suffix is None else suffix
     _clean_once(folder)
-    from l3cli.startup import signals_deferred
+    from l3cli.startup import signals_deferred, test_point
 
     try:
         with signals_deferred():
@@ -271,6 +272,7 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
         os.close(fd)
     except OSError as exc:
         raise write_error(path, exc) from exc
+    test_point("temporary")
     tmp_path = Path(tmp)
     try:
         try:

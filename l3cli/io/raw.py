@@ -449,7 +449,15 @@ def read_raw(path: str | os.PathLike, *, libraw_only: bool = False,
     ConfigError
         Invalid sidecar content.
     """
-    path = Path(path)
+    from l3cli.startup import test_point
+
+    raw = _read_any(Path(path), libraw_only, libraw)
+    test_point("raw-read")
+    return raw
+
+
+def _read_any(path: Path, libraw_only: bool, libraw: bool) -> RawImage:
+    """:func:`read_raw` by the file's kind."""
     if not path.exists():
         raise InputError(f"{path}: no such file")
     if path.is_dir():
