@@ -1,16 +1,29 @@
-"""Shared fixtures: the CLI runner and paths to bundled/shared test data."""
+"""Shared fixtures: the CLI runner, paths to bundled/shared test data, a small table
+file and a pairs folder (the builders themselves are in ``tests/builders.py``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
-TESTS = Path(__file__).parent
-DATA = TESTS / "data"
-REPO = TESTS.parent
-SHARED = REPO.parent / "shared" / "data"
+from l3cli.colourspace import srgb_encode
+from l3cli.io.image import write_image
+from l3cli.io.raw import write_raw
+from l3cli.table import save_table
+from tests.builders import (  # noqa: F401 - REPO, for the tests' use
+    DATA,
+    REPO,
+    SHARED,
+    H,
+    W,
+    make_table,
+    mosaic_dn,
+    scene,
+    write_headerless,
+)
 
 
 @pytest.fixture
@@ -30,3 +43,24 @@ def shared_data() -> Path:
     if not SHARED.exists():
         pytest.skip(f"shared data folder {SHARED} is absent")
     return SHARED
+
+
+@pytest.fixture
+def table_path(tmp_path):
+    t = make_table("RGGB", patch=5, seed=4)
+    t.kernels *= np.float32(0.05)  # values mostly inside [0, 1] once encoded
+    return save_table(tmp_path / "t.npz", t)
+
+
+@pytest.fixture
+def pairs_dir(tmp_path: Path) -> Path:
+    d = tmp_path / "pairs"
+    d.mkdir()
+    lin_a = scene(H, W, seed=11)
+    write_headerless(d, "a", lin_a)
+    write_image(d / "a.png", srgb_encode(lin_a), space="srgb")
+    lin_b = scene(H, W, seed=12)
+    write_raw(d / "b.dng", mosaic_dn(lin_b, "RGGB", 4095), "RGGB", white_level=4095)
+    # RawTherapee-like: raw minus 4 pixels each side, 16-bit TIFF
+    write_image(d / "b.tif", srgb_encode(lin_b)[4:-4, 4:-4], space="srgb")
+    return d

@@ -27,23 +27,7 @@ from l3cli.cfa import CFA
 from l3cli.colourspace import srgb_decode, srgb_encode
 from l3cli.errors import InputError
 from l3cli.io.raw import RawImage
-
-
-def scene(h: int, w: int, seed: int) -> np.ndarray:
-    """Linear RGB scene with sharp edges at many orientations and fine texture."""
-    rng = np.random.default_rng(seed)
-    img = np.full((h, w, 3), 0.2, dtype=np.float32)
-    yy, xx = np.mgrid[0:h, 0:w]
-    for _ in range(60):
-        col = rng.uniform(0.02, 0.9, 3).astype(np.float32)
-        if rng.random() < 0.5:
-            y0, x0 = rng.integers(0, h), rng.integers(0, w)
-            img[y0 : y0 + rng.integers(4, h // 3), x0 : x0 + rng.integers(4, w // 3)] = col
-        else:
-            cy, cx, r = rng.integers(0, h), rng.integers(0, w), rng.integers(3, 30)
-            img[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = col
-    img *= (1 + 0.1 * rng.standard_normal((h, w, 1))).astype(np.float32)
-    return np.clip(gaussian_filter(img, (0.7, 0.7, 0)), 0, 1).astype(np.float32)
+from tests.builders import scene
 
 
 def mosaic(lin: np.ndarray, cfa: str = "RGGB") -> RawImage:

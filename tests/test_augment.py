@@ -20,6 +20,7 @@ from l3cli.train import TrainOptions, table_from_stats
 from l3cli.train.augment import augment_copies, augment_stats
 from l3cli.train.stats import ClassStats, accumulate
 from l3cli.train.weights import luminance, sample_weights
+from tests.builders import TUNE_OPTS, design_matrix, tune_pairs
 
 #: numpy's version of each D4 element (acting on (row, column) image coordinates)
 NUMPY_MOVES = {
@@ -170,9 +171,8 @@ def test_weighted_statistics_equal_explicit_weighted_sums():
     plain = ClassStats.zeros(d, 3)
     accumulate(plain, m, t)
     from l3cli.classify import classify
-    from tests.test_train import _design
 
-    X = _design(m, d)
+    X = design_matrix(m, d)
     Y = t.reshape(-1, 3).astype(np.float64)
     ww = w.ravel().astype(np.float64)
     cls = classify(m, d).ravel()
@@ -246,32 +246,30 @@ def test_cfa_without_symmetric_partners_is_augmented_only_where_valid():
 # ---------------------------------------------------------------- train / CV / CLI
 def test_cross_validation_statistics_are_those_of_l3_train(tmp_path):
     """--tune's folds solve what l3 train solves: same weights, same augmentation."""
-    from test_tune import OPTS, _pairs
 
     from l3cli.train import find_pairs, train
     from l3cli.train.cv import layout_stats, load_cv_images, make_units, space_stats
 
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 0.8)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 0.8)})
     pairs = find_pairs([folder])
     opts = TrainOptions(target_space="linear-srgb", augment="d4", sample_weight="luminance",
-                        **OPTS)
+                        **TUNE_OPTS)
     images = load_cv_images(pairs, opts)
     layout = layout_stats(images, make_units(images), opts, None)
     via_cv = table_from_stats(space_stats(layout, "linear-srgb"), opts)
     direct = train(pairs, opts)
     np.testing.assert_array_equal(via_cv.counts, direct.counts)
     np.testing.assert_allclose(via_cv.kernels, direct.kernels, rtol=1e-4, atol=1e-5)
-    plain = train(pairs, TrainOptions(target_space="linear-srgb", **OPTS))
+    plain = train(pairs, TrainOptions(target_space="linear-srgb", **TUNE_OPTS))
     assert not np.allclose(plain.kernels, direct.kernels, rtol=1e-3, atol=1e-4)
 
 
 def test_cli_defaults_for_pairs_folders_and_switching_on(tmp_path, runner):
-    from test_tune import _pairs
 
     from l3cli.cli.main import cli
     from l3cli.table import load_table
 
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0)})
     on, off = tmp_path / "on.npz", tmp_path / "off.npz"
     common = ["--patch", "5", "--levels", "4", "--contrast-bins", "1", "--no-tune"]
     res = runner.invoke(cli, ["train", str(folder), "-o", str(off), *common])

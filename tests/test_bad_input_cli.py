@@ -18,23 +18,13 @@ import pytest
 from l3cli.cli.main import cli
 from l3cli.io.raw import sidecar_path, write_raw
 from l3cli.table import save_table
-from tests.test_table import make_table
+from tests.builders import assert_one_line_error, make_table
 
 REPO = Path(__file__).resolve().parents[1]
 ROSE = "DSC_1339_768x512_rggb_14bit.raw"
 BAYER_TOML = (REPO / "sample_configs" / "bayer.toml").read_text()
 
 
-def assert_one_line_error(res, *words: str, code: int = 1) -> str:
-    """The CLI failed with ``code`` and printed exactly one ``Error:`` line holding ``words``."""
-    assert res.exit_code == code, res.output
-    assert "Traceback" not in res.output
-    lines = [ln for ln in res.output.splitlines() if ln.strip()]
-    assert len(lines) == 1, lines
-    assert lines[0].startswith("Error:"), lines[0]
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-    return lines[0]
 
 
 def assert_nothing_written(folder: Path, before: set[str]) -> None:

@@ -10,20 +10,11 @@ import pytest
 
 from l3cli.camera import load_camera
 from l3cli.errors import ConfigError, InputError
+from tests.builders import MINIMAL
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLES = sorted((REPO / "sample_configs").glob("*.toml"))
 
-MINIMAL = """
-name = "t"
-[pixel]
-pitch_um = 2.0
-conversion_gain_uv_per_e = 100.0
-voltage_swing_v = 1.0
-[cfa]
-pattern = "RGGB"
-qe = "bayer-rgb"
-"""
 
 
 def write(tmp_path: Path, text: str, name: str = "cam.toml") -> Path:

@@ -12,7 +12,7 @@ import pytest
 from l3cli import spectral
 from l3cli.camera import camera_from_dict
 from l3cli.errors import ConfigError
-from tests.test_camera import MINIMAL
+from tests.builders import MINIMAL
 
 DOC = (Path(__file__).resolve().parents[1] / "docs" / "camera-toml.md").read_text()
 SECTIONS = ["", "optics", "pixel", "readout", "cfa", "spectrum", "exposure"]

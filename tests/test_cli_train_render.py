@@ -8,11 +8,11 @@ import pytest
 from l3cli.cli.main import cli
 from l3cli.io.image import read_image, write_image
 from l3cli.table import load_table
-from tests.test_train import _sim_dir
+from tests.builders import make_table, plausible_table, sim_dir
 
 
 def test_train_then_render(runner, tmp_path):
-    sim = _sim_dir(tmp_path, n=2, shape=(48, 64), seed=11)
+    sim = sim_dir(tmp_path, n=2, shape=(48, 64), seed=11)
     table = tmp_path / "t.npz"
     res = runner.invoke(cli, ["-q", "train", str(sim), "-o", str(table), "--levels", "4",
                               "--seed", "3", "--min-samples", "2"])
@@ -58,7 +58,6 @@ def test_cli_errors(runner, tmp_path):
 def test_render_rejects_table_for_other_cfa(runner, tmp_path):
     from l3cli.io.raw import write_raw
     from l3cli.table import save_table
-    from tests.test_table import make_table
 
     table = save_table(tmp_path / "t.npz", make_table("GRBG"))
     raw = write_raw(tmp_path / "r.dng", np.full((40, 48), 100, np.uint16), "RGGB",
@@ -89,17 +88,17 @@ def test_train_bad_input_is_one_line_and_writes_nothing(runner, tmp_path, case):
         folder.mkdir()
         expect = [str(folder), "no training pairs"]
     elif case in ("nan-target", "inf-target"):
-        folder = _sim_dir(tmp_path, n=2, seed=21, nan=True)
+        folder = sim_dir(tmp_path, n=2, seed=21, nan=True)
         if case == "inf-target":  # the same pixel, +Inf instead of NaN
             img, space = read_image(folder / "cap1.target.exr")
             img[3, 4, 1] = np.inf
             write_image(folder / "cap1.target.exr", img, space=space, allow_nonfinite=True)
         expect = ["cap1.target.exr", "NaN or Inf", "x=4, y=3"]
     elif case == "size-mismatch":
-        folder = _sim_dir(tmp_path, n=2, seed=22, bad_size=True)
+        folder = sim_dir(tmp_path, n=2, seed=22, bad_size=True)
         expect = ["cap1.target.exr", "target is 48x38 but raw cap1.dng is 48x40"]
     else:
-        folder = _sim_dir(tmp_path, n=1, seed=23)
+        folder = sim_dir(tmp_path, n=1, seed=23)
         extra = ["--levels", "40", "--min-samples", "50"]
         expect = ["no class has enough training samples"]
     res = runner.invoke(cli, ["train", str(folder), "-o", str(table), "--levels", "3", *extra])
@@ -111,7 +110,6 @@ def test_render_bad_input_is_one_line_and_writes_nothing(runner, tmp_path):
     """A table for another CFA or a patch larger than the raw: say which."""
     from l3cli.io.raw import write_raw
     from l3cli.table import save_table
-    from tests.test_table import make_table
 
     table = save_table(tmp_path / "t.npz", make_table("RGGB", patch=5))
     rgbw = write_raw(tmp_path / "w.dng", np.full((16, 16), 100, np.uint16),
@@ -139,7 +137,6 @@ def test_render_exr_keeps_the_table_space_and_tiff_png_jpeg_get_display_srgb(
     from l3cli.io.raw import read_raw, write_raw
     from l3cli.render import render_mosaic
     from l3cli.table import save_table
-    from tests.test_smooth import plausible_table
 
     t = plausible_table("RGGB", seed=30)
     t.output_space = space

@@ -23,6 +23,7 @@ from l3cli.io.image import write_image
 from l3cli.io.raw import read_raw, write_raw
 from l3cli.render import render_raw
 from l3cli.table import load_table, save_table
+from tests.builders import make_table
 
 TRAIN_ISO = (100, 400, 1600, 6400)
 TEST_ISO = (200, 800, 3200)
@@ -113,7 +114,6 @@ def test_iso_bins_beat_one_table_on_held_out_isos(runner, tmp_path, by):
 
 def test_kernels_interpolate_in_log_iso_and_round_trip(tmp_path):
     from l3cli.conditions import Conditioned, kernels_for
-    from tests.test_table import make_table
 
     t = make_table()
     k = np.stack([np.full_like(t.kernels, 1.0), np.full_like(t.kernels, 3.0)])
@@ -173,7 +173,6 @@ def test_white_balance_bins_beat_one_table_on_held_out_whites(runner, tmp_path):
 
 def _conditioned(by="iso"):
     from l3cli.conditions import Conditioned
-    from tests.test_table import make_table
 
     t = make_table()
     t.kernels[:] = 10.0  # the pooled kernels

@@ -20,8 +20,7 @@ from l3cli.io.image import read_image, write_image
 from l3cli.io.raw import write_raw
 from l3cli.train import ClassStats, TrainOptions, accumulate, find_pairs, load_pair
 from l3cli.train.fit import collect_stats, define_classes, sample_mask, stats_task
-from tests.test_align import scene
-from tests.test_train import _sim_dir
+from tests.builders import H, W, mosaic_dn, scene, sim_dir
 
 REPO = Path(__file__).resolve().parents[1]
 BAYER = str(REPO / "sample_configs" / "bayer.toml")
@@ -89,7 +88,7 @@ def test_statistics_are_the_ordered_sum_of_per_input_tasks(tmp_path):
     """collect_stats == the per-input statistics (full arrays) added in input order,
     bit for bit, although each task returns only its classes with samples; and
     it equals one running accumulation over all inputs to float64 rounding."""
-    sim = _sim_dir(tmp_path, n=3, shape=(40, 48), seed=4)
+    sim = sim_dir(tmp_path, n=3, shape=(40, 48), seed=4)
     pairs = find_pairs([sim])
     opts = TrainOptions(levels=4, sample_fraction=0.6, seed=9)
     d = define_classes(pairs, opts)
@@ -161,13 +160,12 @@ def test_train_on_cluster_equals_in_process_simulate_folder(runner, sim, cluster
 @pytest.mark.slow
 def test_train_with_one_local_worker_equals_in_process_pairs_folder(runner, tmp_path):
     from l3cli.colourspace import srgb_encode
-    from tests.test_pairs import H, W, _mosaic_dn
 
     d = tmp_path / "pairs"
     d.mkdir()
     for stem, seed, crop in (("x", 41, 0), ("y", 42, 4)):
         lin = scene(H, W, seed=seed)
-        write_raw(d / f"{stem}.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
+        write_raw(d / f"{stem}.dng", mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
         write_image(d / f"{stem}.png", srgb_encode(lin)[crop:H - crop, crop:W - crop],
                     space="srgb")
     extra = ["--patch", "3", "--levels", "4", "--no-tune"]  # workers: the fixed defaults
@@ -197,7 +195,7 @@ def test_render_on_cluster_is_identical(runner, sim, cluster, tmp_path):
 
 @pytest.mark.slow
 def test_failing_train_job_leaves_no_table(runner, cluster, tmp_path):
-    sim = _sim_dir(tmp_path, n=3, nan=True)  # the last target holds a NaN
+    sim = sim_dir(tmp_path, n=3, nan=True)  # the last target holds a NaN
     out = tmp_path / "t.npz"
     r = runner.invoke(cli, ["train", str(sim), "-o", str(out), "--levels", "4",
                             "--scheduler", cluster])
@@ -209,7 +207,7 @@ def test_failing_train_job_leaves_no_table(runner, cluster, tmp_path):
 
 @pytest.mark.slow
 def test_unreachable_scheduler_leaves_no_table(runner, tmp_path):
-    sim = _sim_dir(tmp_path, n=1)
+    sim = sim_dir(tmp_path, n=1)
     out = tmp_path / "t.npz"
     r = runner.invoke(cli, ["train", str(sim), "-o", str(out), "--scheduler",
                             "tcp://127.0.0.1:1"])
@@ -231,7 +229,7 @@ def _stats_or_die(arg):
 def test_training_statistics_survive_a_killed_worker(tmp_path):
     from l3cli.parallel import map_reduce
 
-    sim = _sim_dir(tmp_path, n=4, shape=(40, 48), seed=5)
+    sim = sim_dir(tmp_path, n=4, shape=(40, 48), seed=5)
     pairs = find_pairs([sim])
     opts = TrainOptions(levels=4)
     d = define_classes(pairs, opts)
@@ -252,7 +250,7 @@ def test_failing_job_on_local_workers_prints_one_line(tmp_path):
     import subprocess
     import sys
 
-    sim = _sim_dir(tmp_path, n=3, nan=True)
+    sim = sim_dir(tmp_path, n=3, nan=True)
     out = tmp_path / "t.npz"
     res = subprocess.run([sys.executable, "-m", "l3cli.cli.main", "train", str(sim), "-o",
                           str(out), "--levels", "4", "--workers", "2"],

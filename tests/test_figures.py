@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from l3cli.figures import group_name, log_subs, plain_log_axis, pyplot
-from tests.test_smooth import plausible_table
+from tests.builders import plausible_table
 
 BANNED = ("grp", "group 0", "saturated -", "n=", "b=", "samples/deg,")
 

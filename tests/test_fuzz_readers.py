@@ -226,7 +226,7 @@ def _filled(shape, kind, fill):
         return np.full(shape, fill).astype(kind)
 
 
-_arrays = st.one_of(
+npz_arrays = st.one_of(
     _json_value.map(lambda v: np.array(json.dumps(v))),
     st.builds(_filled,
               st.lists(st.integers(0, 4), max_size=3).map(tuple),
@@ -236,7 +236,7 @@ _arrays = st.one_of(
 
 
 @given(edits=st.lists(st.tuples(st.sampled_from(sorted(_TABLE) + ["extra"]),
-                                 st.one_of(st.none(), _arrays)), max_size=3),
+                                 st.one_of(st.none(), npz_arrays)), max_size=3),
        cut=st.one_of(st.none(), st.integers(0, 3000)))
 def test_fuzz_table(tmp_path_factory, edits, cut):
     from l3cli.table import load_table

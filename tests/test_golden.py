@@ -25,7 +25,7 @@ import re
 import numpy as np
 import pytest
 
-from tests.conftest import DATA
+from tests.builders import DATA
 
 GOLDEN = DATA / "golden"
 #: Relative tolerance of float outputs (of each array's largest magnitude): a few float32 ulps.

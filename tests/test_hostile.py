@@ -21,9 +21,7 @@ from l3cli.errors import ConfigError, TableError
 from l3cli.io.raw import write_raw
 from l3cli.table import load_table, save_table
 from l3cli.train import TrainOptions
-from tests.test_bad_input_cli import assert_one_line_error
-from tests.test_table import make_table
-from tests.test_train import _sim_dir
+from tests.builders import assert_one_line_error, make_table, sim_dir
 
 L3 = [sys.executable, "-c", "from l3cli.cli.main import main; main()"]
 
@@ -37,14 +35,14 @@ def work(tmp_path: Path) -> Path:
     return tmp_path
 
 
-def _arrays(path: Path) -> dict[str, np.ndarray]:
+def npz_arrays(path: Path) -> dict[str, np.ndarray]:
     with np.load(path, allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
 
 def _with(path: Path, out: Path, **changes) -> Path:
     """A copy of the table at ``path`` with some keys replaced (raw NPZ arrays)."""
-    arrs = _arrays(path)
+    arrs = npz_arrays(path)
     for k, v in changes.items():
         arrs[k] = v
     np.savez(out, **arrs)
@@ -53,7 +51,7 @@ def _with(path: Path, out: Path, **changes) -> Path:
 
 # ---------------------------------------------------------------- table fields
 def _first(path: Path, key: str, value: float) -> np.ndarray:
-    a = _arrays(path)[key].astype(np.float64).copy()
+    a = npz_arrays(path)[key].astype(np.float64).copy()
     a.flat[0] = value
     return a
 
@@ -74,7 +72,7 @@ BAD_FIELDS = {
     "level cut inf": ("level_cuts", lambda p: _first(p, "level_cuts", np.inf),
                       "level cut points"),
     "kernels that overflow float32": (
-        "kernels", lambda p: (_arrays(p)["kernels"] * np.float32(1e37)).astype(np.float32),
+        "kernels", lambda p: (npz_arrays(p)["kernels"] * np.float32(1e37)).astype(np.float32),
         "overflow float32"),
     "negative counts": ("counts", lambda p: _first(p, "counts", -5).astype(np.int64),
                         "negative"),
@@ -131,7 +129,7 @@ def test_contrast_eps_nan_table_is_refused_by_render(runner, work: Path) -> None
 def test_half_overflow_is_refused(runner, work: Path) -> None:
     """A finite table whose output overflows half floats: an error, not +inf in the file;
     full floats write the same render."""
-    arrs = _arrays(work / "table.npz")
+    arrs = npz_arrays(work / "table.npz")
     big = _with(work / "table.npz", work / "big.npz",
                 kernels=(arrs["kernels"] * np.float32(1e6)).astype(np.float32))
     load_table(big)  # valid: finite and far from float32's range
@@ -203,7 +201,7 @@ def test_train_options_refuse_non_finite_values() -> None:
 
 @pytest.fixture
 def sim(tmp_path: Path) -> Path:
-    return _sim_dir(tmp_path, n=2, shape=(40, 48), seed=3)
+    return sim_dir(tmp_path, n=2, shape=(40, 48), seed=3)
 
 
 def test_absurd_levels_are_refused_before_any_work(runner, sim: Path, monkeypatch) -> None:

@@ -18,7 +18,7 @@ from l3cli.inspect import (
 )
 from l3cli.smooth import smooth_table
 from l3cli.table import load_table, save_table
-from tests.test_smooth import plausible_table
+from tests.builders import plausible_table
 
 
 def test_compress_ranges_and_saturation_names():

@@ -14,8 +14,7 @@ import pytest
 
 from l3cli import kernel_store
 from l3cli.kernel_store import Stored, typekey
-from tests.conftest import REPO
-from tests.test_render_pipeline import _raws, table_path  # noqa: F401 - fixture
+from tests.builders import REPO, write_raws
 
 
 def _values():
@@ -127,7 +126,7 @@ def test_a_fresh_process_renders_from_stored_code_without_numba(tmp_path, table_
     from l3cli.io.raw import read_raw
     from l3cli.render import render_mosaic, table_for_task
 
-    raw = _raws(tmp_path, 1, seed=7)[0]
+    raw = write_raws(tmp_path, 1, seed=7)[0]
     want = render_mosaic(table_for_task(table_path), read_raw(raw).mosaic)  # stores if new
     code = ("import sys, json\n"
             "from l3cli.render import render_mosaic, table_for_task\n"
@@ -162,7 +161,7 @@ def test_tile_threads_do_not_change_a_render(tmp_path, table_path, monkeypatch, 
 def test_l3_render_imports_no_numba(tmp_path, table_path, fmt):  # noqa: F811
     """The whole command: `l3 render` of raws to JPEG or TIFF runs without importing numba
     once the kernel's code is stored (the first run here stores it)."""
-    raws = [str(r) for r in _raws(tmp_path, 2, seed=5)]
+    raws = [str(r) for r in write_raws(tmp_path, 2, seed=5)]
     code = ("import atexit, sys\n"
             "atexit.register(lambda: print('NUMBA', 'numba' in sys.modules))\n"
             "from l3cli.cli.main import main\n"

@@ -14,7 +14,7 @@ import pytest
 from l3cli.cli.main import cli
 from l3cli.colourspace import convert
 from l3cli.io.image import read_image
-from tests.conftest import REPO
+from tests.builders import REPO
 
 
 def _patch_means(img, boxes):

@@ -9,7 +9,7 @@ from PIL import Image, ImageOps
 from l3cli.io.metadata import LIBRAW_FLIP_TO_EXIF, exif_attributes, read_shot_metadata
 from l3cli.io.raw import read_raw, write_raw
 from l3cli.render import render_file
-from tests.test_table import make_table
+from tests.builders import make_table
 
 # The stored pixels S of an image that a viewer shows upright as U under EXIF
 # orientation o satisfy exif_transpose(S, o) == U; PIL's exif_transpose is the

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_align import scene
 
 from l3cli.colourspace import srgb_decode, srgb_encode
 from l3cli.errors import InputError
@@ -20,44 +19,7 @@ from l3cli.pairs import (
     iter_pairs,
     weight_mask,
 )
-
-H, W = 128, 160
-
-
-def _mosaic_dn(lin: np.ndarray, spec: str, white: int) -> np.ndarray:
-    from l3cli.cfa import CFA
-
-    c = CFA.from_spec(spec)
-    chan = np.array([["RGB".index(n) for n in row] for row in c.pattern])
-    reps = (H // 2, W // 2)
-    idx = np.tile(chan, reps)
-    m = np.take_along_axis(lin, idx[:, :, None], axis=2)[:, :, 0]
-    return np.round(m * white).astype(np.uint16)
-
-
-def write_headerless(folder: Path, stem: str, lin: np.ndarray) -> Path:
-    dn = _mosaic_dn(lin, "GRBG", 255).astype(np.uint8)
-    raw = folder / f"{stem}.raw"
-    dn.tofile(raw)
-    (folder / f"{stem}.raw.toml").write_text(
-        f'width = {W}\nheight = {H}\ndtype = "uint8"\ncfa = "GRBG"\n'
-        "black_level = 0\nwhite_level = 255\n"
-    )
-    return raw
-
-
-@pytest.fixture
-def pairs_dir(tmp_path: Path) -> Path:
-    d = tmp_path / "pairs"
-    d.mkdir()
-    lin_a = scene(H, W, seed=11)
-    write_headerless(d, "a", lin_a)
-    write_image(d / "a.png", srgb_encode(lin_a), space="srgb")
-    lin_b = scene(H, W, seed=12)
-    write_raw(d / "b.dng", _mosaic_dn(lin_b, "RGGB", 4095), "RGGB", white_level=4095)
-    # RawTherapee-like: raw minus 4 pixels each side, 16-bit TIFF
-    write_image(d / "b.tif", srgb_encode(lin_b)[4:-4, 4:-4], space="srgb")
-    return d
+from tests.builders import H, W, mosaic_dn, scene
 
 
 def test_find_pairs(pairs_dir: Path):
@@ -143,7 +105,7 @@ def test_simulation_dir_is_not_pairs_dir(pairs_dir: Path):
 
 def test_odd_crop_keeps_the_raw_cfa_phase(pairs_dir: Path):
     lin = scene(H, W, seed=21)
-    write_raw(pairs_dir / "c.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
+    write_raw(pairs_dir / "c.dng", mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
     write_image(pairs_dir / "c.png", srgb_encode(lin)[3:-4, 5:-2][:, ::-1], space="srgb")
     (c,) = [p for p in iter_pairs([pairs_dir / "c.dng"], margin=0)]
     assert (c.alignment.dy, c.alignment.dx, c.alignment.flip) == (3, 5, "horizontal")
@@ -161,7 +123,7 @@ def dng_pairs(tmp_path: Path) -> Path:
     d.mkdir()
     for stem, seed, crop, suffix in (("x", 31, 0, ".png"), ("y", 32, 4, ".jpg")):
         lin = scene(H, W, seed=seed)
-        write_raw(d / f"{stem}.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
+        write_raw(d / f"{stem}.dng", mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
         enc = srgb_encode(lin)
         write_image(d / f"{stem}{suffix}", enc[crop:H - crop, crop:W - crop], space="srgb")
     return d
@@ -252,7 +214,7 @@ def test_render_to_jpeg_and_evaluate_against_the_camera_jpeg(dng_pairs: Path, tm
     assert res.exit_code == 0, res.output
     # a new raw, not trained on, whose camera JPEG is cropped by 4 pixels and mirrored
     lin = scene(H, W, seed=33)
-    new_raw = write_raw(tmp_path / "z.dng", _mosaic_dn(lin, "RGGB", 4095), "RGGB",
+    new_raw = write_raw(tmp_path / "z.dng", mosaic_dn(lin, "RGGB", 4095), "RGGB",
                         white_level=4095)
     camera = tmp_path / "camera.jpg"
     write_image(camera, srgb_encode(lin)[4:-4, 4:-4, :][:, ::-1], space="srgb", quality=95)
@@ -278,7 +240,7 @@ def test_one_input_layer_for_simulate_and_pairs_folders(pairs_dir: Path):
     import json
 
     import l3cli.train
-    from tests.conftest import DATA
+    from tests.builders import DATA
 
     sim = DATA / "golden" / "train"
     pairs = find_pairs([sim, pairs_dir])

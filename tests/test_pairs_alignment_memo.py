@@ -7,7 +7,6 @@ import logging
 import os
 
 import numpy as np
-from test_pairs import pairs_dir  # noqa: F401  (fixture)
 
 from l3cli.pairs import find_pairs, load_pair
 from l3cli.pairs import load as pairs_mod  # where load_pair calls align

@@ -9,7 +9,7 @@ import pytest
 
 from l3cli.cli.main import cli
 from l3cli.progress import progress
-from tests.test_train import _sim_dir
+from tests.builders import sim_dir
 
 
 class _Terminal(io.StringIO):
@@ -38,7 +38,7 @@ def test_progress_follows_the_terminal_and_enabled(monkeypatch, stream, enabled,
 
 
 def _train_on(monkeypatch, err, tmp_path, *global_opts):
-    sim = _sim_dir(tmp_path, n=2, shape=(40, 48), seed=31)
+    sim = sim_dir(tmp_path, n=2, shape=(40, 48), seed=31)
     monkeypatch.setattr(sys, "stderr", err)
     out = tmp_path / "t.npz"
     cli.main([*global_opts, "train", str(sim), "-o", str(out), "--levels", "3",

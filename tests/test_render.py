@@ -9,8 +9,8 @@ from l3cli.cfa import CFA
 from l3cli.errors import TableError
 from l3cli.io.raw import RawImage
 from l3cli.render import check_fits, render_mosaic, render_raw
+from tests.builders import make_table
 from tests.l3ref import render_reference
-from tests.test_table import make_table
 
 
 def _raw(mosaic, spec):

@@ -16,7 +16,7 @@ import pytest
 from l3cli.io.encode import _ONE_BITS, display_encode, display_params
 from l3cli.render import render_display, render_mosaic
 from l3cli.render_rows import encode_row
-from tests.test_table import make_table
+from tests.builders import make_table
 
 
 def _table(spec, patch, n_out, space, seed):
@@ -152,7 +152,7 @@ def test_encoder_kernel_loads_from_numba_cache_in_a_new_process(tmp_path):
     import subprocess
     import sys
 
-    from tests.conftest import REPO
+    from tests.builders import REPO
 
     code = ("import numpy as np\nfrom l3cli.io.encode import display_encode\n"
             "display_encode(np.zeros((2, 2, 3), np.float32), 'xyz', 16)\n")

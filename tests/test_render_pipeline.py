@@ -10,30 +10,15 @@ import pytest
 
 from l3cli.cli.main import cli
 from l3cli.io.image import read_image
-from l3cli.io.raw import read_raw, write_raw
-from l3cli.table import save_table
-from tests.conftest import REPO
-from tests.test_table import make_table
-
-
-def _raws(folder, n, *, seed=0, shape=(34, 46)):
-    rng = np.random.default_rng(seed)
-    return [write_raw(folder / f"r{i}.dng", rng.integers(100, 4000, shape).astype(np.uint16),
-                      "RGGB", white_level=4095) for i in range(n)]
-
-
-@pytest.fixture
-def table_path(tmp_path):
-    t = make_table("RGGB", patch=5, seed=4)
-    t.kernels *= np.float32(0.05)  # values mostly inside [0, 1] once encoded
-    return save_table(tmp_path / "t.npz", t)
+from l3cli.io.raw import read_raw
+from tests.builders import REPO, write_raws
 
 
 def test_folder_outputs_in_input_order_equal_one_file_renders(runner, tmp_path, table_path):
     from l3cli.pipeline import render_pipeline
     from l3cli.render import render_mosaic, table_for_task
 
-    raws = _raws(tmp_path, 5)
+    raws = write_raws(tmp_path, 5)
     table = table_for_task(table_path)
     # different content per file, so a mix-up of order shows
     jobs = [(r, tmp_path / "out" / f"{r.stem}.png") for r in raws[::-1]]
@@ -72,7 +57,7 @@ def test_a_failing_file_in_the_middle(runner, tmp_path, table_path, monkeypatch,
         monkeypatch.setattr(pipeline, "IN_FLIGHT", 4)
     else:  # no decode handed over: each job reads its file
         monkeypatch.setattr(pipeline.Prefetch, "take", lambda self, path: None)
-    raws = _raws(tmp_path, 4)
+    raws = write_raws(tmp_path, 4)
     bad = tmp_path / "r1.dng"
     bad.write_bytes(b"II*\x00 not really a raw file")
     out = tmp_path / "out"
@@ -85,7 +70,7 @@ def test_a_failing_file_in_the_middle(runner, tmp_path, table_path, monkeypatch,
 
 
 def test_format_accepts_the_other_suffix_spellings(runner, tmp_path, table_path):
-    raws = _raws(tmp_path, 2)
+    raws = write_raws(tmp_path, 2)
     for given, suffix in (("TIF", ".tif"), ("jpeg", ".jpg"), ("tiff", ".tif")):
         out = tmp_path / f"out-{given}"
         res = runner.invoke(cli, ["render", str(table_path), *map(str, raws), "-o", str(out),
@@ -116,7 +101,7 @@ def test_display_render_equals_render_then_encode(table_path):
 def test_compression_and_half_options(runner, tmp_path, table_path):
     import OpenImageIO as oiio
 
-    (raw,) = _raws(tmp_path, 1)
+    (raw,) = write_raws(tmp_path, 1)
 
     def spec(path):
         inp = oiio.ImageInput.open(str(path))
@@ -163,7 +148,7 @@ def _imports(args):
 
 
 def test_render_and_info_import_only_what_they_use(tmp_path, table_path):
-    (raw,) = _raws(tmp_path, 1)
+    (raw,) = write_raws(tmp_path, 1)
     assert _imports(["-q", "render", str(table_path), str(raw), "-o",
                      str(tmp_path / "o.jpg")]) == "-"
     assert _imports(["-q", "render", str(table_path), str(raw), "-o",
@@ -187,7 +172,7 @@ def test_prefetched_first_raw_is_used_once_and_its_error_raised(tmp_path, table_
     from l3cli.pipeline import Prefetch, render_pipeline
     from l3cli.render import table_for_task
 
-    raws = _raws(tmp_path, 2)
+    raws = write_raws(tmp_path, 2)
     with Prefetch(raws[0]) as pre:
         assert pre.take(raws[1]) is None  # another file: not this decode
         raw = pre.take(raws[0])
@@ -206,7 +191,7 @@ def test_prefetched_first_raw_is_used_once_and_its_error_raised(tmp_path, table_
 def test_prefetch_of_several_raws_in_order_each_once(tmp_path):
     from l3cli.pipeline import Prefetch
 
-    raws = _raws(tmp_path, 4)
+    raws = write_raws(tmp_path, 4)
     with Prefetch(raws, count=3) as pre:
         assert pre.paths == [str(r) for r in raws[:3]]
         np.testing.assert_array_equal(pre.take(raws[0]).mosaic, read_raw(raws[0]).mosaic)
@@ -226,7 +211,7 @@ def test_prefetch_leaves_a_file_not_yet_begun_to_its_job(tmp_path, monkeypatch):
     import l3cli.io.raw as raw_io
     from l3cli.pipeline import Prefetch
 
-    raws = _raws(tmp_path, 3)
+    raws = write_raws(tmp_path, 3)
     gate, calls = threading.Event(), []
     real = raw_io.read_raw
 
@@ -277,7 +262,7 @@ def test_display_tables_are_built_once_beside_the_warm_up(tmp_path, table_path, 
         return real(bits, encode_)
 
     monkeypatch.setattr(encode, "srgb_thresholds", slow)
-    raws = _raws(tmp_path, 1)
+    raws = write_raws(tmp_path, 1)
     (tmp_path / "out").mkdir()
     render_pipeline(table_for_task(table_path), [(raws[0], tmp_path / "out" / "a.png")],
                     table_name="t.npz")
@@ -324,7 +309,7 @@ def test_folder_renders_take_their_turns_in_input_order(tmp_path, table_path, mo
     from l3cli import pipeline
     from l3cli.table import load_table
 
-    raws = _raws(tmp_path, 5)
+    raws = write_raws(tmp_path, 5)
 
     orig = rawmod.read_raw
 

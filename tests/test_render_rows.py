@@ -18,7 +18,7 @@ import pytest
 from l3cli.classify import classify
 from l3cli.render import render_mosaic
 from l3cli.render_rows import pack_taps, tap_lanes, tap_tail
-from tests.test_table import make_table
+from tests.builders import make_table
 
 
 @nb.njit

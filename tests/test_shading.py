@@ -22,7 +22,7 @@ from l3cli.shading import (
     normalised_coords,
 )
 from l3cli.table import SHADING_VERSION, TABLE_VERSION, load_table, save_table
-from tests.test_table import make_table
+from tests.builders import MINIMAL, make_table, uniform_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -348,7 +348,6 @@ def _rgb_camera(**optics):
     import tomllib
 
     from l3cli.camera import camera_from_dict
-    from tests.test_camera import MINIMAL
 
     data = tomllib.loads(MINIMAL)
     data["optics"] = optics
@@ -382,7 +381,6 @@ def test_simulated_raw_carries_the_relative_illumination_and_the_target_not():
     pixel's normalised radius; the target is the unshaded camera's."""
     from l3cli.simulate import prepare_camera, simulate_capture
     from l3cli.simulate.optics import cos4_falloff
-    from tests.test_simulate_physics import uniform_scene
 
     plain, dc = _rgb_camera()
     shaded, _ = _rgb_camera(relative_illumination=RI, cos4=True, shading_corrected=True,

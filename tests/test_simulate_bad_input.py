@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from l3cli.cli.main import cli
-from tests.test_bad_input_cli import assert_one_line_error
+from tests.builders import assert_one_line_error
 
 REPO = Path(__file__).resolve().parents[1]
 BAYER = (REPO / "sample_configs" / "bayer.toml").read_text()

@@ -18,6 +18,7 @@ from l3cli.simulate import make_scene, prepare_camera, simulate_capture
 from l3cli.simulate.core import illuminant_irradiance
 from l3cli.simulate.optics import airy_otf
 from l3cli.simulate.scenes import Scene, edge_area_coverage
+from tests.builders import uniform_scene
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -44,8 +45,6 @@ def flat_qe_camera(tmp_path: Path, *, cfa="W", qe=0.5, f_number=4.0, pitch=2.0, 
     return camera_from_dict(data, file=tmp_path / "flat.toml")
 
 
-def uniform_scene(h: int, w: int, wl: np.ndarray, reflectance: float = 0.5) -> Scene:
-    return Scene("flat", np.ones((1, h, w), np.float32), np.full((1, wl.size), reflectance))
 
 
 # --------------------------------------------------------------- radiometry

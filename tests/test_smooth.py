@@ -24,6 +24,7 @@ from l3cli.smooth.spline import level_abscissa, smooth_levels, whittaker
 from l3cli.smooth.symmetry import symmetrize_kernels, symmetry_map, tap_permutation
 from l3cli.smooth.uniformity import channel_sums, make_uniform, uniformity_error
 from l3cli.table import TransformTable, load_table, save_table
+from tests.builders import plausible_table
 
 RGBW = "WGWR/BWGW/WRWG/GWBW"  # sample_configs/rgbw-4x4.toml
 CFAS = ["RGGB", "GRBG", RGBW, "RGBW/GWRB/BRWG/WBGR", "R G/NIR B", "RGB/GBR/BRG"]
@@ -35,43 +36,6 @@ LAYOUT = ("--patch", "5", "--levels", "24", "--contrast-bins", "2",
           "--contrast-threshold", "quantile")
 
 
-def plausible_table(spec="RGGB", *, patch=5, n_levels=10, seed=0, empty_fraction=0.3,
-                    noise=0.05) -> TransformTable:
-    """A table whose kernels look trained: per-channel averages mapped by a positive
-    3xC matrix, plus noise; some classes empty (holding their fallback's kernel)."""
-    from l3cli.train.fit import fallback_sources
-
-    d = ClassDefinition.build(spec, patch=patch,
-                              level_cuts=np.geomspace(0.003, 0.8, n_levels - 1),
-                              contrast_cuts=0.3)
-    rng = np.random.default_rng(seed)
-    nch = d.cfa.n_channels
-    mix = 0.2 + rng.random((3, nch))
-    nc, q = d.n_classes, d.n_coeffs
-    k = np.zeros((nc, q, 3))
-    g = np.asarray(d.class_tuple(np.arange(nc))[0])
-    for grp in range(d.n_groups):
-        p = int(np.flatnonzero(d.position_group == grp)[0])
-        lay = d.cfa.neighbourhood(p, patch).ravel()
-        n_c = np.bincount(lay, minlength=nch)
-        base = (mix[:, lay] / n_c[lay]).T  # (P, 3)
-        sel = g == grp
-        k[sel, :-1] = base
-    k[:, :-1] += noise * rng.normal(size=(nc, q - 1, 3)) / q
-    k[:, -1] = 0.01 * rng.normal(size=(nc, 3))
-    counts = rng.integers(200, 5000, nc)
-    empty = rng.random(nc) < empty_fraction
-    empty[0] = False
-    # every position group needs a trained class
-    for grp in range(d.n_groups):
-        empty[np.flatnonzero(g == grp)[0]] = False
-    counts[empty] = rng.integers(0, 20, int(empty.sum()))
-    src = fallback_sources(d, ~empty)
-    lam = np.where(empty[:, None], np.nan, 1e-3)
-    return TransformTable(definition=d, kernels=k[src].astype(np.float32), counts=counts,
-                          lambdas=np.broadcast_to(lam, (nc, 3)).copy(), empty=empty,
-                          source_class=src, output_space="xyz",
-                          provenance={"inputs": ["synthetic"], "seed": seed})
 
 
 def flat_field(cfa: CFA, values: dict[str, float], h=40, w=44) -> np.ndarray:
@@ -498,7 +462,7 @@ def scarce(tmp_path_factory):
     at two other light levels (held out)."""
     from click.testing import CliRunner
 
-    from tests.conftest import REPO
+    from tests.builders import REPO
 
     runner = CliRunner()
     root = tmp_path_factory.mktemp("scarce")
@@ -626,7 +590,7 @@ def test_empty_classes_render_without_holes_and_inspect_lists_them(scarce):
 def test_plentiful_data_smoothing_costs_at_most_two_percent(tmp_path):
     from click.testing import CliRunner
 
-    from tests.conftest import REPO
+    from tests.builders import REPO
 
     runner = CliRunner()
     cam = str(REPO / BAYER)
@@ -649,7 +613,7 @@ def test_rgbw_trained_table_renders_a_flat_field_uniform_after_smoothing(tmp_pat
 
     from l3cli.render import render_mosaic
     from l3cli.table import load_table
-    from tests.conftest import REPO
+    from tests.builders import REPO
 
     runner = CliRunner()
     cam = str(REPO / "sample_configs/rgbw-4x4.toml")

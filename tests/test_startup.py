@@ -11,8 +11,7 @@ import numpy as np
 
 from l3cli import buffers, startup
 from l3cli.cli.main import cli
-from tests.conftest import REPO
-from tests.test_render_pipeline import _raws, table_path  # noqa: F401 - fixture
+from tests.builders import REPO, write_raws
 
 
 # ------------------------------------------------------------------ buffers
@@ -82,7 +81,7 @@ def test_folder_render_recycles_and_equals_one_by_one(runner, tmp_path, table_pa
     """Five files through three in flight: buffers come back, outputs are unchanged."""
     from l3cli.io.image import read_image
 
-    raws = _raws(tmp_path, 5, seed=3)
+    raws = write_raws(tmp_path, 5, seed=3)
     calls = {"new": 0, "reused": 0}
     real = buffers.empty
 
@@ -111,7 +110,7 @@ def test_folder_render_recycles_and_equals_one_by_one(runner, tmp_path, table_pa
 # ------------------------------------------------------------------ startup
 def test_gc_is_on_again_after_render_and_after_a_failed_render(runner, tmp_path,
                                                               table_path):  # noqa: F811
-    raw = _raws(tmp_path, 1)[0]
+    raw = write_raws(tmp_path, 1)[0]
     assert gc.isenabled()
     res = runner.invoke(cli, ["render", str(table_path), str(raw), "-o", str(tmp_path / "a.png")])
     assert res.exit_code == 0 and gc.isenabled()
@@ -218,7 +217,7 @@ def _main_child(argv: list[str], extra: str = "") -> subprocess.CompletedProcess
 
 def test_a_finished_render_skips_the_teardown_but_runs_exit_handlers(tmp_path,
                                                                     table_path):  # noqa: F811
-    raw = _raws(tmp_path, 1)[0]
+    raw = write_raws(tmp_path, 1)[0]
     out = tmp_path / "a.png"
     res = _main_child(["render", str(table_path), str(raw), "-o", str(out)])
     assert res.returncode == 0, res.stderr

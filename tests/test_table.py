@@ -8,29 +8,9 @@ import zipfile
 import numpy as np
 import pytest
 
-from l3cli.classify import ClassDefinition
 from l3cli.errors import TableError
-from l3cli.table import TABLE_VERSION, TransformTable, load_table, save_table
-
-
-def make_table(spec="RGGB", patch=5, n_out=3, seed=0, space="xyz") -> TransformTable:
-    d = ClassDefinition.build(spec, patch=patch, level_cuts=[0.05, 0.2], contrast_cuts=0.3)
-    rng = np.random.default_rng(seed)
-    nc, q = d.n_classes, d.n_coeffs
-    empty = np.zeros(nc, bool)
-    empty[1::2] = True
-    src = np.where(empty, np.arange(nc) - 1, np.arange(nc))
-    k = rng.normal(size=(nc, q, n_out)).astype(np.float32)
-    k[empty] = k[src[empty]]
-    lam = np.where(empty[:, None], np.nan, 1e-3 * np.ones((nc, n_out)))
-    return TransformTable(definition=d, kernels=k, counts=np.where(empty, 0, 500),
-                          lambdas=lam, empty=empty, source_class=src, output_space=space,
-                          provenance={"inputs": ["a.dng"], "seed": 3})
-
-
-def _arrays(path):
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+from l3cli.table import TABLE_VERSION, load_table, save_table
+from tests.builders import make_table, npz_arrays, rewrite_npz
 
 
 def test_round_trip(tmp_path):
@@ -44,22 +24,13 @@ def test_round_trip(tmp_path):
     np.testing.assert_array_equal(u.lambdas, t.lambdas)
     assert u.definition.same_as(t.definition)
     assert u.output_space == "xyz" and u.provenance == {"inputs": ["a.dng"], "seed": 3}
-    a = _arrays(p)  # plain dtypes only, loadable without pickle
+    a = npz_arrays(p)  # plain dtypes only, loadable without pickle
     assert all(v.dtype != object for v in a.values())
     assert str(a["format"]) == "l3-table" and int(a["version"]) == TABLE_VERSION
     assert a["kernels"].dtype == np.float32 and a["kernels"].shape == (4 * 8 * 3 * 2, 26, 3)
     assert not list(tmp_path.glob(".l3-tmp*"))
 
 
-def _rewrite(path, **changes):
-    a = _arrays(path)
-    for k, v in changes.items():
-        if v is None:
-            del a[k]
-        else:
-            a[k] = v
-    with open(path, "wb") as fh:
-        np.savez(fh, **a)
 
 
 @pytest.mark.parametrize(
@@ -79,7 +50,7 @@ def _rewrite(path, **changes):
 )
 def test_validation(tmp_path, change, match):
     p = save_table(tmp_path / "t.npz", make_table())
-    _rewrite(p, **change)
+    rewrite_npz(p, **change)
     with pytest.raises(TableError, match=match) as exc:
         load_table(p)
     assert str(p) in str(exc.value) and "\n" not in str(exc.value)
@@ -114,4 +85,4 @@ def test_not_npz_and_damaged(tmp_path):
 
 def test_provenance_is_json_string(tmp_path):
     p = save_table(tmp_path / "t.npz", make_table())
-    assert json.loads(str(_arrays(p)["provenance"]))["seed"] == 3
+    assert json.loads(str(npz_arrays(p)["provenance"]))["seed"] == 3

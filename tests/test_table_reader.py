@@ -13,14 +13,14 @@ import pytest
 
 from l3cli.errors import TableError
 from l3cli.table import load_table, save_table
-from tests.test_table import _rewrite, make_table
+from tests.builders import make_table, rewrite_npz
 
 
 @pytest.mark.parametrize(("key", "value"), [("patch", np.array([5])), ("cfa", np.array(["RGGB"])),
                                             ("saturation_threshold", np.array([0.95]))])
 def test_a_scalar_key_stored_as_an_array_is_refused(tmp_path, key, value):
     path = save_table(tmp_path / "t.npz", make_table())
-    _rewrite(path, **{key: value})
+    rewrite_npz(path, **{key: value})
     with pytest.raises(TableError, match=rf"t\.npz: key '{key}' must be a scalar, has shape \(1,\)"):
         load_table(path)
 
@@ -30,10 +30,10 @@ def test_half_a_tone_curve_is_refused(tmp_path, present):
     path = save_table(tmp_path / "t.npz", make_table())
     arrays = {"tone_lut": np.linspace(0, 1, 16, dtype=np.float32)[:, None].repeat(3, 1),
               "tone_range": np.array([[0.0] * 3, [1.0] * 3], np.float32)}
-    _rewrite(path, **{present: arrays[present]})
+    rewrite_npz(path, **{present: arrays[present]})
     with pytest.raises(TableError, match="tone_lut and tone_range come together"):
         load_table(path)
-    _rewrite(path, **arrays)  # both: a table with a tone curve
+    rewrite_npz(path, **arrays)  # both: a table with a tone curve
     t = load_table(path)
     assert t.tone_lut is not None and t.tone_lut[0].shape == (16, 3)
 
@@ -41,7 +41,7 @@ def test_half_a_tone_curve_is_refused(tmp_path, present):
 def test_an_empty_tone_range_is_refused(tmp_path):
     path = save_table(tmp_path / "t.npz", make_table())
     lut = np.linspace(0, 1, 16, dtype=np.float32)[:, None].repeat(3, 1)
-    _rewrite(path, tone_lut=lut, tone_range=np.array([[0.0, 0.0, 0.5], [1.0, 1.0, 0.5]], np.float32))
+    rewrite_npz(path, tone_lut=lut, tone_range=np.array([[0.0, 0.0, 0.5], [1.0, 1.0, 0.5]], np.float32))
     with pytest.raises(TableError, match="empty range"):
         load_table(path)
 
@@ -54,7 +54,7 @@ def test_a_fallback_class_past_the_last_is_refused(tmp_path):
     for value, ok in ((last, True), (nc, False)):  # nc: one past the last class
         src = t.source_class.copy()
         src[0] = value
-        _rewrite(path, source_class=src)
+        rewrite_npz(path, source_class=src)
         if ok:
             assert load_table(path).source_class[0] == last
         else:
@@ -66,6 +66,6 @@ def test_a_pickled_array_is_never_loaded(tmp_path):
     # NPZ loads with allow_pickle=False: an object array (a pickle, which could run
     # code when loaded) makes the table unreadable instead of being unpickled
     path = save_table(tmp_path / "t.npz", make_table())
-    _rewrite(path, extra=np.array([{"pickled": True}], dtype=object))
+    rewrite_npz(path, extra=np.array([{"pickled": True}], dtype=object))
     with pytest.raises(TableError, match=r"t\.npz: not an NPZ table or damaged \(.*allow_pickle"):
         load_table(path)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
@@ -22,17 +20,11 @@ from l3cli.train import (
 )
 from l3cli.train.fit import fallback_sources
 from l3cli.train.ridge import DEFAULT_LAMBDA_GRID
-from tests.l3ref import features_reference
+from tests.builders import design_matrix, sim_dir
 
 RTOL = 1e-8
 
 
-def _design(mosaic, d):
-    """Explicit design matrix (H*W, q) from the numpy reference patches."""
-    _, _, _, win = features_reference(mosaic, d.cfa, d.patch, d.saturation_threshold,
-                                      d.contrast_eps)
-    h, w = mosaic.shape
-    return np.concatenate([win.reshape(h * w, -1), np.ones((h * w, 1))], axis=1)
 
 
 def _synthetic(seed=0, shape=(120, 160), spec="RGGB"):
@@ -47,7 +39,7 @@ def _synthetic(seed=0, shape=(120, 160), spec="RGGB"):
 def test_noise_free_affine_kernels_are_recovered_with_near_zero_lambda():
     rng, m, d = _synthetic()
     cls = classify(m, d).ravel()
-    X = _design(m, d)
+    X = design_matrix(m, d)
     K = rng.normal(size=(d.n_classes, d.n_coeffs, 3))
     Y = np.einsum("nq,nqo->no", X, K[cls]).reshape(*m.shape, 3).astype(np.float32)
     Yd = Y.reshape(-1, 3).astype(np.float64)
@@ -75,7 +67,7 @@ def test_full_training_recovers_exact_affine_kernels_to_1e5_with_near_zero_lambd
     d = ClassDefinition.build("RGGB", patch=5, level_cuts=[0.3, 0.34], contrast_cuts=0.3,
                               saturation_threshold=2.0)
     cls = classify(m, d).ravel()
-    X = _design(m, d)
+    X = design_matrix(m, d)
     K = rng.integers(-128, 129, size=(d.n_classes, d.n_coeffs, 3)) / 64
     Y = np.einsum("nq,nqo->no", X, K[cls])
     Y32 = Y.astype(np.float32)
@@ -108,7 +100,7 @@ def test_full_training_recovers_exact_affine_kernels_to_1e5_with_near_zero_lambd
 def test_exact_float64_targets_to_1e5():
     rng, m, d = _synthetic(seed=5)
     cls = classify(m, d).ravel()
-    X = _design(m, d)
+    X = design_matrix(m, d)
     K = rng.normal(size=(d.n_classes, d.n_coeffs, 2))
     Y = np.einsum("nq,nqo->no", X, K[cls])
     stats = ClassStats.zeros(d, 2)
@@ -263,38 +255,12 @@ def test_fallback_goes_to_nearest_trained_level_same_position_and_contrast():
 
 
 # ------------------------------------------------------------- input folders
-def _write_pair(folder, stem, mosaic, target, cfa="RGGB", target_space="xyz"):
-    from l3cli.io.image import write_image
-    from l3cli.io.raw import write_raw
-
-    raw = write_raw(folder / f"{stem}.dng", np.round(mosaic * 4095).astype(np.uint16), cfa,
-                    white_level=4095)
-    write_image(folder / f"{stem}.target.exr", target, space=target_space,
-                allow_nonfinite=True)  # the bad-input tests write NaN on purpose
-    return raw
 
 
-def _sim_dir(tmp_path, n=2, shape=(40, 48), seed=0, nan=False, bad_size=False):
-    rng = np.random.default_rng(seed)
-    folder = tmp_path / f"sim{seed}"
-    folder.mkdir()
-    caps = []
-    for i in range(n):
-        m = rng.random(shape) * 0.8
-        t = rng.random((*shape, 3)).astype(np.float32)
-        if nan and i == n - 1:
-            t[3, 4, 1] = np.nan
-        if bad_size and i == n - 1:
-            t = t[:-2]
-        raw = _write_pair(folder, f"cap{i}", m, t)
-        caps.append({"stem": f"cap{i}", "raw": raw.name, "target": f"cap{i}.target.exr"})
-    (folder / "manifest.json").write_text(json.dumps(
-        {"format": "l3-simulation", "version": 1, "target": {"space": "xyz"}, "captures": caps}))
-    return folder
 
 
 def test_find_pairs_simulation_and_pairs_folders(tmp_path):
-    sim = _sim_dir(tmp_path)
+    sim = sim_dir(tmp_path)
     pairs = find_pairs([sim])
     assert [p.name for p in pairs] == ["cap0", "cap1"]
     assert pairs[0].metadata == {} and not pairs[0].align
@@ -321,7 +287,7 @@ def test_targets_are_converted_to_the_training_space(tmp_path, space):
     CIELAB (colour-science as the reference) and the table renders into that space."""
     import colour
 
-    sim = _sim_dir(tmp_path, n=2, seed=13)
+    sim = sim_dir(tmp_path, n=2, seed=13)
     pairs = find_pairs([sim])
     xyz = load_pair(pairs[0], target_space="xyz").target.astype(np.float64)
     got = load_pair(pairs[0], target_space=space).target
@@ -344,10 +310,10 @@ def test_bad_inputs(tmp_path):
         find_pairs([empty])
     with pytest.raises(InputError, match="no such file or folder"):
         find_pairs([tmp_path / "missing"])
-    nan = _sim_dir(tmp_path, seed=1, nan=True)
+    nan = sim_dir(tmp_path, seed=1, nan=True)
     with pytest.raises(InputError, match="NaN or Inf.*x=4, y=3"):
         train(find_pairs([nan]), TrainOptions(levels=3))
-    bad = _sim_dir(tmp_path, seed=2, bad_size=True)
+    bad = sim_dir(tmp_path, seed=2, bad_size=True)
     with pytest.raises(InputError, match="target is 48x38 but raw cap1.dng is 48x40"):
         train(find_pairs([bad]), TrainOptions(levels=3))
     lonely = tmp_path / "lonely"
@@ -364,7 +330,7 @@ def test_one_run_on_a_and_b_equals_merged_statistics_of_separate_runs(tmp_path):
     separate runs (written to and read from files), added, then solved."""
     from l3cli.train import collect_stats, define_classes
 
-    sim = _sim_dir(tmp_path, n=2, shape=(48, 64), seed=12)
+    sim = sim_dir(tmp_path, n=2, shape=(48, 64), seed=12)
     pairs = find_pairs([sim])
     opts = TrainOptions(levels=4, sample_fraction=0.6, min_samples_factor=2, seed=5)
     one = train(pairs, opts)
@@ -388,13 +354,13 @@ def test_one_run_on_a_and_b_equals_merged_statistics_of_separate_runs(tmp_path):
 
 
 def test_too_little_data_gives_zero_trained_classes(tmp_path):
-    sim = _sim_dir(tmp_path, n=1, shape=(40, 48), seed=3)
+    sim = sim_dir(tmp_path, n=1, shape=(40, 48), seed=3)
     with pytest.raises(TableError, match="no class has enough training samples"):
         train(find_pairs([sim]), TrainOptions(levels=40, min_samples_factor=50))
 
 
 def test_train_is_deterministic_with_seed_and_subsampling(tmp_path):
-    sim = _sim_dir(tmp_path, n=2, seed=4, shape=(48, 64))
+    sim = sim_dir(tmp_path, n=2, seed=4, shape=(48, 64))
     pairs = find_pairs([sim])
     opts = dict(levels=4, sample_fraction=0.5, min_samples_factor=2)
     t1 = train(pairs, TrainOptions(seed=7, **opts))
@@ -412,7 +378,7 @@ def test_accumulated_statistics_equal_explicit_sums_with_mask():
     mask = rng.random(m.shape) < 0.4
     s = ClassStats.zeros(d, 3)
     accumulate(s, m, t, mask=mask, max_pixels=2000)  # several bands
-    X = _design(m, d)
+    X = design_matrix(m, d)
     Y = t.reshape(-1, 3).astype(np.float64)
     cls = classify(m, d).ravel()
     keep = mask.ravel()

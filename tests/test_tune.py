@@ -7,8 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_align import scene
-from test_pairs import write_headerless
 
 from l3cli.cli.main import cli
 from l3cli.colourspace import D65_XYZ, convert, srgb_encode
@@ -30,19 +28,7 @@ from l3cli.train.cvscore import ReferenceSCIELAB, lab_from_xyz
 from l3cli.train.fit import table_from_stats
 from l3cli.train.stats import ClassStats, accumulate
 from l3cli.train.tune import TuneGrid, tune
-
-H, W = 128, 160
-OPTS = dict(patch=5, levels=4, contrast_bins=1, level_range=(0.02, 0.6))
-
-
-def _pairs(folder: Path, scenes: dict[str, tuple[int, float]]) -> Path:
-    """A pairs folder: per stem (scene seed, gain of the 'pipeline')."""
-    folder.mkdir()
-    for stem, (seed, gain) in scenes.items():
-        lin = scene(H, W, seed=seed)
-        write_headerless(folder, stem, lin)
-        write_image(folder / f"{stem}.png", srgb_encode(np.clip(gain * lin, 0, 1)), space="srgb")
-    return folder
+from tests.builders import TUNE_OPTS, H, W, scene, tune_pairs, write_headerless
 
 
 def test_lab_matches_colour_science():
@@ -68,9 +54,9 @@ def test_folds_leave_whole_images_out(tmp_path: Path):
     """Two identical images and one different: each fold's statistics are those
     of the other images alone, so the different image is scored by a table
     that never saw it (and each copy by a table that saw the other copy)."""
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "a2": (5, 1.0), "b": (6, 0.6)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "a2": (5, 1.0), "b": (6, 0.6)})
     pairs = find_pairs([folder])
-    opts = TrainOptions(target_space="linear-srgb", **OPTS)
+    opts = TrainOptions(target_space="linear-srgb", **TUNE_OPTS)
     images = load_cv_images(pairs, opts)
     units = make_units(images)
     assert [u.columns for u in units] == [None] * 3
@@ -107,8 +93,8 @@ def test_folds_leave_whole_images_out(tmp_path: Path):
 
 
 def test_single_image_is_cut_into_blocks(tmp_path: Path):
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
-    opts = TrainOptions(target_space="linear-srgb", **OPTS)
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0)})
+    opts = TrainOptions(target_space="linear-srgb", **TUNE_OPTS)
     images = load_cv_images(find_pairs([folder]), opts)
     units = make_units(images)
     assert len(units) == 3 and units[0].columns[0] == 0 and units[-1].columns[1] == W
@@ -123,11 +109,11 @@ def test_single_image_is_cut_into_blocks(tmp_path: Path):
 def test_tune_picks_the_known_best_space(tmp_path: Path):
     """Renders that are display-encoded linear images: a linear kernel can only
     fit them in the linear space, so linear-srgb must win over srgb."""
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     grid = TuneGrid(spaces=("linear-srgb", "srgb"), patches=(5,), levels=(4,),
                     contrast_bins=(1,), augments=("none",), sample_weights=("none",),
                     shading=(False,), multiscale=(False,))
-    res = tune(find_pairs([folder]), TrainOptions(**OPTS), grid)
+    res = tune(find_pairs([folder]), TrainOptions(**TUNE_OPTS), grid)
     assert res.best.candidate.target_space == "linear-srgb"
     by_space = {r.candidate.target_space: r.mean for r in res.results}
     assert by_space["linear-srgb"] < by_space["srgb"]
@@ -137,7 +123,7 @@ def test_tune_picks_the_known_best_space(tmp_path: Path):
 
 
 def test_cli_tune_with_config_and_inspect(tmp_path: Path, runner):
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     cfg = tmp_path / "train.toml"
     cfg.write_text('[train]\nlevel-range = [0.02, 0.6]\n[train.tune]\n'
                    'spaces = ["linear-srgb", "srgb"]\npatches = [5]\nlevels = [4]\n'
@@ -157,7 +143,7 @@ def test_cli_tune_with_config_and_inspect(tmp_path: Path, runner):
 
 
 def test_cli_config_unknown_key(tmp_path: Path, runner):
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0)})
     cfg = tmp_path / "bad.toml"
     cfg.write_text("[train]\npatchsize = 5\n")
     res = runner.invoke(cli, ["train", str(folder), "-o", str(tmp_path / "t.npz"),
@@ -192,7 +178,7 @@ def test_tune_refuses_augmentation_for_a_pipeline_that_is_not_mirror_symmetric(t
     grid = TuneGrid(spaces=("linear-srgb",), patches=(5,), levels=(4,), contrast_bins=(1,),
                     augments=("d4", "none"), sample_weights=("none",), shading=(False,),
                     multiscale=(False,))
-    res = tune(find_pairs([folder]), TrainOptions(**OPTS, augment="d4"), grid)
+    res = tune(find_pairs([folder]), TrainOptions(**TUNE_OPTS, augment="d4"), grid)
     by_aug = {r.candidate.augment: r.mean for r in res.results}
     assert set(by_aug) == {"d4", "none"}
     assert res.best.candidate.augment == "none"
@@ -222,8 +208,8 @@ def test_tune_on_white_balanced_shots_scores_and_keeps_the_white_balance(tmp_pat
                     augments=("none",), sample_weights=("none",), shading=(False,),
                     multiscale=(False,))
     pairs = find_pairs([folder])
-    wb = tune(pairs, TrainOptions(**OPTS, white_balance=True), grid)
-    plain = tune(pairs, TrainOptions(**OPTS), grid)
+    wb = tune(pairs, TrainOptions(**TUNE_OPTS, white_balance=True), grid)
+    plain = tune(pairs, TrainOptions(**TUNE_OPTS), grid)
     assert wb.best.mean < 0.5 * plain.best.mean, (wb.best.mean, plain.best.mean)
     assert wb.table.white_balance is not None
     direct = train(pairs, wb.options)
@@ -289,8 +275,8 @@ def test_multiscale_folds_score_the_same_renders_without_the_stage(tmp_path: Pat
     and changes the scores."""
     from l3cli.train.cvmultiscale import multiscale_fold_scores
 
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
-    opts = TrainOptions(target_space="linear-srgb", **OPTS)
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    opts = TrainOptions(target_space="linear-srgb", **TUNE_OPTS)
     images = load_cv_images(find_pairs([folder]), opts)
     units = make_units(images)
     folds = make_folds(units, 5)
@@ -304,7 +290,7 @@ def test_multiscale_folds_score_the_same_renders_without_the_stage(tmp_path: Pat
 def _default_search(folder):
     grid = TuneGrid(spaces=("linear-srgb", "srgb"), patches=(3, 5), levels=(4,),
                     contrast_bins=(1,))
-    return tune(find_pairs([folder]), TrainOptions(**OPTS, shading=True, tone_curve=True,
+    return tune(find_pairs([folder]), TrainOptions(**TUNE_OPTS, shading=True, tone_curve=True,
                                                    target_space="linear-srgb"),
                 grid)
 
@@ -313,7 +299,7 @@ def test_tune_searches_multiscale_and_is_deterministic(tmp_path: Path):
     """A search over spaces, patches, shading and the multi-scale stage: the stage is
     scored, a flat-field pipeline keeps no shading field, and two runs with the same
     seed give bit-identical tables and records."""
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     a, b = _default_search(folder), _default_search(folder)
     cands = [r.candidate for r in a.results]
     assert any(c.multiscale for c in cands) and {c.patch for c in cands} == {3, 5}
@@ -334,7 +320,7 @@ def test_tune_searches_multiscale_and_is_deterministic(tmp_path: Path):
 def test_cli_tunes_pairs_by_default_keeping_the_options_given(tmp_path: Path, runner):
     """Pairs folders are tuned without --tune; an option given is not searched;
     --no-tune trains the fixed defaults."""
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     out = tmp_path / "t.npz"
     common = ["--levels", "4", "--contrast-bins", "1", "--level-range", "0.02", "0.6"]
     res = runner.invoke(cli, ["train", str(folder), "-o", str(out), "--patch", "5",

@@ -20,7 +20,7 @@ from l3cli.whitebalance import (
     raw_gains,
     white_features,
 )
-from tests.test_table import make_table
+from tests.builders import make_table
 
 
 def _dng(tmp_path, name="a.dng", neutral=(0.5, 1.0, 0.8), shape=(24, 32), **shot):
