@@ -43,7 +43,7 @@ test-portable: $(STAMP) bytecode
 FUZZ_COUNT := .fuzz-count.txt
 fuzz: $(STAMP)
 	rm -f $(FUZZ_COUNT)
-	L3_FUZZ_PROFILE=fuzz L3_FUZZ_COUNT_FILE=$(FUZZ_COUNT) $(PY) -m pytest -n 0 -q -p no:cacheprovider tests/test_fuzz_readers.py
+	L3_FUZZ_PROFILE=fuzz L3_FUZZ_COUNT_FILE=$(FUZZ_COUNT) $(PY) -m pytest -n 0 -q -p no:cacheprovider tests/io/test_fuzz_readers.py
 	@cat $(FUZZ_COUNT) && rm -f $(FUZZ_COUNT)
 
 lint: $(STAMP)

@@ -350,7 +350,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             log.info("dask: %s", client)
             from l3cli.startup import test_point
 
-            test_point("cluster")  # test-only: tests/test_signals.py
+            test_point("cluster")  # test-only: tests/cli/test_signals.py
             yield client
     finally:
         if isinstance(sys.exc_info()[1], KeyboardInterrupt) and root > logging.DEBUG:

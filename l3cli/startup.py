@@ -171,7 +171,7 @@ def handle_signals() -> None:
         signal.signal(sig, _on_signal)
 
 
-#: Test-only (``tests/test_signals.py``): the environment variable naming the point
+#: Test-only (``tests/cli/test_signals.py``): the environment variable naming the point
 #: (:func:`test_point`) where a run stops until a signal arrives.
 TEST_PAUSE_ENV = "L3_TEST_PAUSE_AT"
 #: What :func:`test_point` writes to stderr when it stops (then the point's name).

@@ -32,8 +32,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
-CLASSIFY_TESTS = ("tests/test_level_cuts_exact.py", "tests/test_classify.py")
-TABLE_TESTS = ("tests/test_table.py", "tests/test_bad_values.py", "tests/test_bad_input_cli.py")
+CLASSIFY_TESTS = ("tests/classify/test_level_cuts_exact.py", "tests/classify/test_classify.py")
+TABLE_TESTS = ("tests/test_table.py", "tests/io/test_bad_values.py", "tests/cli/test_bad_input_cli.py")
 DEFAULT_TESTS = ("tests/test_defaults.py", "-m", "not slow")
 
 
@@ -119,15 +119,15 @@ MUTANTS = [
            DEFAULT_TESTS),
     # --- S-CIELAB's published constants
     Mutant("xyz2-sign", "l3cli/metrics/scielab.py", "[-448.7736, 289.8056, 77.1569]",
-           "[-448.7736, 289.8056, -77.1569]", ("tests/test_scielab.py",)),
+           "[-448.7736, 289.8056, -77.1569]", ("tests/metrics/test_scielab.py",)),
     Mutant("xyz10-sign", "l3cli/metrics/scielab.py", "[79.8787, -554.7976, 481.4746]",
-           "[79.8787, 554.7976, 481.4746]", ("tests/test_scielab.py",)),
+           "[79.8787, 554.7976, 481.4746]", ("tests/metrics/test_scielab.py",)),
     Mutant("filter-weight", "l3cli/metrics/scielab.py", "((0.0685, 0.616725), (0.826, 0.383275))",
-           "((0.0685, 0.616725), (0.826, 0.283275))", ("tests/test_scielab.py",)),
+           "((0.0685, 0.616725), (0.826, 0.283275))", ("tests/metrics/test_scielab.py",)),
     Mutant("filter-spread", "l3cli/metrics/scielab.py", "((0.0920, 0.567885), (0.6451, 0.432115))",
-           "((0.0920, 0.567885), (0.6541, 0.432115))", ("tests/test_scielab.py",)),
+           "((0.0920, 0.567885), (0.6541, 0.432115))", ("tests/metrics/test_scielab.py",)),
     Mutant("original-weight", "l3cli/metrics/scielab.py", "((0.0392, 0.531), (0.494, 0.33))",
-           "((0.0392, 0.531), (0.494, 0.38))", ("tests/test_scielab.py",)),
+           "((0.0392, 0.531), (0.494, 0.38))", ("tests/metrics/test_scielab.py",)),
 ]
 
 

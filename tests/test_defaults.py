@@ -57,7 +57,7 @@ EXPECTED = {
                           "augment": "none", "sample_weight": "none", "shading": False},
     "SPLINE_STRENGTH": 0.02,
     "TONE_CURVE": False,
-    # self-tuning by default for pairs folders (issue 27; tests/test_tune.py checks the CLI)
+    # self-tuning by default for pairs folders (issue 27; tests/train/test_tune.py checks the CLI)
     "TUNE_GRID": {"spaces": None, "patches": (7, 9), "levels": (), "contrast_bins": (),
                   "contrast_thresholds": (), "augments": (), "sample_weights": (),
                   "shading": (True, False), "multiscale": (False, True), "folds": 5},

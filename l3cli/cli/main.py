@@ -160,7 +160,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     logging.getLogger("py.warnings").setLevel(
         logging.DEBUG if level <= logging.DEBUG else logging.CRITICAL + 1)
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
-    startup.test_point("start")  # test-only: tests/test_signals.py's first moment
+    startup.test_point("start")  # test-only: tests/cli/test_signals.py's first moment
 
 
 def main() -> None:  # pragma: no cover - console entry point

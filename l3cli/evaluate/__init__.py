@@ -47,7 +47,7 @@ linear reference is decoded to XYZ on l3's linear scale (its XYZ on the 100 scal
 divided by 100), and a linear render compared with a display-encoded reference
 is multiplied by 100. EXR, 16-bit TIFF, PNG and JPEG renders of one table then
 score alike against a ``simulate`` folder, up to the quantisation of the format
-(``tests/test_evaluate_truth.py`` states and tests the bounds). XYZ is clipped
+(``tests/evaluate/test_evaluate_truth.py`` states and tests the bounds). XYZ is clipped
 to [0, white] before the S-CIELAB filtering, as ISETCam does.
 
 PSNR is computed in the reference's domain, whatever the render's format: sRGB

@@ -1,4 +1,4 @@
-"""Regenerate the golden fixture used by ``tests/test_golden.py``.
+"""Regenerate the golden fixture used by ``tests/render/test_golden.py``.
 
 Run from the repository root::
 

@@ -84,7 +84,7 @@ SIM_ARGS = ["--scene", "macbeth", "--lux", "100", "--size", "64x48"]
 def _bayer() -> str:
     from pathlib import Path
 
-    return str(Path(__file__).resolve().parents[1] / "sample_configs" / "bayer.toml")
+    return str(Path(__file__).resolve().parents[2] / "sample_configs" / "bayer.toml")
 
 
 def test_version_names_the_program(runner):
@@ -155,7 +155,7 @@ def test_library_core_does_not_import_click():
     import ast
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1] / "l3cli"
+    root = Path(__file__).resolve().parents[2] / "l3cli"
     offenders = []
     for path in root.rglob("*.py"):
         if path.relative_to(root).parts[0] == "cli":

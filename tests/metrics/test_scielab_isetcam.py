@@ -18,7 +18,7 @@ import pytest
 from l3cli.evaluate import load_xyz
 from l3cli.metrics.scielab import scielab
 
-DATA = Path(__file__).parent / "data" / "scielab_isetcam"
+DATA = Path(__file__).parents[1] / "data" / "scielab_isetcam"
 VALUES = json.loads((DATA / "isetcam_values.json").read_text())
 NAMES = sorted(VALUES)
 BORDER = 33  # the interior: half the 65-sample filter away from every edge

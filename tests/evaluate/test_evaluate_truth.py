@@ -12,7 +12,7 @@ import pytest
 from l3cli.cli.main import cli
 from l3cli.io.image import write_image
 
-ROOT = Path(__file__).parents[1]
+ROOT = Path(__file__).parents[2]
 
 
 def _scene(h=64, w=80, seed=0):

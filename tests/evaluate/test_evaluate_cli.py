@@ -41,7 +41,7 @@ def sim_dir(tmp_path_factory):
     from click.testing import CliRunner
 
     out = tmp_path_factory.mktemp("sim") / "sim"
-    cfg = Path(__file__).parents[1] / "sample_configs" / "bayer.toml"
+    cfg = Path(__file__).parents[2] / "sample_configs" / "bayer.toml"
     res = CliRunner().invoke(cli, ["simulate", str(cfg), "-o", str(out), "--scene", "macbeth",
                                    "--scene", "slanted-edge", "--lux", "200", "--size", "192x128",
                                    "--no-noise", "--seed", "3"])

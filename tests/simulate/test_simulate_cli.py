@@ -10,7 +10,7 @@ import pytest
 
 from l3cli.cli.main import cli
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 BAYER = str(REPO / "sample_configs" / "bayer.toml")
 RGBW = str(REPO / "sample_configs" / "rgbw.toml")
 RGBNIR = str(REPO / "sample_configs" / "rgbnir.toml")

@@ -20,7 +20,7 @@ from l3cli.simulate.optics import airy_otf
 from l3cli.simulate.scenes import Scene, edge_area_coverage
 from tests.builders import uniform_scene
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def flat_qe_camera(tmp_path: Path, *, cfa="W", qe=0.5, f_number=4.0, pitch=2.0, read_noise=0.0,

@@ -20,7 +20,7 @@ from l3cli.io.raw import sidecar_path, write_raw
 from l3cli.table import save_table
 from tests.builders import assert_one_line_error, make_table
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ROSE = "DSC_1339_768x512_rggb_14bit.raw"
 BAYER_TOML = (REPO / "sample_configs" / "bayer.toml").read_text()
 

@@ -13,7 +13,7 @@ from l3cli.cli.main import cli
 from l3cli.simulate.core import prepare_camera
 from l3cli.simulate.run import WEAK_CHANNEL, channel_responses, warn_weak_channels
 
-CONFIGS = Path(__file__).parents[1] / "sample_configs"
+CONFIGS = Path(__file__).parents[2] / "sample_configs"
 
 
 def _rgbnir_like_bayer(tmp_path: Path) -> Path:

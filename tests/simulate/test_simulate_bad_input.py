@@ -13,7 +13,7 @@ import pytest
 from l3cli.cli.main import cli
 from tests.builders import assert_one_line_error
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 BAYER = (REPO / "sample_configs" / "bayer.toml").read_text()
 SMALL = ["--scene", "macbeth", "--lux", "100", "--size", "64x48"]
 

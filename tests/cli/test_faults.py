@@ -25,7 +25,7 @@ import pytest
 from l3cli.cli.main import cli
 from l3cli.errors import L3Error
 
-CFG = Path(__file__).parents[1] / "sample_configs" / "bayer.toml"
+CFG = Path(__file__).parents[2] / "sample_configs" / "bayer.toml"
 
 
 @contextlib.contextmanager

@@ -180,7 +180,7 @@ NON_FINITE = [
 @pytest.mark.parametrize("args,option", NON_FINITE, ids=[" ".join(a[-2:]) for a, _ in NON_FINITE])
 def test_non_finite_option_is_refused(runner, tmp_path: Path, args, option) -> None:
     """NaN and infinity are refused for every float option, naming it (a usage error)."""
-    cam = Path(__file__).parents[1] / "sample_configs" / "bayer.toml"
+    cam = Path(__file__).parents[2] / "sample_configs" / "bayer.toml"
     img = tmp_path / "a.exr"
     img.write_bytes(b"")
     subs = {"IN": str(tmp_path), "CAM": str(cam), "IMG": str(img)}
@@ -349,7 +349,7 @@ def test_simulate_size_beyond_memory_is_refused(runner, tmp_path: Path, monkeypa
     import l3cli.buffers as buffers
 
     monkeypatch.setattr(buffers, "available_memory", lambda: 1 << 30)
-    cam = Path(__file__).parents[1] / "sample_configs" / "bayer.toml"
+    cam = Path(__file__).parents[2] / "sample_configs" / "bayer.toml"
     res = runner.invoke(cli, ["simulate", str(cam), "-o", str(tmp_path / "sim"),
                               "--size", "4000x3000", "--scene", "macbeth", "--lux", "100"])
     assert_one_line_error(res, "--size 4000x3000", "GiB")

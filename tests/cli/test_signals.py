@@ -29,7 +29,7 @@ import pytest
 
 from l3cli.cli.main import cli
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CFG = REPO / "sample_configs" / "bayer.toml"
 L3 = [sys.executable, "-c", "from l3cli.cli.main import main; main()"]
 SIGNALS = ["SIGINT", "SIGTERM", "SIGHUP"]

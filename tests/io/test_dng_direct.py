@@ -14,9 +14,7 @@ import rawpy
 from l3cli.errors import InputError
 from l3cli.io import dng_direct
 from l3cli.io.raw import read_raw, write_raw
-
-sys.path.insert(0, str(Path(__file__).parent))
-from dngmake import make_dng, pack_bits  # noqa: E402
+from tests.dngmake import make_dng, pack_bits
 
 
 def _meta(rp):
@@ -120,7 +118,7 @@ def test_simulate_and_bench_dngs(tmp_path):
 @pytest.mark.slow
 def test_bench_synthetic_dng(tmp_path):
     """The benchmark's synthetic 9-MP DNG (``bench_product.synthetic_dng``)."""
-    sys.path.insert(0, str(Path(__file__).parent.parent / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).parents[2] / "benchmarks"))
     from bench_product import synthetic_dng
 
     _same_as_libraw(synthetic_dng(tmp_path / "syn.dng"))

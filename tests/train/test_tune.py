@@ -371,7 +371,7 @@ def test_tuned_default_on_shaded_raws_keeps_shading(tmp_path: Path, runner):
     frames' fixed defaults (measured: 0.357 against 0.323)."""
     import importlib.util
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     spec = importlib.util.spec_from_file_location(
         "make_shaded_examples", root / "scripts" / "make_shaded_examples.py")
     mod = importlib.util.module_from_spec(spec)

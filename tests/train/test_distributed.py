@@ -22,7 +22,7 @@ from l3cli.train import ClassStats, TrainOptions, accumulate, find_pairs, load_p
 from l3cli.train.fit import collect_stats, define_classes, sample_mask, stats_task
 from tests.builders import H, W, mosaic_dn, scene, sim_dir
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 BAYER = str(REPO / "sample_configs" / "bayer.toml")
 SIM_ARGS = ["--scene", "macbeth", "--scene", "natural:coffee", "--lux", "40", "--lux", "400",
             "--size", "96x64", "--seed", "7"]

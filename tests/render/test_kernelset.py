@@ -144,7 +144,7 @@ def test_kernel_set_renders_as_the_whole_image_path(tmp_path, name):
         _check(t, raw, white_balance=np.array([1.7, 1.0, 1.3]))
 
 
-def test_condition_bins_are_interpolated_once_per_raw(tmp_path):
+def test_condition_bins_are_interpolated_once_per_raw(tmp_path, monkeypatch):
     from l3cli.conditions import Conditioned
 
     d = _definition()
@@ -155,9 +155,22 @@ def test_condition_bins_are_interpolated_once_per_raw(tmp_path):
     nc = d.n_classes
     t.conditions = Conditioned(by="iso", values=np.array([100.0, 1600.0]), kernels=kb,
                                counts=np.full((2, nc), 500))
+    import l3cli.conditions as conditions
+    from l3cli.render import render_file
+
+    calls = []
+    real = conditions.kernels_for
+    monkeypatch.setattr(conditions, "kernels_for",
+                        lambda table, value: calls.append(value) or real(table, value))
     for iso in (100, 400, 3200):
-        _, raw = _raw(tmp_path, iso=iso, seed=iso)
+        path, raw = _raw(tmp_path, iso=iso, seed=iso)
         _check(t, raw)
+        calls.clear()  # one render of the file, to a display format: one interpolation
+        render_file(t, path, tmp_path / f"r{iso}.png")
+        assert calls == [iso], calls
+        calls.clear()
+        render_raw(t, raw)
+        assert calls == [iso], calls
 
 
 def test_no_tone_curve_folds_the_adaptation_into_the_kernels(tmp_path):

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from l3cli.errors import L3Error
 
-REPO = Path(__file__).parent.parent
+REPO = Path(__file__).parents[2]
 _COMMON = {"deadline": None, "database": None,
            "suppress_health_check": [HealthCheck.function_scoped_fixture, HealthCheck.too_slow,
                                      HealthCheck.data_too_large, HealthCheck.filter_too_much]}

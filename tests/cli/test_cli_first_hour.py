@@ -9,7 +9,7 @@ from pathlib import Path
 from l3cli.cli.main import cli
 from l3cli.defaults import PAIRS_LAYOUT, SIMULATION_LAYOUT
 
-ROOT = Path(__file__).parents[1]
+ROOT = Path(__file__).parents[2]
 FRAME = ROOT / "examples" / "infinite_isp" / "frames" / "Indoor1_crop.tif"
 
 

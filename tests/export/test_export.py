@@ -34,7 +34,7 @@ from l3cli.render import render_raw  # noqa: E402
 from l3cli.table import TransformTable, load_table, save_table  # noqa: E402
 from l3cli.whitebalance import WhiteBalanceModel  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 FRAMES = REPO / "examples" / "infinite_isp" / "frames"
 HOLDOUT = REPO / "examples" / "infinite_isp" / "holdout"
 GAINS = [1.9, 1.0, 1.4]
