@@ -540,7 +540,7 @@ def camera_from_dict(data: dict[str, Any], *, file: str | os.PathLike = "<camera
     cfa = _cfa(s, base)
     s.finish()
     if ri is not None:
-        from l3cli.simulate.optics import check_relative_illumination
+        from l3cli.illumination import check_relative_illumination
 
         optics = replace(optics, relative_illumination=check_relative_illumination(
             ri, list(cfa.cfa.channels), f"{fname}: optics.relative_illumination"))

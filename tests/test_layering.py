@@ -25,15 +25,17 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # no l3 concepts: errors, option defaults, process start-up, stored machine
     # code, progress, buffer pools, the CFA, colour spaces, spectra, map-reduce
     ("base", ("l3cli", "errors", "defaults", "startup", "kernel_store", "progress", "buffers",
-              "cfa", "colourspace", "spectral", "parallel", "figures", "tablekeys", "shading")),
+              "cfa", "colourspace", "spectral", "parallel", "figures", "tablekeys")),
     # files: raws, images, metadata, display encoding, manifests, atomic writes
     ("io", ("io",)),
     # the L3 model: classes, the tile kernel, render rows, the table, tone
-    # curve, white balance, condition bins, kernel sets; the metrics
+    # curve, white balance, condition bins, lens shading, the multi-scale stage,
+    # kernel sets; the metrics; a camera's description (its TOML, validated)
     ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
-               "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel")),
-    # inputs: training pairs, registration, previews, cameras and simulation
-    ("inputs", ("pairs", "align", "preview", "camera", "simulate", "rawinfo")),
+               "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel",
+               "shading", "camera", "illumination")),
+    # inputs: training pairs, registration, previews, simulation
+    ("inputs", ("pairs", "align", "preview", "simulate", "rawinfo")),
     # workflows: train, render, evaluate, smooth, baseline, inspect, export
     ("workflows", ("train", "render", "pipeline", "evaluate", "smooth", "baseline", "inspect",
                    "plots_table", "export")),
@@ -42,7 +44,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 
 #: Edges that break the rule today, each with the issue that removes it.
-KNOWN_EXCEPTIONS: frozenset[tuple[str, str]] = frozenset()
+KNOWN_EXCEPTIONS: frozenset[tuple[str, str]] = frozenset({
+    ("l3cli.io.dng_opcodes", "l3cli.shading"),  # issue 39/40: the GainMap applied by the model, not io
+})
 
 #: Modules over the line limit today, with the most lines they may have until split.
 LONG_MODULES: dict[str, int] = {}
@@ -188,7 +192,8 @@ def test_the_file_layer_knows_nothing_above_it():
     io_rank = [n for n, _ in LAYERS].index("io")
     for module, deps in import_graph().items():
         if module.startswith("l3cli.io"):
-            assert all(layer_of(d) is not None and layer_of(d) <= io_rank for d in deps), (module, deps)
+            assert all(layer_of(d) is not None and layer_of(d) <= io_rank
+                       for d in deps if (module, d) not in KNOWN_EXCEPTIONS), (module, deps)
 
 
 def test_known_exceptions_are_still_needed():
