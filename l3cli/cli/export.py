@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from l3cli.cli.options import output_opt
+from l3cli.cli.options import output_opt, silenced
 
 
 @click.command(short_help="Write a table as an ONNX graph that renders as `l3 render` does.")
@@ -30,4 +30,5 @@ def export(table_path: str, output: str, display: bool, bits: str | None) -> Non
         raise click.UsageError("--bits applies to display output only; add --display")
     path = export_table(table_path, output, output="display" if display else "linear",
                         bits=int(bits or 8))
-    click.echo(f"wrote {path}", err=True)
+    if not silenced():
+        click.echo(f"wrote {path}", err=True)

@@ -34,6 +34,11 @@ class Finite(click.FloatRange):
             self.fail(f"{value!r} is not a finite number.", param, ctx)
         return super().convert(v, param, ctx)
 
+    def _describe_range(self) -> str:  # click API: no "[x<=None]" in --help without a range
+        if self.min is None and self.max is None:
+            return ""
+        return super()._describe_range()
+
 
 class InputPath(click.Path):
     """An input path: if it exists it must be a regular file or a folder (a FIFO,

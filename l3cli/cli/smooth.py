@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from l3cli import defaults
-from l3cli.cli.options import InputPath, output_opt
+from l3cli.cli.options import InputPath, output_opt, silenced
 
 
 def _strength(ctx, param, value):
@@ -59,6 +59,7 @@ def smooth(table_path: str, output: str, symmetry: bool, spline: bool, uniformit
     out.provenance["smoothing"]["input"] = str(table_path)
     save_table(output, out)
     rec = out.provenance["smoothing"]
-    click.echo(f"{output}: priors {', '.join(rec['priors']) or 'none'}; "
-               f"filled {len(rec['filled_classes'])} classes, {rec['still_empty']} still empty",
-               err=True)
+    if not silenced():
+        click.echo(f"{output}: priors {', '.join(rec['priors']) or 'none'}; "
+                   f"filled {len(rec['filled_classes'])} classes, {rec['still_empty']} still "
+                   "empty", err=True)

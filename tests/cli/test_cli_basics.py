@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from l3cli import __version__
 from l3cli.cli.main import cli
@@ -190,3 +191,29 @@ def test_progress_draws_through_the_installed_factory():
         assert seen == [("x", 3)]
     finally:
         progress.set_bar_factory(previous)
+
+
+def test_quiet_silences_every_summary_line(runner, tmp_path):
+    """``-q``: smooth and export print nothing on success (their summary lines too)."""
+    import importlib.util
+
+    from l3cli.table import save_table
+    from tests.builders import plausible_table
+
+    t = save_table(tmp_path / "t.npz", plausible_table())
+    res = runner.invoke(cli, ["-q", "smooth", str(t), "-o", str(tmp_path / "s.npz")])
+    assert res.exit_code == 0 and res.output == "", res.output
+    res = runner.invoke(cli, ["smooth", str(t), "-o", str(tmp_path / "s2.npz")])
+    assert res.exit_code == 0 and "priors" in res.output  # without -q, the summary
+    if importlib.util.find_spec("onnx") is not None:
+        res = runner.invoke(cli, ["-q", "export", str(t), "-o", str(tmp_path / "t.onnx")])
+        assert res.exit_code == 0 and res.output == "", res.output
+
+
+@pytest.mark.parametrize("command", ["simulate", "train", "render", "smooth", "evaluate",
+                                     "export", "inspect", "baseline", "info"])
+def test_help_shows_no_empty_range(runner, command):
+    """A float option without bounds shows no ``[x<=None]`` in --help."""
+    res = runner.invoke(cli, [command, "--help"])
+    assert res.exit_code == 0, res.output
+    assert "None]" not in res.output and "<=None" not in res.output
