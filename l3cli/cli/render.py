@@ -80,15 +80,14 @@ def _render(table_path: str, raws: tuple[str, ...], output: str, fmt: str | None
 
     from l3cli.cli.options import distinct_inputs
     from l3cli.cli.paths import plan_outputs
-    from l3cli.render import check_white_balance, render_files, table_for_task
+    from l3cli.render import render_files, table_for_task
 
-    table = table_for_task(table_path)  # a bad table fails before anything is created
+    table_for_task(table_path)  # a bad table fails before anything is created (cached)
     distinct_inputs(raws, "a raw")
     gains = white_balance
     plan = plan_outputs(raws, output, fmt, protect=[table_path], folder=from_folder)
     options = _write_options(plan.targets[0][1], compression, half, quality)
-    check_white_balance(table, list(raws), gains, table_name=Path(table_path).name)
-    with plan.writing():
+    with plan.writing():  # render_files checks every raw's white balance before any work
         render_files(table_path, [(str(r), o) for r, o in plan.targets], workers=workers,
                      scheduler=scheduler, show_progress=not quiet(), options=options,
                      white_balance=gains, prefetch=prefetch)
