@@ -65,6 +65,15 @@ class Graph:
         self.inputs.append(self._helper.make_tensor_value_info(name, elem_type, shape))
         return name
 
+    def add_optional_input(self, name: str, value: np.ndarray) -> str:
+        """An input with a default: an initialiser of the same name, which a runtime uses
+        when the caller feeds nothing (ONNX Runtime's "overridable initialiser")."""
+        value = np.asarray(value)
+        elem = self._helper.np_dtype_to_tensor_dtype(value.dtype)
+        self.inputs.append(self._helper.make_tensor_value_info(name, elem, list(value.shape)))
+        self.initializers.append(self._numpy_helper.from_array(value, name))
+        return name
+
     def add_output(self, source: str, name: str, elem_type: int, shape: list) -> str:
         self.nodes.append(self._helper.make_node("Identity", [source], [name]))
         self.outputs.append(self._helper.make_tensor_value_info(name, elem_type, shape))
@@ -118,9 +127,13 @@ class Graph:
 
     def periodic(self, pattern: np.ndarray, like: str, dtype=np.float32) -> str:
         """``pattern`` (ph, pw) tiled from the origin to the (H, W) of ``like``: (1, 1, H, W)."""
+        return self.tile(pattern, self.dims(like), dtype)
+
+    def tile(self, pattern: np.ndarray, hw: str, dtype=np.float32) -> str:
+        """``pattern`` (ph, pw) tiled from the origin to the int64 (2,) size ``hw``:
+        (1, 1, H, W)."""
         pattern = np.asarray(pattern, dtype=dtype)
         ph, pw = pattern.shape
-        hw = self.dims(like)
         period = self.const([ph, pw], np.int64)
         reps = self.op("Div", self.op("Sub", self.op("Add", hw, period),
                                       self.const([1, 1], np.int64)), period)
