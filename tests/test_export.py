@@ -10,6 +10,7 @@ would differ by far more than 1e-5 with these kernels).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -226,6 +227,70 @@ def test_real_raw_with_a_synthetic_table(data_dir):
     raw = read_raw(data_dir / "DSC_1339_768x512_rggb_14bit.raw")
     t = _table(spec=raw.cfa.spec, patch=7, tone=True)
     _check(t, raw.mosaic[:203, :301])
+
+
+# ------------------------------------------------------- lens shading, DNG GainMaps
+def _field(size, centre=(0.08, -0.12), coeffs=((1.0, 0.9, 0.5), (1.0, 0.7, 0.3),
+                                              (1.0, 0.7, 0.3), (1.0, 1.2, 0.6))):
+    from l3cli.shading import GainField
+
+    return GainField(np.array(centre), np.array(coeffs, dtype=np.float64), size)
+
+
+def _feeds(sess, mosaic, *, gains=None, frame=None):
+    feeds = {"mosaic": np.asarray(mosaic, np.float32)[None, None]}
+    if gains is not None:
+        feeds["wb_gains"] = np.asarray([gains], np.float32)
+    if frame is not None:
+        feeds["frame"] = np.asarray(frame, np.int64)
+    return sess.run(None, feeds)[0][0].transpose(1, 2, 0)
+
+
+@pytest.mark.parametrize("case", ["brighten", "below-one", "white-balance", "crop"])
+def test_shading_table_matches_render(case):
+    """A table with a lens shading gain field: the field evaluated in the graph from the
+    input's size (or the placement fed as ``frame``) corrects the mosaic as l3 render's
+    does, saturated pixels included (the mosaic reaches 1.2)."""
+    h, w = 46, 61
+    m = _mosaic(h, w, 11)
+    t = _table(wb=case == "white-balance", patch=5)
+    coeffs = ((0.8, 0.9, 0.5), (0.9, 0.7, 0.3), (0.9, 0.7, 0.3), (0.7, 1.2, 0.6))
+    t.shading = _field((h, w), coeffs=coeffs if case == "below-one" else
+                       ((1.0, 0.9, 0.5), (1.0, 0.7, 0.3), (1.0, 0.7, 0.3), (1.0, 1.2, 0.6)))
+    raw, frame = _raw(m, "RGGB", gains=GAINS if case == "white-balance" else None), None
+    if case == "crop":  # a crop of a larger raw: the field is placed on the full raw
+        t.shading = _field((90, 120))
+        frame = [90, 120, 30, 44]
+        raw.metadata.update(crop=[30, 44], full_size=[90, 120])
+    want = render_raw(t, raw)
+    got = _feeds(_session(build_model(t)), m, frame=frame,
+                 gains=GAINS if case == "white-balance" else None)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    plain = dataclasses.replace(t, shading=None)
+    assert np.abs(render_raw(plain, raw) - want).max() > 0.05  # the field does something
+
+
+def test_gain_map_dng_is_fed_as_read(tmp_path):
+    """A DNG with four GainMap opcodes (one per Bayer position, as phones write them): the
+    caller feeds the mosaic with the maps applied (what read_raw gives), and the model of
+    a shading table renders it as ``l3 render`` renders the file."""
+    from test_shading import _phone_maps, _write_dng_with_opcodes
+
+    from l3cli.io.dng_opcodes import encode_gain_maps
+    from l3cli.io.image import read_image
+    from l3cli.render import render_file
+
+    h, w = 40, 60
+    dn = np.random.default_rng(3).integers(64, 4096, (h, w))
+    path = _write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(_phone_maps(h, w)))
+    raw = read_raw(path)
+    assert raw.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
+    for shading in (None, _field((h, w))):
+        t = _table(patch=5)
+        t.shading = shading
+        want = read_image(render_file(t, path, tmp_path / "gm.exr"))[0]
+        got = _feeds(_session(build_model(t)), raw.mosaic)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
 
 
 # ----------------------------------------------------------------- CLI, refusals
