@@ -53,6 +53,8 @@ def _run(sess, mosaic, gains=None, condition=None):
         feeds["wb_gains"] = np.asarray([gains], np.float32)
     if "condition" in names:
         feeds["condition"] = np.array([condition if condition is not None else 0.0])
+    if "frame" in names:
+        feeds["frame"] = np.zeros(4, np.int64)  # the mosaic is the whole raw
     return sess.run(None, feeds)[0][0].transpose(1, 2, 0)
 
 
@@ -241,8 +243,8 @@ def _feeds(sess, mosaic, *, gains=None, frame=None):
     feeds = {"mosaic": np.asarray(mosaic, np.float32)[None, None]}
     if gains is not None:
         feeds["wb_gains"] = np.asarray([gains], np.float32)
-    if frame is not None:
-        feeds["frame"] = np.asarray(frame, np.int64)
+    if "frame" in {i.name for i in sess.get_inputs()}:
+        feeds["frame"] = np.asarray(frame if frame is not None else [0, 0, 0, 0], np.int64)
     return sess.run(None, feeds)[0][0].transpose(1, 2, 0)
 
 

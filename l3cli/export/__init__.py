@@ -23,9 +23,9 @@ Graph inputs (names are part of the format, :data:`INPUTS`):
     float64 (1,): the shot's ISO, exposure time or white b/r (tables trained
     with ``--by``; 0 or NaN = unknown: the pooled kernels), shared by the batch.
 ``frame``
-    int64 (4,), optional (tables with a lens shading gain field): where the
-    mosaic lies on the sensor's full raw, ``(full height, full width, top,
-    left)``; the default, zeros, means the mosaic is the whole raw.
+    int64 (4,) (tables with a lens shading gain field): where the mosaic lies
+    on the sensor's full raw, ``(full height, full width, top, left)``; zeros
+    mean the mosaic is the whole raw.
 
 DNG ``GainMap`` opcodes are the caller's, as black level is: the mosaic is
 fed with them applied (what :func:`l3cli.io.raw.read_raw` gives).
@@ -141,8 +141,8 @@ def model_metadata(table: TransformTable, *, table_name: str, table_sha256: str,
         inputs["condition"] = (f"float64 (1,): the shot's {table.conditions.by} (0 or NaN: "
                                "unknown, pooled kernels), one value for the batch")
     if table.shading is not None:
-        inputs["frame"] = ("int64 (4,), optional: full raw height, width, top, left of the "
-                           "mosaic on it (lens shading); default zeros: the whole raw")
+        inputs["frame"] = ("int64 (4,): full raw height, width, top, left of the mosaic on "
+                           "it (lens shading); zeros: the mosaic is the whole raw")
     out_desc = (f"float32 (N, {table.n_out}, H, W) in {table.output_space}" if output == "linear"
                 else f"uint{bits} (N, {table.n_out}, H, W) display values")
     return {
@@ -206,7 +206,7 @@ def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
     mosaic = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
     d = table.definition
     if table.shading is not None:  # first, as l3cli.shading.corrected
-        frame = g.add_optional_input("frame", np.zeros(4, np.int64))
+        frame = g.add_input("frame", TensorProto.INT64, [4])
         mosaic = stages.shading(g, mosaic, table.shading, d.cfa.period,
                                 d.saturation_threshold, frame)
     gains = None

@@ -65,15 +65,6 @@ class Graph:
         self.inputs.append(self._helper.make_tensor_value_info(name, elem_type, shape))
         return name
 
-    def add_optional_input(self, name: str, value: np.ndarray) -> str:
-        """An input with a default: an initialiser of the same name, which a runtime uses
-        when the caller feeds nothing (ONNX Runtime's "overridable initialiser")."""
-        value = np.asarray(value)
-        elem = self._helper.np_dtype_to_tensor_dtype(value.dtype)
-        self.inputs.append(self._helper.make_tensor_value_info(name, elem, list(value.shape)))
-        self.initializers.append(self._numpy_helper.from_array(value, name))
-        return name
-
     def add_output(self, source: str, name: str, elem_type: int, shape: list) -> str:
         self.nodes.append(self._helper.make_node("Identity", [source], [name]))
         self.outputs.append(self._helper.make_tensor_value_info(name, elem_type, shape))
