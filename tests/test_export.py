@@ -295,6 +295,30 @@ def test_gain_map_dng_is_fed_as_read(tmp_path):
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
 
 
+@pytest.mark.parametrize("spec, kw", [("RGGB", {"patch": 7, "tone": True, "wb": True}),
+                                      ("RGB/GBR", {"patch": 3}),
+                                      ("RGBW/GWRB/BRWG/WBGR", {"space": "xyz"})])
+def test_strips_render_as_the_whole_frame(spec, kw):
+    """l3cli.export.runner: strips fed with their margins in parallel threads give the
+    frame's render (a shading table placed on a larger raw, odd sizes)."""
+    from l3cli.export.runner import run_strips, strip_rows, strip_session
+
+    t = _table(spec=spec, **kw)
+    h, w = 53, 41
+    t.shading = _field((80, 70), coeffs=np.tile([[1.0, 0.8, 0.3]], (t.cfa.n_positions, 1)))
+    m = _mosaic(h, w, 21)
+    gains = GAINS if kw.get("wb") else None
+    raw = _raw(m, spec, gains=gains)
+    raw.metadata.update(crop=[14, 8], full_size=[80, 70])
+    want = render_raw(t, raw)
+    sess = strip_session(build_model(t).SerializeToString())
+    feeds = {"wb_gains": np.asarray([gains], np.float32)} if gains else None
+    parts = strip_rows(h, 4, t.patch, t.cfa.period[0])
+    assert len(parts) >= 3 and parts[-1][1] == h
+    got = run_strips(sess, m[None, None], threads=4, feeds=feeds, frame=[80, 70, 14, 8])
+    np.testing.assert_allclose(got[0].transpose(1, 2, 0), want, rtol=0, atol=1e-5)
+
+
 # ----------------------------------------------------------------- CLI, refusals
 def _save(tmp_path, table, name="t.npz"):
     return str(save_table(tmp_path / name, table))
