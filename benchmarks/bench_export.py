@@ -9,7 +9,9 @@ patch 7, 24 levels x 3 contrast bins, merged positions, a learned tone curve;
 random kernels: speed does not depend on the values) renders a synthetic
 12 MP mosaic to float32 linear sRGB, once with
 :func:`l3cli.render.render_mosaic` and once with its exported model in ONNX
-Runtime's CPU provider (all cores, default session options). Each renderer
+Runtime's CPU provider: one ``sess.run`` of the frame (all cores, default
+session options), and :func:`l3cli.export.runner.run_strips` (a strip per
+core on single-threaded sessions in parallel threads). Each renderer
 runs in a child process of its own (warm-up run, then best of ``--repeat``),
 which reports its wall time, its CPU time (user + system, all threads: the
 fairer measure on a machine shared with other jobs) and its peak resident
@@ -78,7 +80,7 @@ def child(which: str, size: str, repeat: int, out: str) -> dict:
 
         def run():
             render_mosaic(table, mosaic, out=img)
-    else:
+    else:  # "onnx": one sess.run of the frame; "strips": l3cli.export.runner.run_strips
         import onnxruntime as ort
 
         from l3cli.export import build_model
@@ -89,20 +91,27 @@ def child(which: str, size: str, repeat: int, out: str) -> dict:
         info["model_mb"] = len(model) / 1e6
         info["ort"] = ort.__version__
         t0 = time.perf_counter()
-        sess = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
+        if which == "strips":
+            from l3cli.export.runner import run_strips, strip_session
+
+            sess = strip_session(model)
+        else:
+            sess = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
         info["session_s"] = time.perf_counter() - t0
         feed = {"mosaic": mosaic[None, None]}
-        img = sess.run(None, feed)[0]  # warm-up
 
         def run():
-            sess.run(None, feed)
+            if which == "strips":
+                return run_strips(sess, mosaic[None, None])
+            return sess.run(None, feed)[0]
+        img = run()  # warm-up
     best_wall = best_cpu = float("inf")
     for _ in range(repeat):
         t0, c0 = time.perf_counter(), _cpu()
         run()
         best_wall = min(best_wall, time.perf_counter() - t0)
         best_cpu = min(best_cpu, _cpu() - c0)
-    np.save(out, img if which == "l3" else img[0].transpose(1, 2, 0))
+    np.save(out, img if which == "l3" else np.asarray(img)[0].transpose(1, 2, 0))
     info.update(wall_s=best_wall, cpu_s=best_cpu,
                 peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
     return info
@@ -112,7 +121,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="4000x3000")
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--child", choices=("l3", "onnx"), help=argparse.SUPPRESS)
+    ap.add_argument("--child", choices=("l3", "onnx", "strips"), help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -125,14 +134,15 @@ def main() -> int:
         return 0
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for which in ("l3", "onnx"):
+        for which in ("l3", "onnx", "strips"):
             out = os.path.join(tmp, f"{which}.npy")
             proc = subprocess.run([sys.executable, __file__, "--child", which, "--size",
                                    args.size, "--repeat", str(args.repeat), "--out", out],
                                   capture_output=True, text=True, check=True)
             res[which] = json.loads(proc.stdout.strip().splitlines()[-1])
-        diff = float(np.abs(np.load(os.path.join(tmp, "onnx.npy"))
-                            - np.load(os.path.join(tmp, "l3.npy"))).max())
+        want = np.load(os.path.join(tmp, "l3.npy"))
+        diff = max(float(np.abs(np.load(os.path.join(tmp, f"{k}.npy")) - want).max())
+                   for k in ("onnx", "strips"))
     w, h = (int(v) for v in args.size.split("x"))
     mp = h * w / 1e6
     o, l3 = res["onnx"], res["l3"]
@@ -144,7 +154,8 @@ def main() -> int:
     print("| renderer (own process) | wall s | CPU s | MP/s | peak RSS MB | wall vs l3 | CPU vs l3 |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for name, r in (("l3 render_mosaic (numba tile kernel)", l3),
-                    ("ONNX Runtime CPU, exported model", o)):
+                    ("ONNX Runtime CPU, exported model, one sess.run", o),
+                    (f"ONNX Runtime CPU, run_strips ({os.cpu_count()} threads)", res["strips"])):
         print(f"| {name} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | {mp / r['wall_s']:.1f} | "
               f"{r['peak_rss_mb']:.0f} | {r['wall_s'] / l3['wall_s']:.1f}x | "
               f"{r['cpu_s'] / l3['cpu_s']:.1f}x |")
