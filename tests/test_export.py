@@ -494,6 +494,59 @@ def test_default_model_runs_in_a_fresh_process(default_pairs_table, tmp_path):
             assert np.abs(got.astype(np.int64) - want.astype(np.int64)).max() <= 1
 
 
+def _shading_classes(table):
+    """A model of the table's lens shading correction and classifier alone: the classes."""
+    from onnx import TensorProto
+
+    from l3cli.export import stages
+    from l3cli.export.classify import classify_nodes
+    from l3cli.export.graph import Graph
+
+    g = Graph()
+    x = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
+    frame = g.add_input("frame", TensorProto.INT64, [4])
+    d = table.definition
+    x = stages.shading(g, x, table.shading, d.cfa.period, d.saturation_threshold, frame)
+    g.add_output(classify_nodes(g, d, x).index, "cls", TensorProto.INT64, ["N", 1, "H", "W"])
+    return _session(g.model(doc="", metadata={}))
+
+
+@pytest.mark.slow
+def test_default_table_of_shaded_frames(tmp_path):
+    """The bundled frames with a known strong off-centre per-channel lens shading on the
+    raws (scripts/make_shaded_examples.py), ``l3 train`` with the pairs defaults (the
+    field is learned and kept): the exported model renders crops of the holdout frames as
+    ``l3 render`` does, every pixel in the same class."""
+    from test_shading import _shaded_examples
+
+    from l3cli.shading import corrected
+
+    _shaded_examples().main(tmp_path / "shaded")
+    table = tmp_path / "t.npz"
+    res = CliRunner().invoke(cli, ["train", str(tmp_path / "shaded" / "frames"), "-o",
+                                   str(table), "--no-tune"])
+    assert res.exit_code == 0, res.output
+    model = tmp_path / "p.onnx"
+    res = CliRunner().invoke(cli, ["export", str(table), "-o", str(model)])
+    assert res.exit_code == 0, res.output
+    t = load_table(table)
+    assert t.shading is not None and t.tone_lut is not None
+    sess = _session(onnx.load(str(model)))
+    classes = _shading_classes(t)
+    for path in sorted((tmp_path / "shaded" / "holdout").glob("*.tif")):
+        full = read_raw(path)
+        h, w = full.mosaic.shape
+        for top, left in ((0, 0), (h - 240, w - 302)):  # corners: the strongest shading
+            raw = full.crop(top, left, 240, 302)
+            frame = [h, w, top, left]
+            want = render_raw(t, raw)
+            got = _feeds(sess, raw.mosaic, frame=frame)
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+            cls = classes.run(None, {"mosaic": raw.mosaic[None, None],
+                                     "frame": np.array(frame, np.int64)})[0][0, 0]
+            np.testing.assert_array_equal(cls, classify(corrected(t, raw).mosaic, t.definition))
+
+
 def test_stages_the_export_does_not_know_are_refused():
     """A table stage added to l3 after the export (e.g. multiscale, lens shading) is refused
     by name instead of being left out of the graph."""
