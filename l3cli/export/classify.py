@@ -11,7 +11,8 @@ chains of ``Add`` over shifted ``Slice`` views and not ``Conv`` nodes: a
 convolution sums in the runtime's own order, and a last-bit difference in a
 level or contrast moves pixels near a cut point into the neighbouring class.
 Sums of 0/1 indicators (saturated pixels per patch) are exact in any order and
-use ``MaxPool`` and ``Conv``.
+use ``Conv``; whether a patch holds a saturated pixel of a channel is a
+``MaxPool`` along the rows then down the columns.
 
 Bins: the level bin is the number of level cuts at or below the level
 (a branch-free binary search over the float32 cuts with ``Gather``, which
@@ -210,6 +211,7 @@ def band_classes(g: Graph, d: ClassDefinition, padded: str, maps: Patterns,
     f32 = np.float32
     lev = spr = None
     saturated = g.op("GreaterOrEqual", padded, g.const(t.sat_thr))
+    saturated_f = g.cast(saturated, F32)
     sat = None
     for c in range(nch):
         mask = maps((shifted == c).astype(f32), padded=True)
@@ -226,8 +228,9 @@ def band_classes(g: Graph, d: ClassDefinition, padded: str, maps: Patterns,
         lev = dl if lev is None else g.op("Add", lev, dl)
         spr = ds if spr is None else g.op("Add", spr, ds)
         # saturation bit of channel c: any saturated channel-c pixel in the patch
-        hit = g.op("Mul", g.cast(saturated, F32), mask)
-        anyc = g.op("MaxPool", hit, kernel_shape=[s, s])
+        hit = g.op("Mul", saturated_f, mask)
+        # the patch's maximum as a row's then a column's (max is exact in any order)
+        anyc = g.op("MaxPool", g.op("MaxPool", hit, kernel_shape=[1, s]), kernel_shape=[s, 1])
         bit = g.op("Mul", g.cast(anyc, I64), g.const(1 << c, np.int64))
         sat = bit if sat is None else g.op("Add", sat, bit)
     contrast = g.op("Div", spr, g.op("Add", g.op("Max", lev, g.const(f32(0.0))),
@@ -253,7 +256,7 @@ def band_classes(g: Graph, d: ClassDefinition, padded: str, maps: Patterns,
                        _context_bins(g, d, guide, lev))
         if d.highlight_bins:
             ones = g.const(np.ones((1, 1, s, s), f32))
-            count = g.op("Conv", g.cast(saturated, F32), ones)  # 0/1 sums: exact
+            count = g.op("Conv", saturated_f, ones)  # 0/1 sums: exact
             hl = g.cast(g.op("GreaterOrEqual", count, g.const(t.hl_cnt)), I64)
             ext = g.op("Add", g.op("Mul", ext, g.const(d.n_highlight, np.int64)), hl)
         idx = g.op("Add", g.op("Mul", idx, g.const(n_ext, np.int64)), ext)
