@@ -319,6 +319,20 @@ def test_strips_render_as_the_whole_frame(spec, kw):
     np.testing.assert_allclose(got[0].transpose(1, 2, 0), want, rtol=0, atol=1e-5)
 
 
+def test_runner_needs_numpy_and_onnxruntime_only():
+    """The runner can be copied next to a model: it imports no l3 module."""
+    import ast
+
+    import l3cli.export.runner as runner
+
+    tree = ast.parse(Path(runner.__file__).read_text())
+    names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import)
+             for a in n.names}
+    names |= {n.module.split(".")[0] for n in ast.walk(tree)
+              if isinstance(n, ast.ImportFrom) and n.module}
+    assert names <= {"__future__", "json", "os", "concurrent", "numpy", "onnxruntime"}, names
+
+
 # ----------------------------------------------------------------- CLI, refusals
 def _save(tmp_path, table, name="t.npz"):
     return str(save_table(tmp_path / name, table))
