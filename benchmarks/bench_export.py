@@ -1,4 +1,4 @@
-"""ONNX Runtime (CPU) running an ``l3 export`` model vs l3's own render kernel, same run.
+"""ONNX Runtime (CPU) running an ``l3 export`` model vs l3's own render kernel, same frame.
 
 Usage::
 
@@ -7,18 +7,29 @@ Usage::
 A table with the layout ``l3 train`` gives pairs folders by default (RGGB,
 patch 7, 24 levels x 3 contrast bins, merged positions, a learned tone curve;
 random kernels: speed does not depend on the values) renders a synthetic
-12 MP mosaic to float32 linear sRGB with :func:`l3cli.render.render_mosaic`
-and with its exported model in ONNX Runtime's CPU provider (all cores,
-default graph optimisations), interleaved, best of ``--repeat``; the two
-outputs are checked to agree (max difference printed). Prints a Markdown
-table with the ratio. Skips (exit 0, one line) when onnx/onnxruntime are not
-installed (``pip install 'l3cli[export]'``).
+12 MP mosaic to float32 linear sRGB, once with
+:func:`l3cli.render.render_mosaic` and once with its exported model in ONNX
+Runtime's CPU provider: one ``sess.run`` of the frame (all cores, default
+session options), and :func:`l3cli.export.runner.run_strips` (a strip per
+core on single-threaded sessions in parallel threads). Each renderer
+runs in a child process of its own (warm-up run, then best of ``--repeat``),
+which reports its wall time, its CPU time (user + system, all threads: the
+fairer measure on a machine shared with other jobs) and its peak resident
+memory (``resource.getrusage``: the whole process, inputs and Python
+included); the two outputs are checked to agree (max difference printed).
+Prints a Markdown table with the ratios. Skips (exit 0, one line) when
+onnx/onnxruntime are not installed (``pip install 'l3cli[export]'``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import resource
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -49,56 +60,107 @@ def pairs_default_table():
                           tone_lut=(lut, np.array([[0.0] * 3, [1.0] * 3], np.float32)))
 
 
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def child(which: str, size: str, repeat: int, out: str) -> dict:
+    """One renderer's run in this (child) process: times, peak RSS; output saved to ``out``."""
+    from bench_render import synthetic_mosaic
+
+    w, h = (int(v) for v in size.split("x"))
+    mosaic = synthetic_mosaic(h, w)
+    table = pairs_default_table()
+    info: dict = {}
+    if which == "l3":
+        from l3cli.render import render_mosaic
+
+        img = render_mosaic(table, mosaic)  # warm-up (numba compile / cache load)
+
+        def run():
+            render_mosaic(table, mosaic, out=img)
+    else:  # "onnx": one sess.run of the frame; "strips": l3cli.export.runner.run_strips
+        import onnxruntime as ort
+
+        from l3cli.export import build_model
+
+        t0 = time.perf_counter()
+        model = build_model(table).SerializeToString()
+        info["build_s"] = time.perf_counter() - t0
+        info["model_mb"] = len(model) / 1e6
+        info["ort"] = ort.__version__
+        t0 = time.perf_counter()
+        if which == "strips":
+            from l3cli.export.runner import run_strips, strip_session
+
+            sess = strip_session(model)
+        else:
+            sess = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
+        info["session_s"] = time.perf_counter() - t0
+        feed = {"mosaic": mosaic[None, None]}
+
+        def run():
+            if which == "strips":
+                return run_strips(sess, mosaic[None, None])
+            return sess.run(None, feed)[0]
+        img = run()  # warm-up
+    best_wall = best_cpu = float("inf")
+    for _ in range(repeat):
+        t0, c0 = time.perf_counter(), _cpu()
+        run()
+        best_wall = min(best_wall, time.perf_counter() - t0)
+        best_cpu = min(best_cpu, _cpu() - c0)
+    np.save(out, img if which == "l3" else np.asarray(img)[0].transpose(1, 2, 0))
+    info.update(wall_s=best_wall, cpu_s=best_cpu,
+                peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+    return info
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="4000x3000")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--child", choices=("l3", "onnx", "strips"), help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child, args.size, args.repeat, args.out)))
+        return 0
     try:
-        import onnxruntime as ort
+        import onnxruntime  # noqa: F401
     except ImportError:
         print("bench_export: skipped (onnxruntime is not installed: pip install 'l3cli[export]')")
         return 0
-    from bench_render import synthetic_mosaic
-    from common import peak_rss_mb
-
-    from l3cli.export import build_model
-    from l3cli.render import render_mosaic
-
+    res = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for which in ("l3", "onnx", "strips"):
+            out = os.path.join(tmp, f"{which}.npy")
+            proc = subprocess.run([sys.executable, __file__, "--child", which, "--size",
+                                   args.size, "--repeat", str(args.repeat), "--out", out],
+                                  capture_output=True, text=True, check=True)
+            res[which] = json.loads(proc.stdout.strip().splitlines()[-1])
+        want = np.load(os.path.join(tmp, "l3.npy"))
+        diff = max(float(np.abs(np.load(os.path.join(tmp, f"{k}.npy")) - want).max())
+                   for k in ("onnx", "strips"))
     w, h = (int(v) for v in args.size.split("x"))
-    mosaic = synthetic_mosaic(h, w)
-    table = pairs_default_table()
-    t0 = time.perf_counter()
-    model = build_model(table).SerializeToString()
-    t_build = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    sess = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
-    t_load = time.perf_counter() - t0
-    feed = {"mosaic": mosaic[None, None]}
-    want = render_mosaic(table, mosaic)  # warm-up (numba compile / cache load)
-    got = sess.run(None, feed)[0]
-    diff = float(np.abs(got[0].transpose(1, 2, 0) - want).max())
-    del got
-    best_l3 = best_ort = float("inf")
-    for _ in range(args.repeat):  # interleaved
-        t0 = time.perf_counter()
-        render_mosaic(table, mosaic, out=want)
-        best_l3 = min(best_l3, time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        sess.run(None, feed)
-        best_ort = min(best_ort, time.perf_counter() - t0)
     mp = h * w / 1e6
-    print(f"{w}x{h} ({mp:.1f} MP) RGGB mosaic, patch 7, {table.definition.n_classes} classes, "
-          f"tone curve; onnxruntime {ort.__version__}; model {len(model) / 1e6:.1f} MB "
-          f"(built in {t_build:.2f} s, session made in {t_load:.2f} s); best of {args.repeat}")
+    o, l3 = res["onnx"], res["l3"]
+    print(f"{w}x{h} ({mp:.1f} MP) RGGB mosaic, patch 7, 2304 classes, tone curve; onnxruntime "
+          f"{o['ort']}; model {o['model_mb']:.1f} MB (built in {o['build_s']:.2f} s, session "
+          f"made in {o['session_s']:.2f} s); best of {args.repeat}; {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.1f}")
     print()
-    print("| renderer | seconds | MP/s | vs l3 |")
-    print("|---|---:|---:|---:|")
-    print(f"| l3 render_mosaic (numba tile kernel) | {best_l3:.3f} | {mp / best_l3:.1f} | 1.00 |")
-    print(f"| ONNX Runtime CPU, exported model | {best_ort:.3f} | {mp / best_ort:.1f} | "
-          f"{best_ort / best_l3:.1f}x slower |")
+    print("| renderer (own process) | wall s | CPU s | MP/s | peak RSS MB | wall vs l3 | CPU vs l3 |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for name, r in (("l3 render_mosaic (numba tile kernel)", l3),
+                    ("ONNX Runtime CPU, exported model, one sess.run", o),
+                    (f"ONNX Runtime CPU, run_strips ({os.cpu_count()} threads)", res["strips"])):
+        print(f"| {name} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | {mp / r['wall_s']:.1f} | "
+              f"{r['peak_rss_mb']:.0f} | {r['wall_s'] / l3['wall_s']:.1f}x | "
+              f"{r['cpu_s'] / l3['cpu_s']:.1f}x |")
     print()
-    print(f"max |ONNX - l3| = {diff:.2e}; peak RSS {peak_rss_mb():.0f} MB")
+    print(f"max |ONNX - l3| = {diff:.2e}")
     return 0
 
 

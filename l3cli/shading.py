@@ -217,8 +217,11 @@ def correct_mosaic(mosaic: np.ndarray, field: GainField, cfa: Any, saturation: f
     if out is None:
         out = np.array(mosaic, dtype=np.float32, copy=True)
     if float(g.min()) >= 1.0:  # the usual case: every pixel brightened, up to white
-        np.multiply(mosaic, g, out=out)
-        np.minimum(out, np.maximum(mosaic, np.float32(1.0)), out=out)
+        # min(x g, max(x, 1)): pixels at or above white stay as they are; the mask is
+        # taken before the product, which may overwrite ``mosaic`` (``out`` is it in place)
+        low = mosaic < np.float32(1.0)
+        np.multiply(mosaic, g, out=out, where=low)
+        np.minimum(out, np.float32(1.0), out=out, where=low)
     else:  # a gain below one does not hide clipping from the saturation classes
         np.multiply(mosaic, g, out=out, where=(mosaic < saturation) | (g >= 1.0))
     return out

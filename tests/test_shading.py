@@ -123,6 +123,8 @@ def test_corrected_keeps_clipping_and_is_applied_once():
     g_up = gain_map(up, (24, 32), (2, 2))
     np.testing.assert_array_equal(corrected(t, raw).mosaic,
                                   np.minimum(m * g_up, np.maximum(m, 1)))  # white clips
+    np.testing.assert_array_equal(corrected(t, _raw(m.copy()), inplace=True).mosaic,
+                                  np.minimum(m * g_up, np.maximum(m, 1)))  # in place too
     t.shading = f
     np.testing.assert_array_equal(raw.mosaic, m)  # not in place: the input is kept
     assert corrected(t, out) is out  # a corrected raw is not corrected again

@@ -22,6 +22,13 @@ Graph inputs (names are part of the format, :data:`INPUTS`):
 ``condition``
     float64 (1,): the shot's ISO, exposure time or white b/r (tables trained
     with ``--by``; 0 or NaN = unknown: the pooled kernels), shared by the batch.
+``frame``
+    int64 (4,) (tables with a lens shading gain field): where the mosaic lies
+    on the sensor's full raw, ``(full height, full width, top, left)``; zeros
+    mean the mosaic is the whole raw.
+
+DNG ``GainMap`` opcodes are the caller's, as black level is: the mosaic is
+fed with them applied (what :func:`l3cli.io.raw.read_raw` gives).
 
 Output ``image``: float32 (N, C, H, W) in the table's output space, or with
 ``output="display"`` uint8/uint16 display values (sRGB for 3-channel tables).
@@ -48,7 +55,7 @@ __all__ = ["FORMAT", "INPUTS", "OUTPUTS", "build_model", "check_exportable", "ex
 #: ``l3.format`` of the models l3 writes.
 FORMAT = "l3-onnx-pipeline-v1"
 #: Graph inputs a model may have (``mosaic`` always; the others when the table needs them).
-INPUTS = ("mosaic", "wb_gains", "condition")
+INPUTS = ("mosaic", "wb_gains", "condition", "frame")
 #: What ``output`` may be.
 OUTPUTS = ("linear", "display")
 
@@ -87,7 +94,7 @@ def check_exportable(table: TransformTable, output: str = "linear") -> None:
 #: Table and class-definition fields the export knows how to build (or refuses above).
 _KNOWN_TABLE = {"definition", "kernels", "counts", "lambdas", "empty", "source_class",
                 "output_space", "provenance", "format", "version", "white_balance",
-                "conditions", "tone_lut"}
+                "conditions", "tone_lut", "shading"}
 _KNOWN_DEFINITION = {"cfa", "patch", "level_cuts", "level_spacing", "contrast_cuts",
                      "saturation_threshold", "position_group", "contrast_eps", "contrast_rule",
                      "saturation_rule", "orientation_bins", "coherence_threshold",
@@ -133,6 +140,9 @@ def model_metadata(table: TransformTable, *, table_name: str, table_sha256: str,
     if table.conditions is not None:
         inputs["condition"] = (f"float64 (1,): the shot's {table.conditions.by} (0 or NaN: "
                                "unknown, pooled kernels), one value for the batch")
+    if table.shading is not None:
+        inputs["frame"] = ("int64 (4,): full raw height, width, top, left of the mosaic on "
+                           "it (lens shading); zeros: the mosaic is the whole raw")
     out_desc = (f"float32 (N, {table.n_out}, H, W) in {table.output_space}" if output == "linear"
                 else f"uint{bits} (N, {table.n_out}, H, W) display values")
     return {
@@ -149,7 +159,8 @@ def model_metadata(table: TransformTable, *, table_name: str, table_sha256: str,
         "l3.inputs": json.dumps(inputs),
         "l3.output_image": out_desc,
         "l3.black_white": "subtract each CFA position's black level and divide by "
-                          "(white - black) before the graph; values above 1 and below 0 are kept",
+                          "(white - black) before the graph; values above 1 and below 0 are "
+                          "kept; a DNG's GainMap opcodes are applied before the graph too",
         "l3.borders": "CFA-phase mirror padding, as l3 render",
         "l3.features": json.dumps(_features(table)),
         "l3.provenance": json.dumps(table.provenance, sort_keys=True, default=str),
@@ -159,6 +170,9 @@ def model_metadata(table: TransformTable, *, table_name: str, table_sha256: str,
 def _features(table: TransformTable) -> list[str]:
     d = table.definition
     out = [f"levels {d.n_levels}", f"contrast bins {d.n_contrast}", "saturation"]
+    if table.shading is not None:
+        out.append(f"lens shading (gain field learned on {table.shading.size[1]}x"
+                   f"{table.shading.size[0]} raws)")
     if d.orientation_bins:
         out.append(f"orientation bins {d.orientation_bins}")
     if d.context_block:
@@ -184,39 +198,72 @@ def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
     from onnx import TensorProto
 
     from l3cli.export import stages
-    from l3cli.export.classify import classify_nodes
+    from l3cli.export.bands import render_bands
+    from l3cli.export.classify import context_guide
     from l3cli.export.graph import Graph
 
     g = Graph()
     mosaic = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
     d = table.definition
+    if table.shading is not None:  # first, as l3cli.shading.corrected
+        frame = g.add_input("frame", TensorProto.INT64, [4])
+        mosaic = stages.shading(g, mosaic, table.shading, d.cfa.period,
+                                d.saturation_threshold, frame)
     gains = None
     if table.white_balance is not None:
         gains = g.add_input("wb_gains", TensorProto.FLOAT, ["N", 3])
         mosaic = stages.apply_gains(g, mosaic, gains, d.cfa, d.saturation_threshold)
-    cls = classify_nodes(g, d, mosaic)
     if table.conditions is not None:
         value = g.add_input("condition", TensorProto.DOUBLE, [1])
         kernels = stages.condition_kernels(g, table, value)
     else:
-        kernels = np.ascontiguousarray(table.kernels.transpose(1, 2, 0))
-    img = stages.affine(g, cls.padded, cls.index, kernels, d.patch, table.n_out)
-    if table.tone_lut is not None:
-        img = stages.tone_curve(g, img, *table.tone_lut)
-    if gains is not None:
-        from l3cli.whitebalance import WhiteBalanceModel
+        kernels = table.kernels
+    taps, bias = stages.kernel_parts(g, kernels, d.patch, table.n_out)
+    post = _post_stages(table, output, bits, gains)
+    n_pixel = next((k for k, (per_pixel, _) in enumerate(post) if not per_pixel), len(post))
 
-        img = stages.adaptation(g, img, gains, WhiteBalanceModel.from_dict(table.white_balance))
-    shape = ["N", table.n_out, "H", "W"]
+    def band(b, padded, classes):  # the kernels and the per-pixel stages of one band
+        img = stages.affine(b, padded, classes, taps, bias, d.patch, table.n_out)
+        for _, stage in post[:n_pixel]:
+            img = stage(b, img)
+        return img
+
+    display_in_band = output == "display" and n_pixel == len(post)
+    elem = TensorProto.FLOAT
     if output == "display":
-        img = stages.display(g, img, table.output_space, table.n_out, bits)
-        g.add_output(img, "image", TensorProto.UINT8 if bits == 8 else TensorProto.UINT16, shape)
-    else:
-        g.add_output(img, "image", TensorProto.FLOAT, shape)
+        elem = TensorProto.UINT8 if bits == 8 else TensorProto.UINT16
+    img = render_bands(g, d, mosaic, band, n_out=table.n_out,
+                       elem_type=elem if display_in_band else TensorProto.FLOAT,
+                       guide=context_guide(g, d, mosaic) if d.context_block else None)
+    for _, stage in post[n_pixel:]:  # stages that need the whole image
+        img = stage(g, img)
+    g.add_output(img, "image", elem, ["N", table.n_out, "H", "W"])
     meta = model_metadata(table, table_name=table_name, table_sha256=table_sha256,
                           output=output, bits=bits)
     doc = (f"l3 pipeline from {table_name}: {d.cfa.spec} mosaic -> {meta['l3.output_image']}")
     return g.model(doc=doc, metadata=meta)
+
+
+def _post_stages(table: TransformTable, output: str, bits: int, gains: str | None) -> list:
+    """The stages after the kernels, in ``l3 render``'s order: ``(per_pixel, build)`` with
+    ``build(graph, image) -> image``. The leading per-pixel stages run in the band loop
+    (:mod:`l3cli.export.bands`); a stage that needs the whole image (a filter) and every
+    stage after it run on the joined frame."""
+    from l3cli.export import stages
+
+    out: list = []
+    if table.tone_lut is not None:
+        lut, lo_hi = table.tone_lut
+        out.append((True, lambda g, img: stages.tone_curve(g, img, lut, lo_hi)))
+    if gains is not None:
+        from l3cli.whitebalance import WhiteBalanceModel
+
+        model = WhiteBalanceModel.from_dict(table.white_balance)
+        out.append((True, lambda g, img: stages.adaptation(g, img, gains, model)))
+    if output == "display":
+        out.append((True, lambda g, img: stages.display(g, img, table.output_space,
+                                                        table.n_out, bits)))
+    return out
 
 
 def export_table(table_path: str | os.PathLike, out_path: str | os.PathLike, *,

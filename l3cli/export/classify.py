@@ -11,7 +11,8 @@ chains of ``Add`` over shifted ``Slice`` views and not ``Conv`` nodes: a
 convolution sums in the runtime's own order, and a last-bit difference in a
 level or contrast moves pixels near a cut point into the neighbouring class.
 Sums of 0/1 indicators (saturated pixels per patch) are exact in any order and
-use ``MaxPool`` and ``Conv``.
+use ``Conv``; whether a patch holds a saturated pixel of a channel is a
+``MaxPool`` along the rows then down the columns.
 
 Bins: the level bin is the number of level cuts at or below the level
 (a branch-free binary search over the float32 cuts with ``Gather``, which
@@ -31,7 +32,7 @@ from l3cli.classify.features import orientation_centres
 from l3cli.classify.layout import kernel_tables
 from l3cli.export.graph import Graph
 
-__all__ = ["Classes", "classify_nodes"]
+__all__ = ["Classes", "Patterns", "band_classes", "classify_nodes", "context_guide"]
 
 F32, F64, I64 = TensorProto.FLOAT, TensorProto.DOUBLE, TensorProto.INT64
 
@@ -114,9 +115,9 @@ def _axis_weights(g: Graph, n: str, nb: str, block: int) -> tuple[str, str, str]
     return i0, i1, g.cast(g.op("Sub", f, i0f), F32)
 
 
-def _context(g: Graph, d: ClassDefinition, mosaic: str, lev: str) -> str:
-    """int64 context bin of every pixel: the guide of :func:`l3cli.classify.features.context_map`
-    (block means in float64, bilinear in float32), or the level over it (``ratio``)."""
+def context_guide(g: Graph, d: ClassDefinition, mosaic: str) -> str:
+    """float32 (N, 1, H, W): the context guide of :func:`l3cli.classify.features.context_map`
+    over the whole (N, 1, H, W) ``mosaic`` (block means in float64, bilinear in float32)."""
     t = kernel_tables(d)
     blk = d.context_block
     i64 = np.int64
@@ -152,8 +153,13 @@ def _context(g: Graph, d: ClassDefinition, mosaic: str, lev: str) -> str:
     wy = g.op("Unsqueeze", wy, g.const([1], i64))  # (H, 1)
     rows = g.op("Add", g.op("Mul", g.op("Gather", grid, r0, axis=2), g.op("Sub", one, wy)),
                 g.op("Mul", g.op("Gather", grid, r1, axis=2), wy))
-    guide = g.op("Add", g.op("Mul", g.op("Gather", rows, c0, axis=3), g.op("Sub", one, wx)),
-                 g.op("Mul", g.op("Gather", rows, c1, axis=3), wx))
+    return g.op("Add", g.op("Mul", g.op("Gather", rows, c0, axis=3), g.op("Sub", one, wx)),
+                g.op("Mul", g.op("Gather", rows, c1, axis=3), wx))
+
+
+def _context_bins(g: Graph, d: ClassDefinition, guide: str, lev: str) -> str:
+    """int64 context bin of every pixel: the guide's, or the level over it (``ratio``)."""
+    t = kernel_tables(d)
     if d.context_rule == "ratio":
         zero32 = g.const(np.float32(0.0))
         guide = g.op("Div", g.op("Max", lev, zero32),
@@ -165,30 +171,56 @@ def _context(g: Graph, d: ClassDefinition, mosaic: str, lev: str) -> str:
     return out
 
 
-def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
-    """Add the classification of (N, 1, H, W) float32 ``mosaic`` to ``g``.
+class Patterns:
+    """CFA-periodic maps (the pattern tiled from a band's origin) of the size of a band's
+    output (``out_hw``) or of its padded input (``pad_hw``), built once in ``outer`` (the
+    graph around a band loop, so that its iterations do not rebuild them)."""
 
-    """
+    def __init__(self, outer: Graph, out_hw: str, pad_hw: str) -> None:
+        self._g, self._hw, self._made = outer, {False: out_hw, True: pad_hw}, {}
+
+    def __call__(self, pattern: np.ndarray, *, padded: bool = False, dtype=np.float32) -> str:
+        arr = np.asarray(pattern, dtype=dtype)
+        key = (padded, arr.dtype.str, arr.shape, arr.tobytes())
+        if key not in self._made:
+            self._made[key] = self._g.tile(arr, self._hw[padded], arr.dtype)
+        return self._made[key]
+
+
+def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
+    """Add the classification of the whole (N, 1, H, W) float32 ``mosaic`` to ``g``."""
+    padded = g.pad_mirror(mosaic, d.patch // 2, d.cfa.period)
+    maps = Patterns(g, g.dims(mosaic), g.dims(padded))
+    guide = context_guide(g, d, mosaic) if d.context_block else None
+    return Classes(padded, band_classes(g, d, padded, maps, guide))
+
+
+def band_classes(g: Graph, d: ClassDefinition, padded: str, maps: Patterns,
+                 guide: str | None = None) -> str:
+    """int64 (N, 1, h, w): the class of every pixel of a band of rows, from the band's
+    padded mosaic (N, 1, h + 2r, w + 2r), whose first row has the CFA phase of the
+    padded frame's; ``maps`` tiles patterns to the band's sizes, ``guide`` is the band's
+    rows of :func:`context_guide` (tables with context bins)."""
     t = kernel_tables(d)
     s, r = d.patch, d.patch // 2
     ph, pw = d.cfa.period
     nch = d.cfa.n_channels
-    padded = g.pad_mirror(mosaic, r, (ph, pw))
     # padded-image channel of every pixel: the pattern shifted by r (phase kept)
     shifted = np.roll(t.idx_pattern, (r % ph, r % pw), axis=(0, 1))
     positions = np.arange(ph * pw).reshape(ph, pw)
     f32 = np.float32
     lev = spr = None
     saturated = g.op("GreaterOrEqual", padded, g.const(t.sat_thr))
+    saturated_f = g.cast(saturated, F32)
     sat = None
     for c in range(nch):
-        mask = g.periodic((shifted == c).astype(f32), padded)
+        mask = maps((shifted == c).astype(f32), padded=True)
         u = g.op("Mul", padded, mask)
         q = g.op("Mul", u, padded)
         va = g.chain_sum(g.chain_sum(u, s, 3), s, 2)
         vq = g.chain_sum(g.chain_sum(q, s, 3), s, 2)
-        ci = g.periodic(t.cnt_inv[positions, c], mosaic)
-        wc = g.periodic(t.wc[positions, c], mosaic)
+        ci = maps(t.cnt_inv[positions, c])
+        wc = maps(t.wc[positions, c])
         m = g.op("Mul", va, ci)
         var = g.op("Sub", g.op("Mul", vq, ci), g.op("Mul", m, m))
         dl = g.op("Mul", m, wc)
@@ -196,8 +228,9 @@ def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
         lev = dl if lev is None else g.op("Add", lev, dl)
         spr = ds if spr is None else g.op("Add", spr, ds)
         # saturation bit of channel c: any saturated channel-c pixel in the patch
-        hit = g.op("Mul", g.cast(saturated, F32), mask)
-        anyc = g.op("MaxPool", hit, kernel_shape=[s, s])
+        hit = g.op("Mul", saturated_f, mask)
+        # the patch's maximum as a row's then a column's (max is exact in any order)
+        anyc = g.op("MaxPool", g.op("MaxPool", hit, kernel_shape=[1, s]), kernel_shape=[s, 1])
         bit = g.op("Mul", g.cast(anyc, I64), g.const(1 << c, np.int64))
         sat = bit if sat is None else g.op("Add", sat, bit)
     contrast = g.op("Div", spr, g.op("Add", g.op("Max", lev, g.const(f32(0.0))),
@@ -209,7 +242,7 @@ def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
         th = g.op("Gather", g.const(t.ccuts[:, j].copy()), lbin, axis=0)
         hit = g.cast(g.op("GreaterOrEqual", contrast, th), I64)
         cbin = hit if cbin is None else g.op("Add", cbin, hit)
-    group = g.periodic(d.position_group[positions], mosaic, dtype=np.int64)
+    group = maps(d.position_group[positions], dtype=np.int64)
     idx = g.op("Add", g.op("Mul", group, g.const(d.n_saturation, np.int64)), sat)
     idx = g.op("Add", g.op("Mul", idx, g.const(d.n_levels, np.int64)), lbin)
     idx = g.op("Mul", idx, g.const(d.n_contrast, np.int64))
@@ -220,11 +253,11 @@ def classify_nodes(g: Graph, d: ClassDefinition, mosaic: str) -> Classes:
         ext = _orientation(g, d, padded) if d.orientation_bins else g.const(0, np.int64)
         if d.context_block:
             ext = g.op("Add", g.op("Mul", ext, g.const(d.n_context, np.int64)),
-                       _context(g, d, mosaic, lev))
+                       _context_bins(g, d, guide, lev))
         if d.highlight_bins:
             ones = g.const(np.ones((1, 1, s, s), f32))
-            count = g.op("Conv", g.cast(saturated, F32), ones)  # 0/1 sums: exact
+            count = g.op("Conv", saturated_f, ones)  # 0/1 sums: exact
             hl = g.cast(g.op("GreaterOrEqual", count, g.const(t.hl_cnt)), I64)
             ext = g.op("Add", g.op("Mul", ext, g.const(d.n_highlight, np.int64)), hl)
         idx = g.op("Add", g.op("Mul", idx, g.const(n_ext, np.int64)), ext)
-    return Classes(padded, idx)
+    return idx

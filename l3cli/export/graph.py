@@ -118,9 +118,13 @@ class Graph:
 
     def periodic(self, pattern: np.ndarray, like: str, dtype=np.float32) -> str:
         """``pattern`` (ph, pw) tiled from the origin to the (H, W) of ``like``: (1, 1, H, W)."""
+        return self.tile(pattern, self.dims(like), dtype)
+
+    def tile(self, pattern: np.ndarray, hw: str, dtype=np.float32) -> str:
+        """``pattern`` (ph, pw) tiled from the origin to the int64 (2,) size ``hw``:
+        (1, 1, H, W)."""
         pattern = np.asarray(pattern, dtype=dtype)
         ph, pw = pattern.shape
-        hw = self.dims(like)
         period = self.const([ph, pw], np.int64)
         reps = self.op("Div", self.op("Sub", self.op("Add", hw, period),
                                       self.const([1, 1], np.int64)), period)

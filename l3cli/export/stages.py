@@ -1,8 +1,8 @@
 """The stages around the classifier as ONNX nodes.
 
-White-balance gains on the mosaic, the per-class affine kernels (one
-``Gather`` of each tap's coefficients by class, then a multiply-add with the
-shifted patch), condition-bin kernel interpolation, the learned tone curve's
+Lens shading and white-balance gains on the mosaic, the per-class affine
+kernels (one ``Gather`` of each pixel's coefficients by class, then a
+``MatMul`` with its patch), condition-bin kernel interpolation, the learned tone curve's
 look-up, the white-balance adaptation matrix, and the display encoding. Each
 follows the function ``l3 render`` calls (named in its docstring); they
 agree within float32 rounding of a different summation order.
@@ -15,7 +15,8 @@ from onnx import TensorProto
 
 from l3cli.export.graph import Graph
 
-__all__ = ["apply_gains", "adaptation", "affine", "condition_kernels", "display", "tone_curve"]
+__all__ = ["apply_gains", "adaptation", "affine", "condition_kernels", "display",
+           "kernel_parts", "shading", "tone_curve"]
 
 F32, F64, I64 = TensorProto.FLOAT, TensorProto.DOUBLE, TensorProto.INT64
 _RGB = ("R", "G", "B")
@@ -34,13 +35,12 @@ def apply_gains(g: Graph, mosaic: str, gains: str, cfa, saturation: float) -> st
 
 
 def condition_kernels(g: Graph, table, value: str) -> str:
-    """float32 (q, n_out, n_classes): :func:`l3cli.conditions.kernels_for` of the float64
+    """float32 (n_classes, q, n_out): :func:`l3cli.conditions.kernels_for` of the float64
     (1,) ``value``; the pooled kernels where it is not a positive number (unknown)."""
     cond = table.conditions
     pooled = np.asarray(table.kernels, dtype=np.float64)
     bins = np.stack([np.where(cond.own[b][:, None, None], cond.kernels[b], table.kernels)
                      for b in range(cond.values.size)]).astype(np.float64)
-    bins = bins.transpose(0, 2, 3, 1)  # (n_bins, q, n_out, n_classes)
     logs = np.log(cond.values)
     v = g.op("Squeeze", value, g.const([0], np.int64))  # scalar
     known = g.op("Greater", v, g.const(0.0))  # False for NaN too
@@ -55,48 +55,51 @@ def condition_kernels(g: Graph, table, value: str) -> str:
     table_b = g.const(bins, hint="cond_kernels")
     ki, kj = (g.op("Gather", table_b, k, axis=0) for k in (i, j))
     k = g.op("Add", g.op("Mul", g.op("Sub", g.const(1.0), tt), ki), g.op("Mul", tt, kj))
-    k = g.op("Where", known, k, g.const(pooled.transpose(1, 2, 0), hint="pooled"))
+    k = g.op("Where", known, k, g.const(pooled, hint="pooled"))
     return g.cast(k, F32)
 
 
-def affine(g: Graph, padded: str, classes: str, kernels: str | np.ndarray, patch: int,
-           n_out: int) -> str:
-    """The affine kernel of each pixel's class on its patch: float32 (N, n_out, H, W).
-
-    ``kernels``: float32 (q, n_out, n_classes), a constant array or a graph tensor.
-    The taps run in a ``Loop`` (one tap per iteration: the coefficients of the
-    pixels' classes by ``Gather``, times the patch value, added to the sum), so
-    only one tap's temporaries are alive at a time; as separate nodes, ONNX
-    Runtime schedules every tap's product before the first addition and holds
-    them all (~600 bytes per pixel more for a 7x7 patch).
-    """
-    from onnx import helper
-
-    if isinstance(kernels, np.ndarray):
-        kernels = g.const(np.ascontiguousarray(kernels), hint="kernels")
+def kernel_parts(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int
+                 ) -> tuple[str, str]:
+    """The per-class kernels (n_classes, q, n_out), a table's array or a graph tensor, as
+    the two tensors :func:`affine` gathers rows of: the taps (n_classes, n_out * patch²),
+    each output's row of taps in the patch's row-major order, and the constant terms
+    (n_classes, n_out)."""
     q = patch * patch
+    if isinstance(kernels, np.ndarray):
+        taps = np.ascontiguousarray(kernels[:, :q, :].transpose(0, 2, 1))
+        return (g.const(taps.reshape(kernels.shape[0], n_out * q), hint="kernel_taps"),
+                g.const(np.ascontiguousarray(kernels[:, q, :]), hint="kernel_bias"))
     i64 = np.int64
-    cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, H, W)
-    hw = g.slice(g.op("Shape", cls), [1], [3], [0])  # (H, W)
-    bias = g.op("Gather", kernels, g.const(q, i64), axis=0)  # (n_out, n_classes)
-    acc0 = g.op("Gather", bias, cls, axis=1)  # the constant term: (n_out, N, H, W)
+    taps = g.op("Transpose", g.slice(kernels, [0], [q], [1]), perm=[0, 2, 1])
+    taps = g.op("Reshape", taps, g.const([0, n_out * q], i64))
+    bias = g.op("Squeeze", g.slice(kernels, [q], [q + 1], [1]), g.const([1], i64))
+    return taps, bias
 
-    b = Graph(prefix="tap_")
-    t = b.add_input("tap_t", TensorProto.INT64, [])
-    b.add_input("tap_cond", TensorProto.BOOL, [])
-    acc = b.add_input("tap_acc", TensorProto.FLOAT, ["n_out", "N", "H", "W"])
-    s = b.const(patch, i64)
-    start = b.op("Concat", b.op("Unsqueeze", b.op("Div", t, s), b.const([0], i64)),
-                 b.op("Unsqueeze", b.op("Mod", t, s), b.const([0], i64)), axis=0)  # (dy, dx)
-    window = b.op("Slice", padded, start, b.op("Add", start, hw), b.const([2, 3], i64))
-    p = b.op("Squeeze", window, b.const([1], i64))  # (N, H, W)
-    w = b.op("Gather", b.op("Gather", kernels, t, axis=0), cls, axis=1)  # (n_out, N, H, W)
-    out = b.op("Add", acc, b.op("Mul", w, p))
-    b.outputs.append(helper.make_tensor_value_info("tap_cond_out", TensorProto.BOOL, []))
-    b.nodes.append(helper.make_node("Identity", ["tap_cond"], ["tap_cond_out"]))
-    b.add_output(out, "tap_acc_out", TensorProto.FLOAT, ["n_out", "N", "H", "W"])
-    total = g.op("Loop", g.const(q, i64), "", acc0, body=b.subgraph("taps"))
-    return g.op("Transpose", total, perm=[1, 0, 2, 3])
+
+def affine(g: Graph, padded: str, classes: str, taps: str, bias: str, patch: int,
+           n_out: int) -> str:
+    """The affine kernel of each pixel's class on its patch: float32 (N, n_out, h, w).
+
+    ``padded`` (N, 1, h + 2r, w + 2r) holds the patches of the (N, 1, h, w) int64
+    ``classes``; ``taps`` and ``bias`` are :func:`kernel_parts`. Each pixel's row of
+    coefficients is one ``Gather`` (a contiguous row per pixel), its patch a row of
+    the taps' shifted views, and their products one batched ``MatMul`` of
+    (n_out, q) by (q, 1) per pixel: pixel-major, so that no per-tap plane of the
+    whole band is gathered element by element.
+    """
+    i64 = np.int64
+    s = patch
+    cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, h, w)
+    rows = [g.window(padded, dy, s, 2) for dy in range(s)]
+    views = [g.window(row, dx, s, 3) for row in rows for dx in range(s)]
+    pat = g.op("Transpose", g.op("Concat", *views, axis=1), perm=[0, 2, 3, 1])  # (N, h, w, q)
+    pat = g.op("Unsqueeze", pat, g.const([4], i64))  # (N, h, w, q, 1)
+    coef = g.op("Reshape", g.op("Gather", taps, cls, axis=0),
+                g.const([0, 0, 0, n_out, s * s], i64))  # (N, h, w, n_out, q)
+    out = g.op("Squeeze", g.op("MatMul", coef, pat), g.const([4], i64))  # (N, h, w, n_out)
+    out = g.op("Add", out, g.op("Gather", bias, cls, axis=0))
+    return g.op("Transpose", out, perm=[0, 3, 1, 2])
 
 
 def tone_curve(g: Graph, x: str, lut: np.ndarray, lo_hi: np.ndarray) -> str:
@@ -157,3 +160,49 @@ def display(g: Graph, img: str, space: str, n_out: int, bits: int) -> str:
         v = g.op("Clip", g.cast(d, F32), zero, one)
     q = g.op("Round", g.op("Mul", v, g.const(np.float32((1 << bits) - 1))))
     return g.cast(q, TensorProto.UINT8 if bits == 8 else TensorProto.UINT16)
+
+
+def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: float,
+            frame: str) -> str:
+    """:func:`l3cli.shading.correct_mosaic` of (N, 1, H, W) ``mosaic`` by the table's gain
+    field, evaluated in the graph (float64, as :func:`l3cli.shading.gain_map`) on the raw
+    that int64 (4,) ``frame`` places the mosaic on: ``(full height, full width, top,
+    left)``, or zeros for the mosaic itself (the table's CFA positions are the full raw's)."""
+    i64 = np.int64
+    ph, pw = period
+    hw = g.dims(mosaic)
+    full = g.slice(frame, [0], [2], [0])
+    full = g.op("Where", g.op("Greater", full, g.const([0, 0], i64)), full, hw)
+    origin = g.slice(frame, [2], [4], [0])
+    size = g.cast(full, F64)
+    half = g.op("Mul", g.const(0.5), g.op("Sqrt", g.op("ReduceSum", g.op("Mul", size, size),
+                                                      keepdims=0)))
+    cy, cx = (float(v) for v in field.centre)
+    coords, phase = [], []
+    for axis, (c, p) in enumerate(((cy, ph), (cx, pw))):
+        first = g.op("Squeeze", g.slice(origin, [axis], [axis + 1], [0]), g.const([0], i64))
+        n = g.op("Squeeze", g.slice(hw, [axis], [axis + 1], [0]), g.const([0], i64))
+        k = g.op("Range", first, g.op("Add", first, n), g.const(1, i64))  # full-raw index
+        edge = g.op("Mul", g.const(0.5), g.op("Squeeze", g.slice(size, [axis], [axis + 1], [0]),
+                                              g.const([0], i64)))
+        v = g.op("Div", g.op("Sub", g.op("Add", g.cast(k, F64), g.const(0.5)), edge), half)
+        d = g.op("Sub", v, g.const(c))
+        shape = [-1, 1] if axis == 0 else [1, -1]
+        coords.append(g.op("Reshape", g.op("Mul", d, d), g.const(shape, i64)))
+        phase.append(g.op("Reshape", g.op("Mod", k, g.const(p, i64)), g.const(shape, i64)))
+    r2 = g.op("Add", *coords)  # float64 (H, W)
+    pos = g.op("Add", g.op("Mul", phase[0], g.const(pw, i64)), phase[1])  # (H, W)
+    coeffs = field.coeffs
+    gain = None
+    for j in range(coeffs.shape[1] - 1, -1, -1):  # Horner, as GainField.gains
+        c = g.op("Gather", g.const(coeffs[:, j].copy()), pos, axis=0)
+        gain = c if gain is None else g.op("Add", g.op("Mul", gain, r2), c)
+    gain = g.op("Unsqueeze", g.cast(gain, F32), g.const([0, 1], i64))  # (1, 1, H, W)
+    one = g.const(np.float32(1.0))
+    prod = g.op("Mul", mosaic, gain)
+    brighten = g.op("Min", prod, g.op("Max", mosaic, one))  # every gain >= 1: clip at white
+    keep = g.op("Or", g.op("Less", mosaic, g.const(np.float32(saturation))),
+                g.op("GreaterOrEqual", gain, one))
+    mixed = g.op("Where", keep, prod, mosaic)  # a gain below one spares saturated pixels
+    up = g.op("GreaterOrEqual", g.op("ReduceMin", gain, keepdims=0), one)
+    return g.op("Where", up, brighten, mixed)

@@ -10,6 +10,7 @@ would differ by far more than 1e-5 with these kernels).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -52,6 +53,8 @@ def _run(sess, mosaic, gains=None, condition=None):
         feeds["wb_gains"] = np.asarray([gains], np.float32)
     if "condition" in names:
         feeds["condition"] = np.array([condition if condition is not None else 0.0])
+    if "frame" in names:
+        feeds["frame"] = np.zeros(4, np.int64)  # the mosaic is the whole raw
     return sess.run(None, feeds)[0][0].transpose(1, 2, 0)
 
 
@@ -228,6 +231,108 @@ def test_real_raw_with_a_synthetic_table(data_dir):
     _check(t, raw.mosaic[:203, :301])
 
 
+# ------------------------------------------------------- lens shading, DNG GainMaps
+def _field(size, centre=(0.08, -0.12), coeffs=((1.0, 0.9, 0.5), (1.0, 0.7, 0.3),
+                                              (1.0, 0.7, 0.3), (1.0, 1.2, 0.6))):
+    from l3cli.shading import GainField
+
+    return GainField(np.array(centre), np.array(coeffs, dtype=np.float64), size)
+
+
+def _feeds(sess, mosaic, *, gains=None, frame=None):
+    feeds = {"mosaic": np.asarray(mosaic, np.float32)[None, None]}
+    if gains is not None:
+        feeds["wb_gains"] = np.asarray([gains], np.float32)
+    if "frame" in {i.name for i in sess.get_inputs()}:
+        feeds["frame"] = np.asarray(frame if frame is not None else [0, 0, 0, 0], np.int64)
+    return sess.run(None, feeds)[0][0].transpose(1, 2, 0)
+
+
+@pytest.mark.parametrize("case", ["brighten", "below-one", "white-balance", "crop"])
+def test_shading_table_matches_render(case):
+    """A table with a lens shading gain field: the field evaluated in the graph from the
+    input's size (or the placement fed as ``frame``) corrects the mosaic as l3 render's
+    does, saturated pixels included (the mosaic reaches 1.2)."""
+    h, w = 46, 61
+    m = _mosaic(h, w, 11)
+    t = _table(wb=case == "white-balance", patch=5)
+    coeffs = ((0.8, 0.9, 0.5), (0.9, 0.7, 0.3), (0.9, 0.7, 0.3), (0.7, 1.2, 0.6))
+    t.shading = _field((h, w), coeffs=coeffs if case == "below-one" else
+                       ((1.0, 0.9, 0.5), (1.0, 0.7, 0.3), (1.0, 0.7, 0.3), (1.0, 1.2, 0.6)))
+    raw, frame = _raw(m, "RGGB", gains=GAINS if case == "white-balance" else None), None
+    if case == "crop":  # a crop of a larger raw: the field is placed on the full raw
+        t.shading = _field((90, 120))
+        frame = [90, 120, 30, 44]
+        raw.metadata.update(crop=[30, 44], full_size=[90, 120])
+    want = render_raw(t, raw)
+    got = _feeds(_session(build_model(t)), m, frame=frame,
+                 gains=GAINS if case == "white-balance" else None)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    plain = dataclasses.replace(t, shading=None)
+    assert np.abs(render_raw(plain, raw) - want).max() > 0.05  # the field does something
+
+
+def test_gain_map_dng_is_fed_as_read(tmp_path):
+    """A DNG with four GainMap opcodes (one per Bayer position, as phones write them): the
+    caller feeds the mosaic with the maps applied (what read_raw gives), and the model of
+    a shading table renders it as ``l3 render`` renders the file."""
+    from test_shading import _phone_maps, _write_dng_with_opcodes
+
+    from l3cli.io.dng_opcodes import encode_gain_maps
+    from l3cli.io.image import read_image
+    from l3cli.render import render_file
+
+    h, w = 40, 60
+    dn = np.random.default_rng(3).integers(64, 4096, (h, w))
+    path = _write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(_phone_maps(h, w)))
+    raw = read_raw(path)
+    assert raw.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
+    for shading in (None, _field((h, w))):
+        t = _table(patch=5)
+        t.shading = shading
+        want = read_image(render_file(t, path, tmp_path / "gm.exr"))[0]
+        got = _feeds(_session(build_model(t)), raw.mosaic)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("spec, kw", [("RGGB", {"patch": 7, "tone": True, "wb": True}),
+                                      ("RGB/GBR", {"patch": 3}),
+                                      ("RGBW/GWRB/BRWG/WBGR", {"space": "xyz"})])
+def test_strips_render_as_the_whole_frame(spec, kw):
+    """l3cli.export.runner: strips fed with their margins in parallel threads give the
+    frame's render (a shading table placed on a larger raw, odd sizes)."""
+    from l3cli.export.runner import run_strips, strip_rows, strip_session
+
+    t = _table(spec=spec, **kw)
+    h, w = 53, 41
+    t.shading = _field((80, 70), coeffs=np.tile([[1.0, 0.8, 0.3]], (t.cfa.n_positions, 1)))
+    m = _mosaic(h, w, 21)
+    gains = GAINS if kw.get("wb") else None
+    raw = _raw(m, spec, gains=gains)
+    raw.metadata.update(crop=[14, 8], full_size=[80, 70])
+    want = render_raw(t, raw)
+    sess = strip_session(build_model(t).SerializeToString())
+    feeds = {"wb_gains": np.asarray([gains], np.float32)} if gains else None
+    parts = strip_rows(h, 4, t.patch, t.cfa.period[0])
+    assert len(parts) >= 3 and parts[-1][1] == h
+    got = run_strips(sess, m[None, None], threads=4, feeds=feeds, frame=[80, 70, 14, 8])
+    np.testing.assert_allclose(got[0].transpose(1, 2, 0), want, rtol=0, atol=1e-5)
+
+
+def test_runner_needs_numpy_and_onnxruntime_only():
+    """The runner can be copied next to a model: it imports no l3 module."""
+    import ast
+
+    import l3cli.export.runner as runner
+
+    tree = ast.parse(Path(runner.__file__).read_text())
+    names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import)
+             for a in n.names}
+    names |= {n.module.split(".")[0] for n in ast.walk(tree)
+              if isinstance(n, ast.ImportFrom) and n.module}
+    assert names <= {"__future__", "json", "os", "concurrent", "numpy", "onnxruntime"}, names
+
+
 # ----------------------------------------------------------------- CLI, refusals
 def _save(tmp_path, table, name="t.npz"):
     return str(save_table(tmp_path / name, table))
@@ -401,6 +506,59 @@ def test_default_model_runs_in_a_fresh_process(default_pairs_table, tmp_path):
         for want in (png, display_encode(render_raw(t, raw), t.output_space, 8)):
             assert got.shape == want.shape == (*raw.mosaic.shape, 3)
             assert np.abs(got.astype(np.int64) - want.astype(np.int64)).max() <= 1
+
+
+def _shading_classes(table):
+    """A model of the table's lens shading correction and classifier alone: the classes."""
+    from onnx import TensorProto
+
+    from l3cli.export import stages
+    from l3cli.export.classify import classify_nodes
+    from l3cli.export.graph import Graph
+
+    g = Graph()
+    x = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
+    frame = g.add_input("frame", TensorProto.INT64, [4])
+    d = table.definition
+    x = stages.shading(g, x, table.shading, d.cfa.period, d.saturation_threshold, frame)
+    g.add_output(classify_nodes(g, d, x).index, "cls", TensorProto.INT64, ["N", 1, "H", "W"])
+    return _session(g.model(doc="", metadata={}))
+
+
+@pytest.mark.slow
+def test_default_table_of_shaded_frames(tmp_path):
+    """The bundled frames with a known strong off-centre per-channel lens shading on the
+    raws (scripts/make_shaded_examples.py), ``l3 train`` with the pairs defaults (the
+    field is learned and kept): the exported model renders crops of the holdout frames as
+    ``l3 render`` does, every pixel in the same class."""
+    from test_shading import _shaded_examples
+
+    from l3cli.shading import corrected
+
+    _shaded_examples().main(tmp_path / "shaded")
+    table = tmp_path / "t.npz"
+    res = CliRunner().invoke(cli, ["train", str(tmp_path / "shaded" / "frames"), "-o",
+                                   str(table), "--no-tune"])
+    assert res.exit_code == 0, res.output
+    model = tmp_path / "p.onnx"
+    res = CliRunner().invoke(cli, ["export", str(table), "-o", str(model)])
+    assert res.exit_code == 0, res.output
+    t = load_table(table)
+    assert t.shading is not None and t.tone_lut is not None
+    sess = _session(onnx.load(str(model)))
+    classes = _shading_classes(t)
+    for path in sorted((tmp_path / "shaded" / "holdout").glob("*.tif")):
+        full = read_raw(path)
+        h, w = full.mosaic.shape
+        for top, left in ((0, 0), (h - 240, w - 302)):  # corners: the strongest shading
+            raw = full.crop(top, left, 240, 302)
+            frame = [h, w, top, left]
+            want = render_raw(t, raw)
+            got = _feeds(sess, raw.mosaic, frame=frame)
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+            cls = classes.run(None, {"mosaic": raw.mosaic[None, None],
+                                     "frame": np.array(frame, np.int64)})[0][0, 0]
+            np.testing.assert_array_equal(cls, classify(corrected(t, raw).mosaic, t.definition))
 
 
 def test_stages_the_export_does_not_know_are_refused():
