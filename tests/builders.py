@@ -6,6 +6,7 @@ from ``conftest.py``.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -221,3 +222,47 @@ def scene(h: int, w: int, seed: int) -> np.ndarray:
             img[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = col
     img *= (1 + 0.1 * rng.standard_normal((h, w, 1))).astype(np.float32)
     return np.clip(gaussian_filter(img, (0.7, 0.7, 0)), 0, 1).astype(np.float32)
+
+
+def shaded_examples_script():
+    spec = importlib.util.spec_from_file_location(
+        "make_shaded_examples", REPO / "scripts" / "make_shaded_examples.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def write_dng_with_opcodes(path, dn, opcode_list2: bytes | None):
+    """A minimal RGGB DNG written by tifffile (the tags of l3cli.io.raw.write_raw), with
+    an OpcodeList2 tag (UNDEFINED bytes) when given."""
+    import tifffile
+
+    tags = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
+            (50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 3, 0, 0), True),
+            (50708, "s", 0, "l3 test", True), (50710, "B", 3, (0, 1, 2), True),
+            (50711, "H", 1, 1, True), (50713, "H", 2, (2, 2), True),
+            (50714, "I", 4, (64, 64, 64, 64), True), (50717, "I", 1, 4095, True),
+            (50721, "2i", 9, (10000, 10000, 0, 10000, 0, 10000, 0, 10000, 10000, 10000,
+                              0, 10000, 0, 10000, 0, 10000, 10000, 10000), True),
+            (50728, "2I", 3, (10000, 10000, 10000, 10000, 10000, 10000), True),
+            (50778, "H", 1, 21, True)]
+    if opcode_list2 is not None:
+        tags.append((51009, "B", len(opcode_list2), opcode_list2, True))
+    tifffile.imwrite(path, dn.astype(np.uint16), photometric=32803, planarconfig=1,
+                     compression=None, subfiletype=0, extratags=tags, metadata=None)
+    return path
+
+
+def phone_gain_maps(h, w):
+    """Four GainMaps, one per Bayer position (as phones write them), 5x7 points each."""
+    from l3cli.io.dng_opcodes import GainMap
+
+    rng = np.random.default_rng(7)
+    maps = []
+    for top, left in [(0, 0), (0, 1), (1, 0), (1, 1)]:
+        v = np.linspace(0, 1, 5)[:, None] - 0.5
+        u = np.linspace(0, 1, 7)[None, :] - 0.5
+        g = 1 + (1.2 + 0.3 * rng.random()) * (v ** 2 + u ** 2)
+        maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, 5, 7, 0.25, 1 / 6, 0.0, 0.0,
+                            g[:, :, None].astype(np.float32)))
+    return maps

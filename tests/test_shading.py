@@ -3,7 +3,6 @@ before classification in every render path, and its learning from pairs."""
 
 from __future__ import annotations
 
-import importlib.util
 import logging
 from pathlib import Path
 
@@ -22,7 +21,14 @@ from l3cli.shading import (
     normalised_coords,
 )
 from l3cli.table import SHADING_VERSION, TABLE_VERSION, load_table, save_table
-from tests.builders import MINIMAL, make_table, uniform_scene
+from tests.builders import (
+    MINIMAL,
+    make_table,
+    phone_gain_maps,
+    shaded_examples_script,
+    uniform_scene,
+    write_dng_with_opcodes,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -218,12 +224,6 @@ def test_fit_rejects_a_flat_field():
     assert field is None and "no better" in rec["reason"]
 
 
-def _shaded_examples():
-    spec = importlib.util.spec_from_file_location(
-        "make_shaded_examples", ROOT / "scripts" / "make_shaded_examples.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.mark.slow
@@ -235,7 +235,7 @@ def test_learned_field_recovers_known_shading(tmp_path):
     from l3cli.train.options import TrainOptions
     from l3cli.train.shading import learn_shading
 
-    mod = _shaded_examples()
+    mod = shaded_examples_script()
     mod.main(tmp_path)
     opts = TrainOptions(target_space="linear-srgb", tone_curve=True, shading=True)
     field, rec = learn_shading(find_pairs([tmp_path / "frames"]), opts)
@@ -251,47 +251,15 @@ def test_learned_field_recovers_known_shading(tmp_path):
 
 
 # ------------------------------------------------------------------ DNG GainMap
-def _write_dng_with_opcodes(path, dn, opcode_list2: bytes | None):
-    """A minimal RGGB DNG written by tifffile (the tags of l3cli.io.raw.write_raw), with
-    an OpcodeList2 tag (UNDEFINED bytes) when given."""
-    import tifffile
-
-    tags = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
-            (50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 3, 0, 0), True),
-            (50708, "s", 0, "l3 test", True), (50710, "B", 3, (0, 1, 2), True),
-            (50711, "H", 1, 1, True), (50713, "H", 2, (2, 2), True),
-            (50714, "I", 4, (64, 64, 64, 64), True), (50717, "I", 1, 4095, True),
-            (50721, "2i", 9, (10000, 10000, 0, 10000, 0, 10000, 0, 10000, 10000, 10000,
-                              0, 10000, 0, 10000, 0, 10000, 10000, 10000), True),
-            (50728, "2I", 3, (10000, 10000, 10000, 10000, 10000, 10000), True),
-            (50778, "H", 1, 21, True)]
-    if opcode_list2 is not None:
-        tags.append((51009, "B", len(opcode_list2), opcode_list2, True))
-    tifffile.imwrite(path, dn.astype(np.uint16), photometric=32803, planarconfig=1,
-                     compression=None, subfiletype=0, extratags=tags, metadata=None)
-    return path
 
 
-def _phone_maps(h, w):
-    """Four GainMaps, one per Bayer position (as phones write them), 5x7 points each."""
-    from l3cli.io.dng_opcodes import GainMap
-
-    rng = np.random.default_rng(7)
-    maps = []
-    for top, left in [(0, 0), (0, 1), (1, 0), (1, 1)]:
-        v = np.linspace(0, 1, 5)[:, None] - 0.5
-        u = np.linspace(0, 1, 7)[None, :] - 0.5
-        g = 1 + (1.2 + 0.3 * rng.random()) * (v ** 2 + u ** 2)
-        maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, 5, 7, 0.25, 1 / 6, 0.0, 0.0,
-                            g[:, :, None].astype(np.float32)))
-    return maps
 
 
 def test_gain_map_opcodes_round_trip_and_errors():
     from l3cli.errors import InputError
     from l3cli.io.dng_opcodes import encode_gain_maps, parse_opcode_list
 
-    maps = _phone_maps(40, 60)
+    maps = phone_gain_maps(40, 60)
     back = parse_opcode_list(encode_gain_maps(maps))
     assert len(back) == 4
     for a, b in zip(maps, back, strict=True):
@@ -318,9 +286,9 @@ def test_dng_gain_map_is_applied_as_by_hand(tmp_path):
 
     h, w = 40, 60
     dn = np.random.default_rng(3).integers(64, 4096, (h, w))
-    maps = _phone_maps(h, w)
-    plain = read_raw(_write_dng_with_opcodes(tmp_path / "plain.dng", dn, None))
-    shaded = read_raw(_write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(maps)))
+    maps = phone_gain_maps(h, w)
+    plain = read_raw(write_dng_with_opcodes(tmp_path / "plain.dng", dn, None))
+    shaded = read_raw(write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(maps)))
     assert shaded.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
     by_hand = plain.mosaic.astype(np.float64)
     for m in maps:

@@ -276,15 +276,14 @@ def test_gain_map_dng_is_fed_as_read(tmp_path):
     """A DNG with four GainMap opcodes (one per Bayer position, as phones write them): the
     caller feeds the mosaic with the maps applied (what read_raw gives), and the model of
     a shading table renders it as ``l3 render`` renders the file."""
-    from test_shading import _phone_maps, _write_dng_with_opcodes
-
     from l3cli.io.dng_opcodes import encode_gain_maps
     from l3cli.io.image import read_image
     from l3cli.render import render_file
+    from tests.builders import phone_gain_maps, write_dng_with_opcodes
 
     h, w = 40, 60
     dn = np.random.default_rng(3).integers(64, 4096, (h, w))
-    path = _write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(_phone_maps(h, w)))
+    path = write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(phone_gain_maps(h, w)))
     raw = read_raw(path)
     assert raw.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
     for shading in (None, _field((h, w))):
@@ -531,11 +530,10 @@ def test_default_table_of_shaded_frames(tmp_path):
     raws (scripts/make_shaded_examples.py), ``l3 train`` with the pairs defaults (the
     field is learned and kept): the exported model renders crops of the holdout frames as
     ``l3 render`` does, every pixel in the same class."""
-    from test_shading import _shaded_examples
-
     from l3cli.shading import corrected
+    from tests.builders import shaded_examples_script
 
-    _shaded_examples().main(tmp_path / "shaded")
+    shaded_examples_script().main(tmp_path / "shaded")
     table = tmp_path / "t.npz"
     res = CliRunner().invoke(cli, ["train", str(tmp_path / "shaded" / "frames"), "-o",
                                    str(table), "--no-tune"])
