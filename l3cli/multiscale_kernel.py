@@ -291,6 +291,8 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
     ne = energy_cuts.shape[1]
     cf = np.float32(c)
     cu = np.uint64(c)
+    bf = blend.reshape(-1)  # class k, band value r, channel ch at (k * R + r) * C + ch
+    ecf = energy_cuts.reshape(-1)
     for ck in nb.prange(n_chunks):
         span = band_rows + 2 * re
         cc = np.empty((span, n), dtype=np.float32)  # the coarsest low-pass, halo included
@@ -303,6 +305,8 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
         e_out = np.empty(wd, dtype=np.float32)
         orow = np.empty(n, dtype=np.float32)
         lin = np.empty(n, dtype=np.float32)
+        lvr = np.empty(wd, dtype=np.float32)
+        cls = np.empty(wd, dtype=np.int64)
         b_lo = ck * n_bands // n_chunks
         b_hi = (ck + 1) * n_bands // n_chunks
         for bi in range(b_lo, b_hi):
@@ -346,30 +350,42 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                     sr = st[j]
                     for q in range(n):
                         sr[q] = fin[q] - crs[q]
-                for x in range(wd):
+                for x in range(wd):  # the level and the energy
                     b0 = np.uint64(x) * cu
                     sv = crow[b0]
                     for ch in range(1, c):
                         sv += crow[b0 + np.uint64(ch)]
-                    lv = sv / cf
+                    lvr[x] = sv / cf
                     ev = e_out[x]
-                    ev = np.sqrt(ev if ev > np.float32(0.0) else np.float32(0.0))
-                    if mode == MODE_FEATURES:
-                        lev[y, x] = lv
-                        en[y, x] = ev
+                    e_out[x] = np.sqrt(ev if ev > np.float32(0.0) else np.float32(0.0))
+                if mode == MODE_FEATURES:
+                    for x in range(wd):
+                        b0 = np.uint64(x) * cu
+                        lev[y, x] = lvr[x]
+                        en[y, x] = e_out[x]
                         for j in range(ns):
                             for ch in range(c):
                                 stack[y, x, j * c + ch] = st[j, b0 + np.uint64(ch)]
                         for ch in range(c):
                             coarse[y, x, ch] = crow[b0 + np.uint64(ch)]
-                        continue
-                    lb = 0  # the class (_class_of, without branches: the cuts increase)
-                    for i in range(nl):
-                        lb += np.int64(level_cuts[i] <= lv)
-                    eb = 0
+                    continue
+                for x in range(wd):  # the class (_class_of, as counts: the cuts increase)
+                    cls[x] = 0
+                for i in range(nl):
+                    cut = level_cuts[i]
+                    for x in range(wd):
+                        cls[x] += np.int64(cut <= lvr[x])
+                for x in range(wd):
+                    lb = np.uint64(cls[x])
+                    eb = lb * np.uint64(ne + 1)
+                    row = lb * np.uint64(ne)
+                    ev = e_out[x]
                     for i in range(ne):
-                        eb += np.int64(ev >= energy_cuts[lb, i])
-                    a = blend[lb * (ne + 1) + eb]
+                        eb += np.uint64(ev >= ecf[row + np.uint64(i)])
+                    cls[x] = np.int64(eb)
+                for x in range(wd):  # the blend of the pixel's class
+                    b0 = np.uint64(x) * cu
+                    ab = np.uint64(cls[x]) * np.uint64(ns * c * c)
                     if c == 3:  # the same sums, the band values loaded once
                         i1 = b0 + np.uint64(1)
                         i2 = b0 + np.uint64(2)
@@ -380,10 +396,10 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                             sj = st[j]
                             for ch in range(3):
                                 v = sj[b0 + np.uint64(ch)]
-                                q = j * 3 + ch
-                                s0 += v * a[q, 0]
-                                s1 += v * a[q, 1]
-                                s2 += v * a[q, 2]
+                                q = ab + np.uint64((j * 3 + ch) * 3)
+                                s0 += v * bf[q]
+                                s1 += v * bf[q + np.uint64(1)]
+                                s2 += v * bf[q + np.uint64(2)]
                         orow[b0] = s0
                         orow[i1] = s1
                         orow[i2] = s2
@@ -392,7 +408,8 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                             sv = crow[b0 + np.uint64(ch)]
                             for j in range(ns):
                                 for i in range(c):
-                                    sv += st[j, b0 + np.uint64(i)] * a[j * c + i, ch]
+                                    q = ab + np.uint64(((j * c + i) * c) + ch)
+                                    sv += st[j, b0 + np.uint64(i)] * bf[q]
                             orow[b0 + np.uint64(ch)] = sv
                 if mode == MODE_FEATURES:
                     continue
