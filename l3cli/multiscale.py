@@ -370,7 +370,11 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
                               np.float32)
         half_means(below, pyramid[f])
         f *= 2
-    wides = []
+    from l3cli import buffers
+
+    sizes = [pyramid[int(f)].shape[0] * w * c if f > 1 else 0 for f in fac]
+    wides = buffers.empty((max(1, sum(sizes)),), np.float32)  # recycled in a folder's render
+    at = 0
     rads = np.zeros(ns, np.int64)
     taps = np.zeros((ns, max(radius(s) for s in sigmas) + 1), np.float32)
     for j, (s, f) in enumerate(zip(sigmas, fac, strict=True)):
@@ -384,12 +388,10 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
         num = 2 * np.arange(w, dtype=np.int64) + 1 - f  # the column's place among blocks
         i0 = num // (2 * f)
         ctx = (num - i0 * 2 * f).astype(np.float32) / np.float32(2 * f)
-        wide = np.empty((lo.shape[0], w, c), np.float32)
+        wide = wides[at:at + sizes[j]].reshape(lo.shape[0], w, c)
+        at += sizes[j]
         upsample_cols(lo, np.clip(i0, 0, lo.shape[1] - 1), np.clip(i0 + 1, 0, lo.shape[1] - 1),
                       ctx, wide)
-        wides.append(wide.reshape(-1))
-    wides = np.concatenate(wides) if len(wides) > 1 else (wides[0] if wides else
-                                                          np.zeros(1, np.float32))
     e_taps = gauss_taps(sigmas[0]).astype(np.float32)
     if stage is not None:
         lc = stage.level_cuts.astype(np.float32)
@@ -414,6 +416,7 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
                out.reshape(-1) if out is not None and bits == 8 else _U8,
                out.reshape(-1) if out is not None and bits == 16 else _U16, bits,
                direct, cell_code, uthr, BAND_ROWS, 4 * numba.get_num_threads())
+    buffers.release(wides)
 
 
 #: Cells of [0, 1] of the direct 8-bit look-up (:func:`direct_table`).

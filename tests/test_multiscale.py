@@ -229,7 +229,7 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
     raw = read_raw(raw_path)
     ks = prepare_kernels(table, raw)
     expected = apply_stage(table.multiscale, render_mosaic(ks, ks.prepare_mosaic(raw.mosaic)))
-    for suffix in (".exr", ".tif"):
+    for suffix in (".exr", ".tif", ".png"):
         out = tmp_path / f"r{suffix}"
         res = runner.invoke(cli, ["-q", "render", str(tmp_path / "ms.npz"), str(raw_path),
                                   "-o", str(out)])
@@ -237,6 +237,11 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
         img = read_image(out)[0]
         if suffix == ".exr":
             np.testing.assert_allclose(img, expected, atol=1e-6)
+        elif suffix == ".png":  # 8 bits, encoded as each row is blended: the same codes
+            from l3cli.io.encode import display_encode
+
+            codes = display_encode(expected, table.output_space, 8).astype(np.int64)
+            np.testing.assert_array_equal(np.round(img * 255).astype(np.int64), codes)
         else:  # display sRGB of the staged float render, within one 16-bit code
             from l3cli.io.encode import display_encode
 
