@@ -87,7 +87,7 @@ def check_exportable(table: TransformTable, output: str = "linear") -> None:
 #: Table and class-definition fields the export knows how to build (or refuses above).
 _KNOWN_TABLE = {"definition", "kernels", "counts", "lambdas", "empty", "source_class",
                 "output_space", "provenance", "format", "version", "white_balance",
-                "conditions", "tone_lut"}
+                "conditions", "tone_lut", "multiscale"}
 _KNOWN_DEFINITION = {"cfa", "patch", "level_cuts", "level_spacing", "contrast_cuts",
                      "saturation_threshold", "position_group", "contrast_eps", "contrast_rule",
                      "saturation_rule", "orientation_bins", "coherence_threshold",
@@ -171,6 +171,8 @@ def _features(table: TransformTable) -> list[str]:
         out.append("as-shot white balance + adaptation")
     if table.tone_lut is not None:
         out.append("tone curve")
+    if table.multiscale is not None:
+        out.append(f"multiscale stage ({table.multiscale.n_classes} classes)")
     return out
 
 
@@ -207,6 +209,10 @@ def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
         from l3cli.whitebalance import WhiteBalanceModel
 
         img = stages.adaptation(g, img, gains, WhiteBalanceModel.from_dict(table.white_balance))
+    if table.multiscale is not None:  # noise reduction beyond the patch
+        from l3cli.export.multiscale import stage
+
+        img = stage(g, img, table.multiscale)
     shape = ["N", table.n_out, "H", "W"]
     if output == "display":
         img = stages.display(g, img, table.output_space, table.n_out, bits)
