@@ -8,12 +8,12 @@ Usage::
 ``TABLE.npz`` is a table trained with ``--multiscale`` (its stage is timed; the same
 table without the stage is the baseline). Prints seconds per megapixel:
 
-* *stage alone*: :func:`l3cli.multiscale.apply_stage` on a float render of the
-  synthetic mosaic of ``bench_render.py`` (its parts too: the low-passes and
-  energy, the classes, the blend loop);
-* *render stage*: :func:`l3cli.kernelset.render_mosaic` (+ the stage), and
-  :func:`l3cli.kernelset.render_display` 8-bit without the stage (the fused path
-  the stage gives up for display outputs) against float + stage + encode;
+* *stage alone*: :func:`l3cli.multiscale.apply_stage` (float) and
+  :func:`l3cli.multiscale.apply_display` (8-bit) on a float render of the
+  synthetic mosaic of ``bench_render.py`` (its parts too: the coding, the features);
+* *render stage*: :func:`l3cli.kernelset.render_display` 8-bit without the stage
+  against the float render + the stage display-encoded row by row (what ``l3
+  render`` does for TIFF, PNG and JPEG);
 * *whole process*: ``l3 render`` of ``--copies`` headerless raws to JPEG, with and
   without the stage, best of ``--repeat`` interleaved rounds.
 """
@@ -54,7 +54,6 @@ def main(argv: list[str] | None = None) -> None:
     mp = w * h / 1e6
 
     from l3cli import multiscale as ms
-    from l3cli.io.encode import display_encode
     from l3cli.kernelset import render_display, render_mosaic
     from l3cli.table import load_table, save_table
 
@@ -72,21 +71,18 @@ def main(argv: list[str] | None = None) -> None:
         t = best_of(fn, repeat=args.repeat)
         rows.append((label, t / mp))
 
-    per_mp("stage alone (apply_stage)", lambda: ms.apply_stage(stage, y))
-    per_mp("  sRGB coding + decoding", lambda: ms.decode(ms.encode(y, stage.transfer),
-                                                          stage.transfer))
-    per_mp("  low-passes (bands)", lambda: ms.bands(y, stage.sigmas))
-    stack, coarse = ms.bands(y, stage.sigmas)
-    per_mp("  energy", lambda: ms.energy(y, coarse, stage.sigmas[0]))
-    per_mp("  features (bands, energy, one class pass)", lambda: stage.features(y))
-    stack, coarse, cls = stage.features(y)
-    per_mp("  blend loop", lambda: ms.blend_bands(stack, coarse, cls, stage.blend))
+    per_mp("stage alone, float (apply_stage)", lambda: ms.apply_stage(stage, y))
+    per_mp("stage alone, 8-bit display (apply_display)",
+           lambda: ms.apply_display(stage, y, table.output_space, 8))
+    per_mp("  sRGB coding", lambda: ms.encode(y, stage.transfer))
+    u = ms.encode(y, stage.transfer)
+    per_mp("  features (feature_maps: what training computes)",
+           lambda: ms.feature_maps(u, stage.sigmas))
     per_mp("render float, no stage", lambda: render_mosaic(plain, mosaic))
-    per_mp("render float + stage", lambda: ms.apply(table, render_mosaic(plain, mosaic)))
     per_mp("render 8-bit display, no stage (fused)", lambda: render_display(plain, mosaic, 8))
-    per_mp("render float + stage + 8-bit encode",
-           lambda: display_encode(ms.apply(table, render_mosaic(plain, mosaic)),
-                                  table.output_space, 8))
+    per_mp("render float + stage, 8-bit display (fused)",
+           lambda: ms.apply_display(stage, render_mosaic(plain, mosaic), table.output_space, 8,
+                                    inplace=True))
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -18,19 +18,32 @@ channel mean of ``lp_n``) times bins of the local band energy
 (``sqrt(G_{sigma_1} * mean_c (y - lp_n)^2)``, cut at per-level quantiles of the
 training data). Flat noisy regions learn ``A ~ 0`` (take the low-pass), edges
 and texture ``A ~ I`` (keep the detail). ``A = I`` for every band gives
-``out = y`` exactly.
+``out = y`` (within float32 rounding).
+
+The low-passes of ``sigma >= 3`` are computed at reduced resolution (rule
+``gauss-bands-v2``): the image's means over ``f x f`` blocks (:func:`factor`:
+the largest power of two ``f <= sigma / 1.5``), a Gaussian of ``sigma'``
+(:func:`low_sigma`: ``sigma`` less the variance the block mean and the
+upsampling add, in low-resolution pixels) on them, and bilinear upsampling
+back to the image's pixels (:func:`l3cli.multiscale_kernel.stage_rows`); the
+finer ones, and the energy's, are the full-resolution Gaussian. The stage is
+then one pass over the image's rows after a pass over its blocks, fused with
+the display encoder for TIFF, PNG and JPEG output (:func:`apply_display`);
+training (:func:`feature_maps`) runs the same loop, so a pixel's bands and
+class are the same in both. (Rule ``gauss-bands-v1``, before, took every
+low-pass at full resolution: about 10x the render's time.)
 
 Tables that render linear light (``xyz``, ``linear-srgb``) are blended in a
 perceptual coding: the stage encodes the render with the sRGB transfer curve
-(extended as an odd function beyond [0, 1]: :func:`encode`), blends, and
-decodes (:func:`decode`); so the least-squares fit weighs errors in the
+(extended as an odd function beyond [0, 1], from a table: :func:`encode`),
+blends, and decodes (:func:`decode`); so the least-squares fit weighs errors in the
 shadows as the eye (and S-CIELAB) does, not by their linear size (measured:
 linear blending lost 4 % held-out S-CIELAB on the bundled frames).
 ``srgb`` and ``lab`` tables are blended as they are (``transfer = "none"``).
 
 The blend is fitted after the L3 table by per-class ridge regression of
-``target - lp_n`` on the bands (:func:`accumulate`, :func:`solve`;
-:mod:`l3cli.train.multiscale` renders the training raws). It is stored in
+``target - lp_n`` on the bands (:mod:`l3cli.train.multiscale`, which renders
+the training raws). It is stored in
 the table as the optional ``multiscale_*`` keys (:meth:`Multiscale.to_arrays`,
 :meth:`Multiscale.from_arrays`) and applied to every render's float output
 (:func:`apply`), before a display output is encoded.
@@ -38,6 +51,7 @@ the table as the optional ``multiscale_*`` keys (:meth:`Multiscale.to_arrays`,
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,46 +59,100 @@ import numpy as np
 from l3cli.errors import TableError
 from l3cli.tablekeys import optional_group
 
-__all__ = ["MULTISCALE_RULE", "TRANSFERS", "Multiscale", "MultiscaleStats", "accumulate",
-           "apply", "apply_stage", "bands", "classes", "decode", "default_transfer", "encode",
-           "energy", "gauss_taps", "level", "lowpass", "place_cuts", "radius", "solve"]
+__all__ = ["CODE_SHIFT", "MULTISCALE_RULE", "TRANSFERS", "Multiscale", "apply",
+           "apply_display", "apply_stage", "blend_features", "classes", "code_table", "decode",
+           "default_transfer", "direct_table", "encode", "factor", "feature_maps", "gauss_taps",
+           "low_sigma", "lowpass", "radius"]
 
 #: The rule the stage's arrays follow (stored in the table; a reader refuses others).
-MULTISCALE_RULE = "gauss-bands-v1"
+MULTISCALE_RULE = "gauss-bands-v2"
+#: The rule before (every low-pass at full resolution): its tables load and render with
+#: :data:`MULTISCALE_RULE`'s low-passes, with a warning.
+OLD_RULE = "gauss-bands-v1"
 #: Gaussian support in standard deviations (scipy's ``truncate``).
 TRUNCATE = 3.0
 #: The codings the stage blends in: ``"none"`` (the table's values) or ``"srgb"``.
 TRANSFERS = ("none", "srgb")
+#: Bits of a float32 dropped to number a bucket of the coding's table: 512 per octave.
+CODE_SHIFT = 14
+#: The coding's table reaches this value; beyond it the formula is evaluated.
+CODE_TOP = 64.0
+
+
+def _iec(x: np.ndarray, inverse: bool) -> np.ndarray:
+    """The IEC 61966-2-1 sRGB curve (``inverse``: its inverse) in float64, ``x >= 0``."""
+    x = np.asarray(x, dtype=np.float64)
+    if inverse:
+        return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
+@functools.cache
+def code_table(inverse: bool) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """The table of the stage's coding (``inverse``: of its inverse).
+
+    Above the curve's linear segment, a value ``v`` falls in the bucket
+    ``b = bits(v) >> CODE_SHIFT`` (512 per octave); its coding is
+    ``base[b - first] + slope[b - first] * (v - start_b)`` in float32, the line
+    through the IEC curve's values (float64) at the bucket's ends ``start_b``
+    and ``start_{b+1}``: within 2e-6 of the curve relative to the value.
+
+    Returns
+    -------
+    base, slope
+        float32 (last - first + 1,).
+    first, last
+        The buckets of the linear segment's end and of :data:`CODE_TOP`.
+    """
+    lo = np.float32(0.04045 if inverse else 0.0031308)
+    first = int(lo.view(np.uint32)) >> CODE_SHIFT
+    last = int(np.float32(CODE_TOP).view(np.uint32)) >> CODE_SHIFT
+    b = np.arange(first, last + 2, dtype=np.uint32)
+    starts = (b << np.uint32(CODE_SHIFT)).view(np.float32).astype(np.float64)
+    vals = _iec(starts, inverse)
+    slope = (vals[1:] - vals[:-1]) / (starts[1:] - starts[:-1])
+    return vals[:-1].astype(np.float32), slope.astype(np.float32), first, last
 
 
 def encode(v: np.ndarray, transfer: str) -> np.ndarray:
-    """The stage's coding of ``v`` (float32): the sRGB transfer curve (IEC 61966-2-1)
-    extended to an odd function on all reals for ``"srgb"``, ``v`` itself for ``"none"``.
-
-    In float32 as numpy computes ``sign(v) * where(|v| <= 0.0031308, 12.92 |v|,
-    1.055 |v| ** (1 / 2.4) - 0.055)`` (:func:`l3cli.multiscale_kernel.transfer_rows`,
-    one parallel pass; a test checks it against that expression: the linear segment
-    bit for bit, the power segment within the two libraries' ``pow`` error).
-    """
+    """The stage's coding of ``v`` (float32): for ``"srgb"`` the sRGB transfer curve
+    (IEC 61966-2-1) extended to an odd function on all reals, its linear segment exact
+    and above it from :func:`code_table` (:func:`l3cli.multiscale_kernel.code_rows`);
+    ``v`` itself for ``"none"``."""
     v = np.asarray(v, dtype=np.float32)
     return v if transfer == "none" else _transfer(v, inverse=False)
 
 
 def decode(u: np.ndarray, transfer: str) -> np.ndarray:
-    """The inverse of :func:`encode` (``sign(u) * where(|u| <= 0.04045, |u| / 12.92,
-    ((|u| + 0.055) / 1.055) ** 2.4)`` in float32)."""
+    """The inverse of :func:`encode` (the inverse curve, from its own table)."""
     u = np.asarray(u, dtype=np.float32)
     return u if transfer == "none" else _transfer(u, inverse=True)
 
 
-def _transfer(v: np.ndarray, *, inverse: bool) -> np.ndarray:
-    from l3cli.multiscale_kernel import transfer_rows
+def _transfer(v: np.ndarray, *, inverse: bool, out: np.ndarray | None = None) -> np.ndarray:
+    from l3cli.multiscale_kernel import code_rows
 
     src = np.asarray(v, order="C")  # (ascontiguousarray would make a 0-d array 1-d)
-    out = np.empty_like(src)
+    out = np.empty_like(src) if out is None else out
     rows = src.shape[0] if src.ndim > 1 else 1
-    transfer_rows(src.reshape(rows, -1), out.reshape(rows, -1), inverse)
+    code_rows(src.reshape(rows, -1), out.reshape(rows, -1), *code_table(inverse), inverse)
     return out
+
+
+def factor(sigma: float) -> int:
+    """The block size a low-pass of ``sigma`` is computed at: the largest power of two
+    ``f`` with ``1.5 f <= sigma`` (1: full resolution)."""
+    f = 1
+    while 3.0 * f <= float(sigma):
+        f *= 2
+    return f
+
+
+def low_sigma(sigma: float, f: int) -> float:
+    """The Gaussian on ``f x f`` block means that, with the block mean (variance
+    ``(f² - 1) / 12``) and the bilinear upsampling (``f² / 6``), makes a low-pass of
+    variance ``sigma²``: in low-resolution pixels."""
+    return float(np.sqrt((float(sigma) ** 2 - f * f / 4.0 + 1.0 / 12.0) / (f * f)))
 
 
 def default_transfer(output_space: str) -> str:
@@ -103,93 +171,24 @@ def gauss_taps(sigma: float) -> np.ndarray:
     return np.ascontiguousarray(phi[r:])
 
 
-def lowpass(image: np.ndarray, sigma: float, *, out: np.ndarray | None = None,
-            tmp: np.ndarray | None = None) -> np.ndarray:
-    """Separable Gaussian low-pass of each channel of ``image`` (H, W, C), float32.
+def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
+    """The stage's Gaussian low-pass of each channel of ``image`` (H, W, C), float32.
 
     Borders are mirrored (``scipy.ndimage``'s ``"reflect"``), the support is
     :data:`TRUNCATE` standard deviations: ``scipy.ndimage.gaussian_filter(image,
-    (sigma, sigma, 0), mode="reflect", truncate=TRUNCATE)`` bit for bit
-    (:func:`l3cli.multiscale_kernel.gauss_rows` and ``gauss_cols``, vectorised
-    along rows and parallel over them; a test checks it against scipy). ``out`` and
-    ``tmp`` (C-contiguous float32 of the image's shape, neither the image) are used
-    when given (the result goes to ``out``).
+    (sigma, sigma, 0), mode="reflect", truncate=TRUNCATE)``'s taps and order of
+    operations in float32 (:func:`l3cli.multiscale_kernel.gauss_image`; within float32
+    rounding of scipy's float64 sums, tested).
     """
-    from l3cli.multiscale_kernel import gauss_cols, gauss_rows
+    from l3cli.multiscale_kernel import gauss_image
 
     img = np.ascontiguousarray(image, dtype=np.float32)
     if img.ndim != 3:
         raise ValueError(f"lowpass takes (H, W, C) images, got shape {img.shape}")
-    w = gauss_taps(sigma)
-    h = img.shape[0]
-    tmp = np.empty_like(img) if tmp is None else tmp
-    out = np.empty_like(img) if out is None else out
+    out = np.empty_like(img)
     if img.size:
-        gauss_rows(img.reshape(h, -1), w, tmp.reshape(h, -1))
-        gauss_cols(tmp, w, out)
+        gauss_image(img, gauss_taps(sigma).astype(np.float32), np.empty_like(img), out)
     return out
-
-
-def bands(y: np.ndarray, sigmas: np.ndarray, *, stack: np.ndarray | None = None,
-          work: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The band stack of ``y`` and its coarsest low-pass.
-
-    ``stack`` (the result's shape) and ``work`` (float32, at least 3 ``y.size``
-    values; the returned low-pass lies in it) are used when given: a caller
-    that runs many bands allocates them once (fresh memory is zeroed by the
-    kernel page by page: most of the stage's time when every band allocated).
-
-    Returns
-    -------
-    stack : numpy.ndarray
-        float32 (H, W, n_scales * C): ``b_0, ..., b_{n-1}`` one after another
-        along the last axis (channel ``c`` of band ``j`` at ``j * C + c``).
-    coarse : numpy.ndarray
-        float32 (H, W, C): ``lp_n``.
-    """
-    y = np.asarray(y, dtype=np.float32)
-    c = y.shape[2]
-    if stack is None:
-        stack = np.empty(y.shape[:2] + (len(sigmas) * c,), dtype=np.float32)
-    if work is None:
-        work = np.empty(3 * y.size, dtype=np.float32)
-    lps = [work[k * y.size:(k + 1) * y.size].reshape(y.shape) for k in range(3)]
-    finer = y
-    for j, s in enumerate(sigmas):
-        lp = lowpass(y, s, out=lps[j % 2], tmp=lps[2])  # the two last low-passes alternate
-        np.subtract(finer, lp, out=stack[..., j * c:(j + 1) * c])
-        finer = lp
-    return stack, finer
-
-
-def level(coarse: np.ndarray) -> np.ndarray:
-    """The coarse level feature: the channel mean of the coarsest low-pass (float32 (H, W)),
-    as ``coarse.mean(axis=2, dtype=np.float32)`` (:func:`l3cli.multiscale_kernel.level_rows`;
-    a test checks it bit for bit)."""
-    from l3cli.multiscale_kernel import level_rows
-
-    c = np.ascontiguousarray(coarse, dtype=np.float32)
-    out = np.empty(c.shape[:2], dtype=np.float32)
-    level_rows(c, out)
-    return out
-
-
-def energy(y: np.ndarray, coarse: np.ndarray, sigma: float, *,
-           work: np.ndarray | None = None) -> np.ndarray:
-    """The local band energy: ``sqrt(G_sigma * mean_c (y - coarse)^2)`` (float32 (H, W)).
-
-    ``work`` (float32, at least ``y.size + 2 H W`` values; the result lies in it) is
-    used when given (:func:`bands`)."""
-    y = np.asarray(y, dtype=np.float32)
-    hw = y.shape[0] * y.shape[1]
-    if work is None:
-        work = np.empty(y.size + 2 * hw, dtype=np.float32)
-    d = np.subtract(y, coarse, out=work[:y.size].reshape(y.shape))
-    e = np.einsum("hwc,hwc->hw", d, d, dtype=np.float32) / np.float32(d.shape[2])
-    out = work[y.size:y.size + hw].reshape(y.shape[0], y.shape[1], 1)
-    e = lowpass(e[:, :, None], sigma, out=out,
-                tmp=work[y.size + hw:y.size + 2 * hw].reshape(out.shape))[:, :, 0]
-    return np.sqrt(np.maximum(e, 0.0, out=e), out=e)
 
 
 def classes(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
@@ -211,37 +210,6 @@ def classes(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
                np.ascontiguousarray(level_cuts, dtype=np.float32),
                np.ascontiguousarray(energy_cuts, dtype=np.float32), out)
     return out.reshape(shape)
-
-
-def place_cuts(lev: np.ndarray, en: np.ndarray, n_levels: int,
-               n_energy: int) -> tuple[np.ndarray, np.ndarray]:
-    """Level cuts at quantiles of ``lev``, energy cuts at quantiles of ``en`` within each level.
-
-    Returns
-    -------
-    level_cuts, energy_cuts
-        float64 (n_levels - 1,) and (n_levels, n_energy - 1), strictly increasing
-        (ties, as in a constant image, are spread by a tiny step).
-    """
-    lev = np.asarray(lev, dtype=np.float64).ravel()
-    en = np.asarray(en, dtype=np.float64).ravel()
-    q = np.linspace(0, 1, n_levels + 1)[1:-1]
-    lcuts = _increasing(np.quantile(lev, q)) if n_levels > 1 else np.zeros(0)
-    lb = np.searchsorted(lcuts, lev, side="right")
-    qe = np.linspace(0, 1, n_energy + 1)[1:-1]
-    ecuts = np.zeros((n_levels, n_energy - 1))
-    for b in range(n_levels):
-        sel = en[lb == b]
-        ecuts[b] = _increasing(np.quantile(sel if sel.size else en, qe)) if n_energy > 1 else 0
-    return lcuts, ecuts
-
-
-def _increasing(cuts: np.ndarray) -> np.ndarray:
-    cuts = np.asarray(cuts, dtype=np.float64).copy()
-    for i in range(1, cuts.size):
-        if cuts[i] <= cuts[i - 1]:
-            cuts[i] = np.nextafter(cuts[i - 1], np.inf) + 1e-12 * max(1.0, abs(cuts[i - 1]))
-    return cuts
 
 
 @dataclass(eq=False)
@@ -326,30 +294,11 @@ class Multiscale:
         return cls(np.asarray(sigmas), lc, ec, np.repeat(eye[None], nc, axis=0),
                    np.zeros(nc, np.int64), transfer)
 
-    def features(self, y: np.ndarray, *, work: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def features(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(stack, coarse, classes)`` of an image in the stage's coding
-        (``encode(render, transfer)``; :func:`bands`, :func:`classes`).
-
-        ``work``: float32 of at least :meth:`work_size` values, used for every
-        temporary and the stack and coarse low-pass returned (None: fresh arrays).
-        """
-        y = np.asarray(y, dtype=np.float32)
-        stack = ew = bw = None
-        if work is not None:
-            n_st = y.size * len(self.sigmas)
-            stack = work[:n_st].reshape(y.shape[:2] + (y.shape[2] * len(self.sigmas),))
-            bw = work[n_st:n_st + 3 * y.size]
-            ew = work[n_st + 3 * y.size:self.work_size(y.shape)]
-        stack, coarse = bands(y, self.sigmas, stack=stack, work=bw)
-        cls = classes(level(coarse), energy(y, coarse, self.sigmas[0], work=ew),
-                      self.level_cuts, self.energy_cuts)
-        return stack, coarse, cls
-
-    def work_size(self, shape: tuple[int, ...]) -> int:
-        """float32 values :meth:`features` uses for an image of ``shape`` (H, W, C)."""
-        n = int(np.prod(shape))
-        return n * len(self.sigmas) + 3 * n + n + 2 * int(shape[0]) * int(shape[1])
+        (``encode(render, transfer)``; :func:`feature_maps`, :func:`classes`)."""
+        stack, coarse, lev, en = feature_maps(u, self.sigmas)
+        return stack, coarse, classes(lev, en, self.level_cuts, self.energy_cuts)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The table keys of the stage."""
@@ -373,6 +322,17 @@ class Multiscale:
         keys = ("multiscale_rule", "multiscale_sigmas", "multiscale_level_cuts",
                 "multiscale_energy_cuts", "multiscale_blend", "multiscale_counts",
                 "multiscale_transfer")
+        rule = arrs.get("multiscale_rule")
+        if rule is not None and rule.dtype.kind == "U" and str(rule) == OLD_RULE:
+            # the same stage, fitted on full-resolution low-passes: still loads, renders
+            # with this rule's (8-bit codes move by one at about 1 % of pixels, measured)
+            import logging
+
+            logging.getLogger(__name__).warning(
+                "the table's multi-scale stage was fitted with rule %r; rendered with %r "
+                "(a few codes move by one; retrain with --multiscale for an exact match)",
+                OLD_RULE, MULTISCALE_RULE)
+            arrs = {**arrs, "multiscale_rule": np.array(MULTISCALE_RULE)}
         if optional_group(arrs, keys, MULTISCALE_RULE) is None:
             return None
         for k in keys[1:5]:
@@ -388,9 +348,9 @@ class Multiscale:
                    arrs["multiscale_counts"], str(transfer))
 
 
-#: Output rows of one band of :func:`apply_stage` (bounds its temporaries: the band
-#: stack alone is n_scales * C floats per pixel).
-BAND_ROWS = 512
+#: Output rows of one band of :func:`l3cli.multiscale_kernel.stage_rows` (its
+#: temporaries: the low-passes of these rows and the energy's halo).
+BAND_ROWS = 32
 
 
 def radius(sigma: float) -> int:
@@ -398,45 +358,194 @@ def radius(sigma: float) -> int:
     return int(TRUNCATE * float(sigma) + 0.5)
 
 
-def apply_stage(stage: Multiscale, y: np.ndarray, *, band_rows: int = BAND_ROWS) -> np.ndarray:
-    """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new array).
+_F32 = np.zeros((1, 1, 1), np.float32)
+_F32_2 = np.zeros((1, 1), np.float32)
+_U8 = np.zeros(1, np.uint8)
+_U16 = np.zeros(1, np.uint16)
 
-    The image is processed in bands of ``band_rows`` output rows, each with the
-    rows its low-passes and band energy reach (``radius(sigma_1) +
-    radius(sigma_n)`` above and below): the result is the whole image's, bit
-    for bit, with temporaries of one band.
+
+def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, **outs) -> None:
+    """:func:`l3cli.multiscale_kernel.stage_rows` on ``u`` (H, W, C) float32 in the stage's
+    coding: the pyramid of 2 x 2 block means, the coarse scales' low-resolution
+    Gaussians and their upsampling along the columns first."""
+    import numba
+
+    from l3cli.multiscale_kernel import half_means, stage_rows, upsample_cols
+
+    h, w, c = u.shape
+    sigmas = np.asarray(sigmas, dtype=np.float64)
+    ns = sigmas.size
+    fac = np.array([factor(s) for s in sigmas], dtype=np.int64)
+    pyramid = {1: u}  # f: the means of f x f blocks, each level from the one below
+    f = 2
+    while f <= fac.max():
+        below = pyramid[f // 2]
+        pyramid[f] = np.empty(((below.shape[0] + 1) // 2, (below.shape[1] + 1) // 2, c),
+                              np.float32)
+        half_means(below, pyramid[f])
+        f *= 2
+    from l3cli import buffers
+
+    sizes = [pyramid[int(f)].shape[0] * w * c if f > 1 else 0 for f in fac]
+    wides = buffers.empty((max(1, sum(sizes)),), np.float32)  # recycled in a folder's render
+    at = 0
+    rads = np.zeros(ns, np.int64)
+    taps = np.zeros((ns, max(radius(s) for s in sigmas) + 1), np.float32)
+    for j, (s, f) in enumerate(zip(sigmas, fac, strict=True)):
+        if f == 1:
+            t = gauss_taps(s)
+            taps[j, :t.size] = t
+            rads[j] = t.size - 1
+            continue
+        f = int(f)
+        lo = lowpass(pyramid[f], low_sigma(s, f))
+        num = 2 * np.arange(w, dtype=np.int64) + 1 - f  # the column's place among blocks
+        i0 = num // (2 * f)
+        ctx = (num - i0 * 2 * f).astype(np.float32) / np.float32(2 * f)
+        wide = wides[at:at + sizes[j]].reshape(lo.shape[0], w, c)
+        at += sizes[j]
+        upsample_cols(lo, np.clip(i0, 0, lo.shape[1] - 1), np.clip(i0 + 1, 0, lo.shape[1] - 1),
+                      ctx, wide)
+    e_taps = gauss_taps(sigmas[0]).astype(np.float32)
+    if stage is not None:
+        lc = stage.level_cuts.astype(np.float32)
+        ec = np.ascontiguousarray(stage.energy_cuts, dtype=np.float32)
+        blend, coded = stage.blend, stage.transfer == "srgb"
+    else:
+        lc, ec, blend, coded = np.zeros(0, np.float32), np.zeros((1, 0), np.float32), \
+            np.zeros((1, ns * c, c), np.float32), False
+    params = outs.get("params")
+    if params is None:
+        params = (False, np.eye(3), np.zeros(2, np.float32), np.zeros(1, np.uint16),
+                  np.zeros(2, np.float32), 16)
+    bits = outs.get("bits", 8)
+    out = outs.get("out")
+    direct = bool(outs.get("direct", False))
+    cell_code, uthr = direct_table() if direct else (np.zeros(2, np.uint8),
+                                                      np.zeros(2, np.float32))
+    stage_rows(u, wides, fac, taps, rads, e_taps, lc, ec, blend, coded,
+               *code_table(True), mode,
+               outs.get("stack", _F32), outs.get("coarse", _F32), outs.get("lev", _F32_2),
+               outs.get("en", _F32_2), outs.get("outf", _F32), *params,
+               out.reshape(-1) if out is not None and bits == 8 else _U8,
+               out.reshape(-1) if out is not None and bits == 16 else _U16, bits,
+               direct, cell_code, uthr, BAND_ROWS, 4 * numba.get_num_threads())
+    buffers.release(wides)
+
+
+#: Cells of [0, 1] of the direct 8-bit look-up (:func:`direct_table`).
+DIRECT_CELLS = 1024
+
+
+@functools.cache
+def direct_table() -> tuple[np.ndarray, np.ndarray]:
+    """The 8-bit display code of a value in the sRGB coding, without decoding it.
+
+    ``uthr[k]``: the smallest float32 ``v`` whose :func:`decode` the display
+    encoder (:func:`l3cli.io.encode.srgb_thresholds`) gives code ``k`` or more
+    (bisection over float32 bit patterns; ``uthr[256] = inf``); ``cell_code[i]``:
+    the code of ``i / DIRECT_CELLS``. So ``code(v) = cell_code[cell] + (v >=
+    uthr[cell_code[cell] + 1])``, with no cell holding two thresholds (checked).
     """
-    y = np.asarray(y, dtype=np.float32)
+    from l3cli.io.encode import srgb_thresholds
+
+    thr = srgb_thresholds(8, True)[0]
+    one = int(np.float32(1.0).view(np.int32))
+    lo = np.zeros(255, np.int64)  # bit patterns below each threshold ...
+    hi = np.full(255, one, np.int64)  # ... and reaching it (decode(1) = 1)
+    while np.any(hi - lo > 1):
+        mid = (lo + hi) // 2
+        ge = decode(mid.astype(np.int32).view(np.float32), "srgb") >= thr[1:256]
+        hi = np.where(ge, mid, hi)
+        lo = np.where(ge, lo, mid)
+    uthr = np.concatenate([[0.0], hi.astype(np.int32).view(np.float32), [np.inf]])
+    uthr = uthr.astype(np.float32)
+    starts = np.arange(DIRECT_CELLS + 1, dtype=np.float32) / np.float32(DIRECT_CELLS)
+    cell_code = (np.searchsorted(uthr[:256], starts, side="right") - 1).astype(np.uint8)
+    if np.any(np.diff(np.searchsorted(uthr, starts, side="left")) > 1):
+        raise RuntimeError("a cell of the direct 8-bit look-up holds two thresholds")
+    return cell_code, uthr
+
+
+def feature_maps(u: np.ndarray, sigmas) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The stage's features of ``u`` (H, W, C), the render in the stage's coding.
+
+    Returns
+    -------
+    stack : numpy.ndarray
+        float32 (H, W, n_scales * C): the bands ``b_0, ..., b_{n-1}`` one after another
+        along the last axis (channel ``c`` of band ``j`` at ``j * C + c``).
+    coarse : numpy.ndarray
+        float32 (H, W, C): ``lp_n``.
+    lev, en : numpy.ndarray
+        float32 (H, W): the coarse level and the band energy.
+    """
+    u = np.ascontiguousarray(u, dtype=np.float32)
+    h, w, c = u.shape
+    stack = np.empty((h, w, len(sigmas) * c), np.float32)
+    coarse = np.empty_like(u)
+    lev = np.empty((h, w), np.float32)
+    en = np.empty((h, w), np.float32)
+    if u.size:
+        from l3cli.multiscale_kernel import MODE_FEATURES
+
+        _run(sigmas, u, MODE_FEATURES, stack=stack, coarse=coarse, lev=lev, en=en)
+    return stack, coarse, lev, en
+
+
+def _coded(stage: Multiscale, y: np.ndarray, inplace: bool) -> np.ndarray:
+    y = np.ascontiguousarray(y, dtype=np.float32)
     if y.ndim != 3 or y.shape[2] != stage.n_out:
         raise ValueError(f"the multiscale stage takes (H, W, {stage.n_out}) images, "
                          f"got {y.shape}")
-    from l3cli import buffers
+    if stage.transfer == "none":
+        return y
+    return _transfer(y, inverse=False, out=y if inplace else None)
 
-    h = y.shape[0]
-    halo = radius(stage.sigmas[0]) + radius(stage.sigmas[-1])
-    step = max(1, int(band_rows))
-    out = np.empty_like(y)
-    rows = min(h, step + 2 * halo)  # the tallest band with its halo
-    work = buffers.empty((stage.work_size((rows,) + y.shape[1:]),), np.float32)
-    for b0 in range(0, h, step):
-        b1 = min(h, b0 + step)
-        a0, a1 = max(0, b0 - halo), min(h, b1 + halo)
-        stack, coarse, cls = stage.features(encode(y[a0:a1], stage.transfer), work=work)
-        part = blend_bands(stack, coarse, cls, stage.blend)
-        out[b0:b1] = decode(part[b0 - a0:b1 - a0], stage.transfer)
-        del stack, coarse
-    buffers.release(work)  # one allocation per image; recycled in a folder's render
+
+def apply_stage(stage: Multiscale, y: np.ndarray, *, inplace: bool = False) -> np.ndarray:
+    """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new
+    array; ``inplace``: ``y``'s memory is used for its coding)."""
+    from l3cli.multiscale_kernel import MODE_FLOAT
+
+    u = _coded(stage, y, inplace)
+    out = np.empty_like(u)
+    if u.size:
+        _run(stage.sigmas, u, MODE_FLOAT, stage=stage, outf=out)
     return out
 
 
-def blend_bands(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
-                blend: np.ndarray) -> np.ndarray:
-    """``coarse + sum_j A_{cls,j} b_j`` of a whole image's bands (:func:`bands`,
-    :func:`classes`), in the stage's coding: :func:`apply_stage` without its row bands."""
-    from l3cli.multiscale_kernel import blend_rows
+def apply_display(stage: Multiscale, y: np.ndarray, space: str, bits: int, *,
+                  inplace: bool = False) -> np.ndarray:
+    """The stage on ``y`` display-encoded (:func:`l3cli.io.encode.display_encode`'s
+    integers of :func:`apply_stage`'s output, row by row as it is blended: no float
+    output is held). ``lab`` tables take the float output and ``display_encode``."""
+    from l3cli.io.encode import display_encode, display_params
+    from l3cli.multiscale_kernel import MODE_DISPLAY
 
-    out = np.empty_like(coarse)
-    blend_rows(stack, coarse, cls, blend, out)
+    params = display_params(space, stage.n_out, bits)
+    if params is None:
+        return display_encode(apply_stage(stage, y, inplace=inplace), space, bits)
+    u = _coded(stage, y, inplace)
+    out = np.empty(u.shape, np.uint16 if bits == 16 else np.uint8)
+    direct = (bits == 8 and stage.transfer == "srgb" and stage.n_out == 3
+              and space == "linear-srgb")  # decoding and encoding: one look-up
+    if u.size:
+        _run(stage.sigmas, u, MODE_DISPLAY, stage=stage, params=tuple(params), bits=bits,
+             out=out, direct=direct)
+    return out
+
+
+def blend_features(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
+                   blend: np.ndarray) -> np.ndarray:
+    """``coarse + sum_r stack_r blend[cls, r]`` of :func:`feature_maps` (float32, in the
+    stage's coding): the blend :func:`apply_stage` makes, for callers that hold the
+    features (cross-validation)."""
+    r = stack.shape[2]
+    out = coarse.astype(np.float32, copy=True)
+    a = blend[cls]  # (H, W, R, C)
+    for i in range(r):
+        out += stack[..., i:i + 1] * a[:, :, i, :]
     return out
 
 
@@ -444,72 +553,3 @@ def apply(table, y: np.ndarray) -> np.ndarray:
     """The table's multi-scale stage on its rendered float output ``y`` (``y`` itself without one)."""
     stage = getattr(table, "multiscale", None)
     return y if stage is None else apply_stage(stage, y)
-
-
-# --------------------------------------------------------------------- fitting
-@dataclass(eq=False)
-class MultiscaleStats:
-    """Per-class normal equations of the blend (they add across images).
-
-    ``xtx[k] = sum stack stackᵀ``, ``xty[k] = sum stack (target - coarse)ᵀ``
-    over the pixels of class ``k``.
-    """
-
-    xtx: np.ndarray  # float64 (n_classes, R, R), R = n_scales * C
-    xty: np.ndarray  # float64 (n_classes, R, C)
-    n: np.ndarray    # int64 (n_classes,)
-
-    @classmethod
-    def zeros(cls, n_classes: int, n_scales: int, n_out: int) -> MultiscaleStats:
-        r = n_scales * n_out
-        return cls(np.zeros((n_classes, r, r)), np.zeros((n_classes, r, n_out)),
-                   np.zeros(n_classes, np.int64))
-
-    def __add__(self, other: MultiscaleStats) -> MultiscaleStats:
-        return MultiscaleStats(self.xtx + other.xtx, self.xty + other.xty, self.n + other.n)
-
-
-def accumulate(stats: MultiscaleStats, stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
-               target: np.ndarray, mask: np.ndarray | None = None) -> MultiscaleStats:
-    """Add one image's pixels (``mask``: those that train; None = all) to ``stats``."""
-    r = stack.shape[2]
-    x = stack.reshape(-1, r).astype(np.float64)
-    t = (np.asarray(target, dtype=np.float64) - coarse).reshape(x.shape[0], -1)
-    k = cls.reshape(-1)
-    if mask is not None:
-        m = np.asarray(mask, dtype=bool).reshape(-1)
-        x, t, k = x[m], t[m], k[m]
-    ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(t), axis=1)
-    x, t, k = x[ok], t[ok], k[ok]
-    order = np.argsort(k, kind="stable")
-    x, t, k = x[order], t[order], k[order]
-    bounds = np.searchsorted(k, np.arange(stats.n.size + 1))
-    for c in range(stats.n.size):
-        a, b = bounds[c], bounds[c + 1]
-        if b > a:
-            stats.xtx[c] += x[a:b].T @ x[a:b]
-            stats.xty[c] += x[a:b].T @ t[a:b]
-            stats.n[c] += b - a
-    return stats
-
-
-def solve(stats: MultiscaleStats, ridge: float, n_out: int) -> np.ndarray:
-    """The blend of each class: ridge regression shrunk towards ``A = I``.
-
-    ``A_k = argmin |t - X A|^2 + lam_k |A - I|^2`` with
-    ``lam_k = ridge * trace(XᵀX) / R``: a class with no data keeps the
-    identity (the L3 render unchanged).
-
-    Returns
-    -------
-    numpy.ndarray
-        float32 (n_classes, R, C).
-    """
-    nc, r, _ = stats.xtx.shape
-    prior = np.tile(np.eye(n_out), (r // n_out, 1))
-    out = np.empty((nc, r, n_out), dtype=np.float64)
-    for k in range(nc):
-        g = stats.xtx[k]
-        lam = ridge * max(np.trace(g) / r, 1e-300)
-        out[k] = np.linalg.solve(g + lam * np.eye(r), stats.xty[k] + lam * prior)
-    return out.astype(np.float32)

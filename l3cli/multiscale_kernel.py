@@ -1,22 +1,25 @@
 """The multi-scale stage's loops (:mod:`l3cli.multiscale`), in numba.
 
-* :func:`blend_rows`: ``out[y, x, c] = coarse[y, x, c] + sum_r stack[y, x, r] *
-  blend[cls[y, x], r, c]``, a gather of a small per-pixel matrix, which numpy
-  could only do with a (H, W, R, C) temporary; here rows run in parallel and
-  nothing is allocated.
-* :func:`gauss_rows` and :func:`gauss_cols`: the two passes of
-  ``scipy.ndimage.gaussian_filter(img, (s, s, 0), mode="reflect")`` on a float32
-  (H, W, C) image, with scipy's own arithmetic (``correlate1d`` of a symmetric
-  kernel: per output ``w[0] * x[0]``, then ``(x[-j] + x[j]) * w[j]`` added from
-  the outermost tap in, in float64; float32 between the passes), so the result
-  is scipy's bit for bit (a test checks it), vectorised along rows and in
-  parallel over them: scipy's generic line loop took 0.5-1.5 s per low-pass of a
-  9-MP image.
-* :func:`transfer_rows`: the stage's sRGB coding and its inverse, one pass with
-  numpy's float32 arithmetic (the same ``powf``), in parallel over rows.
-* :func:`level_rows` and :func:`class_rows`: the coarse level and the coarse
-  classes, parallel over rows (numpy's mean over the short channel axis and its
-  per-pixel gathers of the cuts took 0.1 s per band).
+* :func:`stage_rows`: the whole stage after its reduced-resolution low-passes,
+  in bands of rows run in parallel: the full-resolution low-passes (the finest,
+  sigma below 3 pixels), the bilinear upsampling of the coarser ones, the band
+  energy and level, the coarse class, and then either the feature maps
+  (training: :func:`l3cli.multiscale.feature_maps`) or the blend
+  ``coarse + sum_r stack_r blend[cls, r, c]``, decoded from the stage's
+  coding and written as float or display-encoded
+  (:func:`l3cli.io.encode_rows.encode_row`) while the row is in cache: one
+  code path for training and rendering, so both see the same bands and classes.
+* :func:`half_means`: the 2 x 2 block means of the pyramid the coarse low-passes
+  start from.
+* :func:`gauss_image`: the stage's Gaussian, ``scipy.ndimage.gaussian_filter(img,
+  (s, s, 0), mode="reflect")``'s order of operations (``correlate1d`` of a
+  symmetric kernel: per output ``w[0] * x[0]``, then ``(x[-j] + x[j]) * w[j]``
+  added from the outermost tap in, axis 0 first) in float32, vectorised along
+  rows; :func:`stage_rows` runs the same arithmetic per row for the
+  full-resolution low-passes and the energy.
+* :func:`code_rows`: the stage's coding (a table of the sRGB curve, linear in
+  between) and its inverse.
+* :func:`class_rows`: the coarse classes of level and energy maps.
 """
 
 from __future__ import annotations
@@ -24,27 +27,14 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from l3cli.io.encode_rows import encode_row
 from l3cli.startup import lean_cache
 
-__all__ = ["blend_rows", "class_rows", "gauss_cols", "gauss_rows", "level_rows",
-           "transfer_rows"]
+__all__ = ["class_rows", "code_rows", "gauss_image", "half_means",
+           "stage_rows", "upsample_cols"]
 
-
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def blend_rows(stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray, blend: np.ndarray,
-               out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """Fill ``out`` (H, W, C) with ``coarse + stack @ blend[cls]`` pixel by pixel."""
-    h, w, r = stack.shape
-    c = coarse.shape[2]
-    for y in nb.prange(h):
-        for x in range(w):
-            a = blend[cls[y, x]]
-            for j in range(c):
-                acc = coarse[y, x, j]
-                for i in range(r):
-                    acc += stack[y, x, i] * a[i, j]
-                out[y, x, j] = acc
+#: What :func:`stage_rows` writes: the feature maps, the float output, display integers.
+MODE_FEATURES, MODE_FLOAT, MODE_DISPLAY = 0, 1, 2
 
 
 @nb.njit(inline="always")
@@ -57,134 +47,419 @@ def _reflect(i: int, n: int) -> int:  # pragma: no cover - compiled
     return i if i < n else p - 1 - i
 
 
-#: Values of a row accumulated at a time (float64 sums that stay in the L1 cache).
-_CHUNK = 512
+@nb.njit(inline="always")
+def _class_of(v, e, level_cuts, energy_cuts):  # pragma: no cover - compiled
+    """The coarse class of a level ``v`` and energy ``e`` (float32): the level's bin times
+    the energy bins plus the energy's bin among its level's cuts (a value equal to a cut
+    falls in the bin above it)."""
+    nl = level_cuts.shape[0]
+    ne = energy_cuts.shape[1]
+    lb = 0
+    while lb < nl and level_cuts[lb] <= v:
+        lb += 1
+    eb = 0
+    for j in range(ne):
+        eb += np.int32(e >= energy_cuts[lb, j])
+    return lb * (ne + 1) + eb
+
+
+@nb.njit(inline="always")
+def _code(v, base, slope, first, last, inverse):  # pragma: no cover - compiled
+    """The stage's coding of one float32 value (``inverse``: its inverse): the sRGB
+    curve's linear segment exactly, above it the table's line through the curve's values
+    at the value's bucket ends (the value's float32 bits shifted right by
+    :data:`l3cli.multiscale.CODE_SHIFT`), the formula itself beyond the table."""
+    a = abs(v)
+    if inverse:
+        if a <= np.float32(0.04045):
+            return np.float32(np.copysign(a / np.float32(12.92), v))
+    elif a <= np.float32(0.0031308):
+        return np.float32(np.copysign(np.float32(12.92) * a, v))
+    bits = np.uint32(np.float32(a).view(np.uint32))
+    b = np.int64(bits >> np.uint32(14))
+    if b > last:  # far above white: the formula (rare)
+        if inverse:
+            o = ((a + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4)
+        else:
+            o = np.float32(1.055) * a ** np.float32(1 / 2.4) - np.float32(0.055)
+        return np.float32(np.copysign(o, v))
+    start = np.uint32(bits & np.uint32(0xFFFFC000)).view(np.float32)
+    k = b - first
+    return np.float32(np.copysign(base[k] + slope[k] * (a - start), v))
 
 
 @lean_cache
 @nb.njit(cache=True, parallel=True)
-def gauss_rows(src: np.ndarray, w: np.ndarray, dst: np.ndarray) -> None:  # pragma: no cover
-    """The low-pass along axis 0 of ``src`` (H, L) float32 into ``dst`` (H, L) float32.
-
-    ``w`` float64 (r + 1,): the kernel's centre tap and its taps at distance 1..r.
-    """
-    h, n = src.shape
-    r = w.shape[0] - 1
-    for y in nb.prange(h):
-        acc = np.empty(_CHUNK, dtype=np.float64)
-        s0 = src[y]
-        d = dst[y]
-        w0 = w[0]
-        for k0 in range(0, n, _CHUNK):
-            m = min(_CHUNK, n - k0)
-            for k in range(m):
-                acc[k] = np.float64(s0[k0 + k]) * w0
-            for j in range(r, 0, -1):
-                a = src[_reflect(y - j, h)]
-                b = src[_reflect(y + j, h)]
-                wj = w[j]
-                for k in range(m):
-                    acc[k] += (np.float64(a[k0 + k]) + np.float64(b[k0 + k])) * wj
-            for k in range(m):
-                d[k0 + k] = np.float32(acc[k])
-
-
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def gauss_cols(src: np.ndarray, w: np.ndarray, dst: np.ndarray) -> None:  # pragma: no cover
-    """The low-pass along axis 1 of ``src`` (H, W, C) float32 into ``dst`` (H, W, C)."""
-    h, wd, c = src.shape
-    r = w.shape[0] - 1
-    n = wd * c
-    for y in nb.prange(h):
-        pad = np.empty((wd + 2 * r) * c, dtype=np.float64)  # the row, reflected at both ends
-        row = src[y].reshape(n)
-        rc = np.uint64(r * c)
-        for k in range(n):  # the inside: a plain copy (no index arithmetic per value)
-            pad[rc + np.uint64(k)] = np.float64(row[k])
-        for x in range(1, r + 1):  # the reflected ends
-            sl = _reflect(-x, wd)
-            sr = _reflect(wd - 1 + x, wd)
-            for ch in range(c):
-                pad[(r - x) * c + ch] = np.float64(src[y, sl, ch])
-                pad[(r + wd - 1 + x) * c + ch] = np.float64(src[y, sr, ch])
-        acc = np.empty(_CHUNK, dtype=np.float64)
-        d = dst[y].reshape(n)
-        w0 = w[0]
-        for k0 in range(0, n, _CHUNK):
-            m = min(_CHUNK, n - k0)
-            o = np.uint64(r * c + k0)  # unsigned offsets: no per-value wrap-around code
-            for k in range(m):
-                acc[k] = pad[o + np.uint64(k)] * w0
-            for j in range(r, 0, -1):
-                lo = o - np.uint64(j * c)
-                hi = o + np.uint64(j * c)
-                wj = w[j]
-                for k in range(m):
-                    acc[k] += (pad[lo + np.uint64(k)] + pad[hi + np.uint64(k)]) * wj
-            for k in range(m):
-                d[k0 + k] = np.float32(acc[k])
-
-
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def transfer_rows(src: np.ndarray, dst: np.ndarray, inverse: bool) -> None:  # pragma: no cover
-    """The stage's sRGB coding (``inverse``: its inverse) of ``src`` (H, L) float32 into
-    ``dst``: :func:`l3cli.multiscale.encode` / ``decode``'s float32 steps, per value."""
+def code_rows(src, dst, base, slope, first, last, inverse):  # pragma: no cover - compiled
+    """The stage's coding (:func:`_code`) of ``src`` (H, L) float32 into ``dst``."""
     h, n = src.shape
     for y in nb.prange(h):
-        s = src[y]
-        d = dst[y]
         for k in range(n):
-            v = s[k]
-            a = abs(v)
-            if inverse:
-                if a <= np.float32(0.04045):
-                    o = a / np.float32(12.92)
-                else:
-                    o = ((a + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4)
-            else:
-                if a <= np.float32(0.0031308):
-                    o = np.float32(12.92) * a
-                else:
-                    o = np.float32(1.055) * a ** np.float32(1 / 2.4) - np.float32(0.055)
-            d[k] = np.float32(np.copysign(o, v))
-
-
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def level_rows(coarse: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """The channel mean of ``coarse`` (H, W, C) into ``out`` (H, W), float32
-    ``((c0 + c1) + c2 ...) / C`` as numpy's mean over a short last axis."""
-    h, w, c = coarse.shape
-    cf = np.float32(c)
-    for y in nb.prange(h):
-        for x in range(w):
-            s = coarse[y, x, 0]
-            for ch in range(1, c):
-                s += coarse[y, x, ch]
-            out[y, x] = s / cf
+            dst[y, k] = _code(src[y, k], base, slope, first, last, inverse)
 
 
 @lean_cache
 @nb.njit(cache=True, parallel=True)
 def class_rows(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
                energy_cuts: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
-    """The coarse class of every pixel into ``out`` (H, W) int32: the bin of ``lev``
-    among ``level_cuts`` times the energy bins, plus the bin of ``en`` among its
-    level's ``energy_cuts`` (float32; a value equal to a cut falls in the bin above
-    it: :func:`l3cli.multiscale.classes`)."""
+    """The coarse class (:func:`_class_of`) of every pixel into ``out`` (H, W) int32."""
     h, w = lev.shape
-    nl = level_cuts.shape[0]
-    ne = energy_cuts.shape[1]
     for y in nb.prange(h):
         for x in range(w):
-            v = lev[y, x]
-            lb = 0
-            while lb < nl and level_cuts[lb] <= v:
-                lb += 1
-            e = en[y, x]
-            eb = 0
-            for j in range(ne):
-                eb += np.int32(e >= energy_cuts[lb, j])
-            out[y, x] = lb * (ne + 1) + eb
+            out[y, x] = _class_of(lev[y, x], en[y, x], level_cuts, energy_cuts)
+
+
+@nb.njit(inline="always")
+def _vertical(u, y, w, d):  # pragma: no cover - compiled
+    """Row ``y`` of the low-pass along axis 0 of ``u`` (H, L) into ``d`` (L,), float32:
+    ``w[0] x[y]``, then ``(x[y - j] + x[y + j]) w[j]`` added from the outermost tap in
+    (rows reflected at the ends, scipy's ``"reflect"``)."""
+    h, n = u.shape
+    r = w.shape[0] - 1
+    s0 = u[y]
+    w0 = w[0]
+    for k in range(n):
+        d[k] = s0[k] * w0
+    for j in range(r, 0, -1):
+        a = u[_reflect(y - j, h)]
+        b = u[_reflect(y + j, h)]
+        wj = w[j]
+        for k in range(n):
+            d[k] += (a[k] + b[k]) * wj
+
+
+@nb.njit(inline="always")
+def _horizontal(row, wd, c, w, pad, d):  # pragma: no cover - compiled
+    """The low-pass along a row ``row`` (wd * c,) of ``c`` channels into ``d``: the
+    arithmetic of :func:`_vertical`, columns reflected at the ends (``pad``: float32
+    scratch of at least (wd + 2 r) * c)."""
+    r = w.shape[0] - 1
+    n = wd * c
+    rc = np.uint64(r * c)  # unsigned offsets: no wrap-around code per value
+    for k in range(n):
+        pad[rc + np.uint64(k)] = row[k]
+    for x in range(1, r + 1):  # the reflected ends
+        sl = _reflect(-x, wd)
+        sr = _reflect(wd - 1 + x, wd)
+        for ch in range(c):
+            pad[(r - x) * c + ch] = row[sl * c + ch]
+            pad[(r + wd - 1 + x) * c + ch] = row[sr * c + ch]
+    w0 = w[0]
+    for k in range(n):
+        d[k] = pad[rc + np.uint64(k)] * w0
+    for j in range(r, 0, -1):
+        lo = rc - np.uint64(j * c)
+        hi = rc + np.uint64(j * c)
+        wj = w[j]
+        for k in range(n):
+            d[k] += (pad[lo + np.uint64(k)] + pad[hi + np.uint64(k)]) * wj
+
+
+@lean_cache
+@nb.njit(cache=True, parallel=True)
+def gauss_image(src, w, tmp, dst):  # pragma: no cover - compiled
+    """The separable Gaussian of each channel of ``src`` (H, W, C) float32 into ``dst``:
+    along axis 0 (:func:`_vertical`) into ``tmp``, then along axis 1 (:func:`_horizontal`);
+    ``w`` float32 (r + 1,): the centre tap and the taps at distance 1..r."""
+    h, wd, c = src.shape
+    n = wd * c
+    s2 = src.reshape(h, n)
+    t2 = tmp.reshape(h, n)
+    d2 = dst.reshape(h, n)
+    for y in nb.prange(h):
+        _vertical(s2, y, w, t2[y])
+    for y in nb.prange(h):
+        pad = np.empty((wd + 2 * w.shape[0]) * c, dtype=np.float32)
+        _horizontal(t2[y], wd, c, w, pad, d2[y])
+
+
+@nb.njit(inline="always")
+def _upsample_row(wide, f, y, d):  # pragma: no cover - compiled
+    """Row ``y`` of the bilinear upsampling by ``f`` into ``d`` (L,) from ``wide``
+    (h, L): the low-resolution rows already upsampled along their columns
+    (:func:`upsample_cols`). The row at ``s = (2 y + 1 - f) / (2 f)``: the rows on
+    either side with weights ``1 - t`` and ``t`` (clamped at the ends)."""
+    hl = wide.shape[0]
+    num = 2 * y + 1 - f
+    i0 = num // (2 * f)
+    t = np.float32(num - i0 * 2 * f) / np.float32(2 * f)
+    i1 = min(max(i0 + 1, 0), hl - 1)
+    i0 = min(max(i0, 0), hl - 1)
+    t0 = np.float32(1.0) - t
+    a = wide[i0]
+    b = wide[i1]
+    for k in range(d.shape[0]):
+        d[k] = t0 * a[k] + t * b[k]
+
+
+@lean_cache
+@nb.njit(cache=True, parallel=True)
+def upsample_cols(lo, cx0, cx1, ctx, out):  # pragma: no cover - compiled
+    """The bilinear upsampling of ``lo`` (h, w, C) along its columns into ``out``
+    (h, W, C): column ``x`` from the columns ``cx0[x]``, ``cx1[x]`` with weights
+    ``1 - ctx[x]``, ``ctx[x]`` (float32)."""
+    hl, _, c = lo.shape
+    wd = cx0.shape[0]
+    for i in nb.prange(hl):
+        r = lo[i]
+        o = out[i]
+        for x in range(wd):
+            p = cx0[x]
+            q = cx1[x]
+            tx = ctx[x]
+            tx0 = np.float32(1.0) - tx
+            for ch in range(c):
+                o[x, ch] = tx0 * r[p, ch] + tx * r[q, ch]
+
+
+@nb.njit(inline="always")
+def _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, j, yy, pad, vrow,
+               d):  # pragma: no cover - compiled
+    """Row ``yy`` of scale ``j``'s low-pass into ``d`` (W * C,): the full-resolution
+    Gaussian (:func:`gauss_image`'s arithmetic) or the bilinear upsampling of its
+    low-resolution low-pass (:func:`_upsample_row`)."""
+    if fac[j] == 1:
+        wj = taps[j, :rads[j] + 1]
+        _vertical(u2, yy, wj, vrow)
+        _horizontal(vrow, wd, c, wj, pad, d)
+    else:
+        _upsample_row(wides[offs[j]:offs[j + 1]].reshape(hls[j], wd * c), fac[j], yy, d)
+
+
+@nb.njit(inline="always")
+def _direct_code(v, cell_code, uthr):  # pragma: no cover - compiled
+    """The 8-bit display code of a blended value ``v`` in the stage's coding: the code
+    at the start of its cell of ``1 / (len(cell_code) - 1)`` (``cell_code``), one more
+    where ``v`` reaches the next threshold (``uthr``: the smallest value of each code;
+    no cell holds two). NaN and values below 0 give 0, values from 1 up the last cell's."""
+    if not v > np.float32(0.0):
+        return np.uint8(0)
+    top = cell_code.shape[0] - 1
+    cell = np.int64(min(v, np.float32(1.0)) * np.float32(top))
+    q = np.int64(cell_code[cell])
+    if q < 255:
+        q += np.int64(v >= uthr[q + 1])
+    return np.uint8(q)
+
+
+@lean_cache
+@nb.njit(cache=True, parallel=True)
+def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend,
+               coded, base, slope, first, last, mode, stack, coarse, lev, en, outf,
+               use_matrix, m, thr, buckets, interp, shift, out8, out16, bits,
+               direct, cell_code, uthr, band_rows, n_chunks):  # pragma: no cover - compiled
+    """The stage on ``u`` (H, W, C) float32, the render in the stage's coding.
+
+    ``wides``: the coarse scales' low-passes at reduced resolution, upsampled along
+    their columns (:func:`upsample_cols`), one flat float32 array of (h_j, W, C)
+    blocks in scale order (scales with ``fac[j] > 1``);
+    ``taps`` (n_scales, r_max + 1) float32 and ``rads`` (n_scales,): the
+    full-resolution scales' kernels (``fac[j] == 1``: :func:`gauss_image`'s taps,
+    ``rads[j] + 1`` of them); ``e_taps``: the energy's low-pass;
+    ``mode``: :data:`MODE_FEATURES` fills ``stack``
+    (H, W, n_scales C), ``coarse`` (H, W, C), ``lev``, ``en`` (H, W);
+    :data:`MODE_FLOAT` the decoded blend into ``outf`` (H, W, C);
+    :data:`MODE_DISPLAY` its display integers into ``out8`` / ``out16`` (flat)
+    through :func:`l3cli.io.encode_rows.encode_row` with the encoder's parameters.
+    Bands of ``band_rows`` rows, in ``n_chunks`` runs of bands in parallel (each with
+    its own temporaries).
+    ``coded``: the stage works in the sRGB coding, whose inverse (:func:`_code` with the
+    table ``base``, ``slope``, ``first``, ``last``) the blend is decoded by.
+    ``direct``: 8-bit display codes straight from the blend (the decoding and the
+    encoder in one look-up: ``cell_code``, ``uthr``, :func:`_direct_code`).
+    """
+    h, wd, c = u.shape
+    ns = fac.shape[0]
+    re = e_taps.shape[0] - 1
+    n = wd * c
+    u2 = u.reshape(h, n)
+    offs = np.zeros(ns + 1, dtype=np.int64)
+    hls = np.zeros(ns, dtype=np.int64)
+    for j in range(ns):
+        f = fac[j]
+        if f > 1:
+            hl = h
+            g = 1
+            while g < f:  # the pyramid's heights: halved, rounded up, level by level
+                hl = (hl + 1) // 2
+                g *= 2
+            hls[j] = hl
+        offs[j + 1] = offs[j] + hls[j] * n
+    n_bands = (h + band_rows - 1) // band_rows
+    n_chunks = max(1, min(n_bands, n_chunks))
+    nl = level_cuts.shape[0]
+    ne = energy_cuts.shape[1]
+    cf = np.float32(c)
+    cu = np.uint64(c)
+    bf = blend.reshape(-1)  # class k, band value r, channel ch at (k * R + r) * C + ch
+    ecf = energy_cuts.reshape(-1)
+    for ck in nb.prange(n_chunks):
+        span = band_rows + 2 * re
+        cc = np.empty((span, n), dtype=np.float32)  # the coarsest low-pass, halo included
+        lp = np.empty((ns, n), dtype=np.float32)  # the finer low-passes of one row
+        st = np.empty((ns, n), dtype=np.float32)  # one row's bands, band by band
+        e_rows = np.empty((span, wd), dtype=np.float32)
+        vrow = np.empty(n, dtype=np.float32)
+        pad = np.empty((wd + 2 * max(taps.shape[1], e_taps.shape[0])) * c, dtype=np.float32)
+        e_col = np.empty(wd, dtype=np.float32)
+        e_out = np.empty(wd, dtype=np.float32)
+        orow = np.empty(n, dtype=np.float32)
+        lin = np.empty(n, dtype=np.float32)
+        lvr = np.empty(wd, dtype=np.float32)
+        cls = np.empty(wd, dtype=np.int64)
+        b_lo = ck * n_bands // n_chunks
+        b_hi = (ck + 1) * n_bands // n_chunks
+        for bi in range(b_lo, b_hi):
+            y0 = bi * band_rows
+            y1 = min(h, y0 + band_rows)
+            a0 = y0 - re
+            for k in range(y1 - y0 + 2 * re):  # the coarsest low-pass and the energy
+                yy = _reflect(a0 + k, h)
+                ck_row = cc[k]
+                _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, ns - 1, yy, pad, vrow,
+                           ck_row)
+                ur = u2[yy]
+                er = e_rows[k]
+                for x in range(wd):  # unsigned indices: no wrap-around code per value
+                    b0 = np.uint64(x) * cu
+                    sq = np.float32(0.0)
+                    for ch in range(c):
+                        dv = ur[b0 + np.uint64(ch)] - ck_row[b0 + np.uint64(ch)]
+                        sq += dv * dv
+                    er[x] = sq / cf
+            for y in range(y0, y1):
+                k = y - a0
+                w0 = e_taps[0]  # the energy: its low-pass along axis 0, then axis 1
+                for x in range(wd):
+                    e_col[x] = e_rows[k, x] * w0
+                for j in range(re, 0, -1):
+                    wj = e_taps[j]
+                    a = e_rows[k - j]
+                    b = e_rows[k + j]
+                    for x in range(wd):
+                        e_col[x] += (a[x] + b[x]) * wj
+                _horizontal(e_col, wd, 1, e_taps, pad, e_out)
+                ur = u2[y]
+                crow = cc[k]
+                for j in range(ns - 1):
+                    _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, j, y, pad, vrow,
+                               lp[j])
+                for j in range(ns):  # the bands: finer minus coarser low-pass
+                    fin = ur if j == 0 else lp[j - 1]
+                    crs = crow if j == ns - 1 else lp[j]
+                    sr = st[j]
+                    for q in range(n):
+                        sr[q] = fin[q] - crs[q]
+                for x in range(wd):  # the level and the energy
+                    b0 = np.uint64(x) * cu
+                    sv = crow[b0]
+                    for ch in range(1, c):
+                        sv += crow[b0 + np.uint64(ch)]
+                    lvr[x] = sv / cf
+                    ev = e_out[x]
+                    e_out[x] = np.sqrt(ev if ev > np.float32(0.0) else np.float32(0.0))
+                if mode == MODE_FEATURES:
+                    for x in range(wd):
+                        b0 = np.uint64(x) * cu
+                        lev[y, x] = lvr[x]
+                        en[y, x] = e_out[x]
+                        for j in range(ns):
+                            for ch in range(c):
+                                stack[y, x, j * c + ch] = st[j, b0 + np.uint64(ch)]
+                        for ch in range(c):
+                            coarse[y, x, ch] = crow[b0 + np.uint64(ch)]
+                    continue
+                for x in range(wd):  # the class (_class_of, as counts: the cuts increase)
+                    cls[x] = 0
+                for i in range(nl):
+                    cut = level_cuts[i]
+                    for x in range(wd):
+                        cls[x] += np.int64(cut <= lvr[x])
+                for x in range(wd):
+                    lb = np.uint64(cls[x])
+                    eb = lb * np.uint64(ne + 1)
+                    row = lb * np.uint64(ne)
+                    ev = e_out[x]
+                    for i in range(ne):
+                        eb += np.uint64(ev >= ecf[row + np.uint64(i)])
+                    cls[x] = np.int64(eb)
+                for x in range(wd):  # the blend of the pixel's class
+                    b0 = np.uint64(x) * cu
+                    ab = np.uint64(cls[x]) * np.uint64(ns * c * c)
+                    if c == 3:  # the same sums, the band values loaded once
+                        i1 = b0 + np.uint64(1)
+                        i2 = b0 + np.uint64(2)
+                        s0 = crow[b0]
+                        s1 = crow[i1]
+                        s2 = crow[i2]
+                        for j in range(ns):
+                            sj = st[j]
+                            for ch in range(3):
+                                v = sj[b0 + np.uint64(ch)]
+                                q = ab + np.uint64((j * 3 + ch) * 3)
+                                s0 += v * bf[q]
+                                s1 += v * bf[q + np.uint64(1)]
+                                s2 += v * bf[q + np.uint64(2)]
+                        orow[b0] = s0
+                        orow[i1] = s1
+                        orow[i2] = s2
+                    else:
+                        for ch in range(c):
+                            sv = crow[b0 + np.uint64(ch)]
+                            for j in range(ns):
+                                for i in range(c):
+                                    q = ab + np.uint64(((j * c + i) * c) + ch)
+                                    sv += st[j, b0 + np.uint64(i)] * bf[q]
+                            orow[b0 + np.uint64(ch)] = sv
+                if mode == MODE_FEATURES:
+                    continue
+                if direct:
+                    o8 = np.uint64(y * n)
+                    for q in range(n):
+                        out8[o8 + np.uint64(q)] = _direct_code(orow[q], cell_code, uthr)
+                    continue
+                if coded:
+                    for q in range(n):
+                        lin[q] = _code(orow[q], base, slope, first, last, True)
+                else:
+                    for q in range(n):
+                        lin[q] = orow[q]
+                if mode == MODE_FLOAT:
+                    o = outf[y].reshape(n)
+                    for q in range(n):
+                        o[q] = lin[q]
+                else:
+                    encode_row(lin, n, use_matrix, m, thr, buckets, interp, shift, orow,
+                               out8, out16, bits, y * n)
+
+
+@lean_cache
+@nb.njit(cache=True, parallel=True)
+def half_means(src: np.ndarray, dst: np.ndarray) -> None:  # pragma: no cover - compiled
+    """The mean of each 2 x 2 block of ``src`` (H, W, C) float32 into ``dst``
+    (ceil(H / 2), ceil(W / 2), C): per block ``(a + b) + (c + d)`` over its rows' sums
+    (``a + c``, ``b + d``, float32), divided by its pixel count (blocks at the far
+    edges are cut short: 2 or 1 pixels)."""
+    h, w, c = src.shape
+    hl, wl = dst.shape[0], dst.shape[1]
+    n = w * c
+    for by in nb.prange(hl):
+        y0 = 2 * by
+        r0 = src[y0].reshape(n)
+        rs = np.empty(n, dtype=np.float32)
+        if y0 + 1 < h:
+            r1 = src[y0 + 1].reshape(n)
+            for k in range(n):
+                rs[k] = r0[k] + r1[k]
+        else:
+            for k in range(n):
+                rs[k] = r0[k]
+        rows = np.float32(2.0 if y0 + 1 < h else 1.0)
+        d = dst[by]
+        for bx in range(w // 2):
+            for ch in range(c):
+                d[bx, ch] = (rs[2 * bx * c + ch] + rs[(2 * bx + 1) * c + ch]) / (
+                    rows * np.float32(2.0))
+        if w % 2:
+            for ch in range(c):
+                d[wl - 1, ch] = rs[(w - 1) * c + ch] / rows

@@ -206,10 +206,22 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
     s = max(table.patch, *table.cfa.period) * 2
     tiny = np.zeros((s, s), dtype=np.float32)
     with _RENDER_LOCK:
-        if out_path is not None and Path(out_path).suffix.lower() != ".exr":
+        display = out_path is not None and Path(out_path).suffix.lower() != ".exr"
+        bits = 8
+        if display:
             from l3cli.io.image import format_of
 
-            render_display(table, tiny, 16 if format_of(out_path) == "tiff" else 8)
+            bits = 16 if format_of(out_path) == "tiff" else 8
+        if getattr(table, "multiscale", None) is not None:  # the stage's loops too
+            from l3cli import multiscale
+
+            y = render_mosaic(table, tiny)
+            if display:
+                multiscale.apply_display(table.multiscale, y, table.output_space, bits)
+            else:
+                multiscale.apply_stage(table.multiscale, y)
+        elif display:
+            render_display(table, tiny, bits)
         else:
             render_mosaic(table, tiny)
 
@@ -261,10 +273,19 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     mosaic = kernels.prepare_mosaic(raw.mosaic, inplace=True)  # the decode is ours
     t1 = time.perf_counter()
     with turn if turn is not None else contextlib.nullcontext():
-        if fmt == "exr" or table.multiscale is not None:  # the stage takes the float render
+        if table.multiscale is not None:  # the stage takes the float render
+            with _RENDER_LOCK:
+                y = render_mosaic(kernels, mosaic)
+                if fmt == "exr":  # noise reduction beyond the patch
+                    img = multiscale.apply_stage(table.multiscale, y, inplace=True)
+                else:  # display-encoded as each row is blended
+                    img = multiscale.apply_display(table.multiscale, y, table.output_space,
+                                                   16 if fmt == "tiff" else 8, inplace=True)
+            buffers.release(y)
+            del y
+        elif fmt == "exr":
             with _RENDER_LOCK:
                 img = render_mosaic(kernels, mosaic)
-                img = multiscale.apply(table, img)  # noise reduction beyond the patch
         else:
             img = _render_display(kernels, mosaic, 16 if fmt == "tiff" else 8)
     t2 = time.perf_counter()

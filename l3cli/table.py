@@ -59,7 +59,7 @@ that cannot apply it refuses the table; version 3 when it also holds a
 multi-scale stage); every other table as version 1.
 
 A table with a multi-scale stage (``l3 train --multiscale``, :mod:`l3cli.multiscale`)
-holds the optional keys ``multiscale_rule`` (str, ``"gauss-bands-v1"``),
+holds the optional keys ``multiscale_rule`` (str, ``"gauss-bands-v2"``),
 ``multiscale_sigmas`` (float64 (n_scales,)), ``multiscale_level_cuts`` (float64
 (n_levels - 1,)), ``multiscale_energy_cuts`` (float64 (n_levels, n_energy - 1)),
 ``multiscale_blend`` (float32 (n_levels * n_energy, n_scales * n_out, n_out)) and

@@ -10,15 +10,8 @@ import pytest
 
 from l3cli import defaults
 from l3cli.errors import TableError
-from l3cli.multiscale import (
-    TRUNCATE,
-    Multiscale,
-    MultiscaleStats,
-    accumulate,
-    apply_stage,
-    place_cuts,
-    solve,
-)
+from l3cli.multiscale import TRUNCATE, Multiscale, apply_stage, feature_maps
+from l3cli.train.multiscale import MultiscaleStats, accumulate, place_cuts, solve
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,10 +40,17 @@ def test_srgb_coding_is_the_iec_curve_and_inverts():
 
     from l3cli.multiscale import decode, encode
 
-    v = np.linspace(0, 1, 1001, dtype=np.float32)
+    # the coding is a table, linear between the curve's values 512 times per octave: the
+    # chord of x ** (1 / 2.4) over a step of h = x / 512 is off by at most
+    # p (1 - p) / 8 (h / x)² x = 1.2e-7 x, plus float32 rounding (6e-8)
+    v = np.linspace(0, 1, 100_001, dtype=np.float32)
     np.testing.assert_allclose(encode(v, "srgb"), colour.cctf_encoding(v.astype(np.float64),
                                                                         function="sRGB"),
-                               atol=2e-6)
+                               atol=3e-7)
+    # the inverse: p (p - 1) / 8 (1 / 512)² = 1.6e-6 relative, plus rounding
+    np.testing.assert_allclose(decode(v, "srgb"), colour.cctf_decoding(v.astype(np.float64),
+                                                                        function="sRGB"),
+                               rtol=2e-6, atol=1e-9)
     w = np.linspace(-3, 3, 2001, dtype=np.float32)
     np.testing.assert_allclose(encode(-w, "srgb"), -encode(w, "srgb"), atol=0)
     np.testing.assert_allclose(decode(encode(w, "srgb"), "srgb"), w, rtol=1e-5, atol=1e-7)
@@ -59,8 +59,8 @@ def test_srgb_coding_is_the_iec_curve_and_inverts():
 
 def test_zero_blend_returns_the_coarsest_lowpass():
     # A = 0: out = lp_n, a Gaussian of the image; on a delta far from the borders
-    # that is the 2-D Gaussian's own taps
-    sigma = 3.0
+    # that is the 2-D Gaussian's own taps (sigma < 3: at full resolution)
+    sigma = 2.5
     stage = Multiscale.identity(1, (1.0, sigma))
     stage.blend[:] = 0
     y = np.zeros((41, 41, 1), np.float32)
@@ -71,15 +71,46 @@ def test_zero_blend_returns_the_coarsest_lowpass():
     np.testing.assert_allclose(out[20 - r:21 + r, 20 - r:21 + r], np.outer(g, g), atol=1e-6)
 
 
+@pytest.mark.parametrize("sigma", [3.0, 9.0, 6.0])
+def test_reduced_resolution_lowpass_has_the_gaussians_variance(sigma):
+    """A coarse low-pass (block means, a Gaussian on them, bilinear upsampling) of a
+    delta keeps its mass, and its second moment about the delta, averaged over the
+    delta's place among the blocks, is the sum of its parts' variances (the block
+    centre's offset from the delta, (f² - 1) / 12; the taps', scaled by f²; the
+    interpolation's, f² / 6): sigma² less what the 3-sigma truncation of the Gaussian
+    takes away."""
+    from l3cli.multiscale import factor, low_sigma
+
+    f = factor(sigma)
+    assert f == {3.0: 2, 6.0: 4, 9.0: 4}[sigma]
+    stage = Multiscale.identity(1, (1.0, sigma))
+    stage.blend[:] = 0
+    n = 8 * int(sigma) + 40
+    variances = []
+    for phase in range(f):
+        y = np.zeros((n, n, 1), np.float32)
+        c = n // 2 + phase
+        y[c, c, 0] = 1.0
+        out = apply_stage(stage, y)[..., 0].astype(np.float64)
+        assert abs(out.sum() - 1.0) < 1e-5
+        rows = out.sum(axis=1)
+        pos = np.arange(n) - c
+        # centred on the delta's block: at most (f - 1) / 2 off the delta
+        assert abs((rows * pos).sum()) <= (f - 1) / 2 + 1e-4
+        variances.append((rows * pos ** 2).sum())
+    taps = _gauss_taps(low_sigma(sigma, f))
+    x = np.arange(taps.size) - taps.size // 2
+    want = (f * f - 1) / 12 + f * f * (taps * x ** 2).sum() + f * f / 6
+    assert want < sigma ** 2 and want > 0.95 * sigma ** 2
+    np.testing.assert_allclose(np.mean(variances), want, rtol=0.02)
+
+
 def test_fit_recovers_a_known_blend():
     # target = lp_n + sum_j A_true[k, j] b_j exactly: the per-class solve gives A_true back
     rng = np.random.default_rng(1)
     y = rng.random((96, 128, 3), dtype=np.float32)
-    probe = Multiscale.identity(3, (1.0, 3.0))
-    stack, coarse, _ = probe.features(y)
-    from l3cli.multiscale import energy, level
-
-    lc, ec = place_cuts(level(coarse), energy(y, coarse, 1.0), 2, 2)
+    _, _, lev, en = feature_maps(y, (1.0, 3.0))
+    lc, ec = place_cuts(lev, en, 2, 2)
     shape = Multiscale.identity(3, (1.0, 3.0), lc, ec)
     stack, coarse, cls = shape.features(y)
     assert set(np.unique(cls)) == {0, 1, 2, 3}
@@ -160,6 +191,11 @@ def test_table_round_trip_and_refusals(tmp_path):
     refused(lambda a: a.pop("multiscale_counts"), "missing keys multiscale_counts")
     refused(lambda a: a.update(version=np.array(1)), "holds multiscale_")
     refused(lambda a: a.update(multiscale_rule=np.array("gauss-bands-v9")), "not supported")
+    # a table of the previous rule (full-resolution low-passes) still loads, the same stage
+    old = dict(arrs, multiscale_rule=np.array("gauss-bands-v1"))
+    np.savez(tmp_path / "old.npz", **old)
+    kept = load_table(tmp_path / "old.npz").multiscale
+    np.testing.assert_array_equal(kept.blend, stage.blend)
     refused(lambda a: a.update(multiscale_sigmas=np.array([6.0, 2.0])), "increasing")
     refused(lambda a: a.update(multiscale_transfer=np.array("gamma")), "transfer 'gamma'")
     refused(lambda a: [a.pop(k) for k in list(a) if k.startswith("multiscale_")],
@@ -198,7 +234,7 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
     raw = read_raw(raw_path)
     ks = prepare_kernels(table, raw)
     expected = apply_stage(table.multiscale, render_mosaic(ks, ks.prepare_mosaic(raw.mosaic)))
-    for suffix in (".exr", ".tif"):
+    for suffix in (".exr", ".tif", ".png"):
         out = tmp_path / f"r{suffix}"
         res = runner.invoke(cli, ["-q", "render", str(tmp_path / "ms.npz"), str(raw_path),
                                   "-o", str(out)])
@@ -206,6 +242,11 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
         img = read_image(out)[0]
         if suffix == ".exr":
             np.testing.assert_allclose(img, expected, atol=1e-6)
+        elif suffix == ".png":  # 8 bits, encoded as each row is blended: the same codes
+            from l3cli.io.encode import display_encode
+
+            codes = display_encode(expected, table.output_space, 8).astype(np.int64)
+            np.testing.assert_array_equal(np.round(img * 255).astype(np.int64), codes)
         else:  # display sRGB of the staged float render, within one 16-bit code
             from l3cli.io.encode import display_encode
 
@@ -214,24 +255,29 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
     assert json.loads(json.dumps(table.provenance["multiscale"]))["levels"] == defaults.MULTISCALE_LEVELS
 
 
-def test_bands_of_rows_give_the_whole_image_bit_for_bit():
+def test_bands_of_rows_give_the_whole_image_bit_for_bit(monkeypatch):
+    import l3cli.multiscale as ms
+
     rng = np.random.default_rng(4)
     y = rng.random((157, 64, 3), dtype=np.float32) * 1.1
     stage = Multiscale(np.array([1.0, 3.0, 9.0]), np.array([0.4, 0.6]),
                        np.array([[0.05, 0.1], [0.05, 0.1], [0.05, 0.2]]),
                        rng.normal(size=(9, 9, 3)), np.ones(9, np.int64), "srgb")
-    whole = apply_stage(stage, y, band_rows=10_000)
+    monkeypatch.setattr(ms, "BAND_ROWS", 10_000)
+    whole = apply_stage(stage, y)
     for rows in (1, 17, 64, 156):
-        np.testing.assert_array_equal(apply_stage(stage, y, band_rows=rows), whole)
+        monkeypatch.setattr(ms, "BAND_ROWS", rows)
+        np.testing.assert_array_equal(apply_stage(stage, y), whole)
     assert not np.allclose(whole, y, atol=1e-3)  # the blend did change the image
 
 
 @pytest.mark.parametrize("shape", [(157, 64, 3), (5, 7, 3), (40, 33, 1), (1, 90, 2)])
 @pytest.mark.parametrize("sigma", [1.0, 3.0, 9.0, 2.5])
-def test_lowpass_is_scipys_gaussian_filter_bit_for_bit(shape, sigma):
-    """The numba low-pass against ``scipy.ndimage.gaussian_filter`` (what the stage was
-    defined and trained with), including images smaller than the kernel (reflected
-    more than once)."""
+def test_lowpass_is_scipys_gaussian_filter(shape, sigma):
+    """The numba low-pass against ``scipy.ndimage.gaussian_filter``, including images
+    smaller than the kernel (reflected more than once): the same taps and order in
+    float32 instead of float64 sums, so within a few float32 roundings of the values'
+    size (|values| < 3: 1e-6)."""
     from scipy.ndimage import gaussian_filter
 
     from l3cli.multiscale import lowpass
@@ -240,7 +286,7 @@ def test_lowpass_is_scipys_gaussian_filter_bit_for_bit(shape, sigma):
     want = gaussian_filter(img, sigma=(sigma, sigma, 0.0), mode="reflect", truncate=TRUNCATE)
     got = lowpass(img, sigma)
     assert got.dtype == np.float32
-    np.testing.assert_array_equal(got, want)
+    np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
     # the taps are the Gaussian written out here
     from l3cli.multiscale import gauss_taps
 
@@ -248,49 +294,67 @@ def test_lowpass_is_scipys_gaussian_filter_bit_for_bit(shape, sigma):
     np.testing.assert_allclose(gauss_taps(sigma), taps[taps.size // 2:], rtol=1e-12)
 
 
-def test_srgb_coding_is_the_float32_expression_within_the_powers_ulps():
-    """encode/decode (one numba pass) against numpy's float32 steps and the float64
-    curve, on values of both signs, at the segment joins, tiny and large.
-
-    The linear segments are one IEEE operation (a product or quotient, correctly
-    rounded by both): equal bit for bit, as is the sign. The power segments use two
-    libraries' float32 ``pow`` (numpy's, which dispatches to SIMD code such as its
-    AVX-512 path on some CPUs, and numba's libm call), each documented within 4 ulp
-    of the exact power: so the two differ by at most 8 ulp of the power, scaled by the
-    factor after it (1.055, or 1 for the decode), plus one rounding of the sum.
-    """
-    from l3cli.multiscale import decode, encode
+def test_srgb_coding_is_odd_exact_on_its_linear_segment_and_the_formula_beyond_its_table():
+    from l3cli.multiscale import CODE_TOP, decode, encode
 
     rng = np.random.default_rng(12)
-    v = np.concatenate([rng.normal(0, 2, 99_999), [0.0, -0.0, 0.0031308, -0.0031308,
-                                                    0.04045, 1e-38, -1e-30, 1e6, 1.0]])
-    v = v.astype(np.float32).reshape(-1, 9)
-    a = np.abs(v)
-    f32 = np.float32
-    with np.errstate(all="ignore"):
-        p_enc = np.power(a, f32(1 / 2.4))
-        p_dec = np.power((a + f32(0.055)) / f32(1.055), f32(2.4))
-    lin_enc, lin_dec = a <= f32(0.0031308), a <= f32(0.04045)
-    enc = np.copysign(np.where(lin_enc, f32(12.92) * a, f32(1.055) * p_enc - f32(0.055)), v)
-    dec = np.copysign(np.where(lin_dec, a / f32(12.92), p_dec), v)
-    # the float64 curve (IEC 61966-2-1), an independent reference for both
-    a64 = a.astype(np.float64)
-    enc64 = np.copysign(np.where(lin_enc, 12.92 * a64, 1.055 * a64 ** (1 / 2.4) - 0.055), v)
-    dec64 = np.copysign(np.where(lin_dec, a64 / 12.92,
-                                 ((a64 + 0.055) / 1.055) ** 2.4), v)
-    for got, want, ref, lin, power, scale in (
-            (encode(v, "srgb"), enc, enc64, lin_enc, p_enc, 1.055),
-            (decode(v, "srgb"), dec, dec64, lin_dec, p_dec, 1.0)):
-        assert got.dtype == np.float32
-        np.testing.assert_array_equal(np.signbit(got), np.signbit(v))
-        np.testing.assert_array_equal(got[lin].view(np.uint32), want[lin].view(np.uint32))
-        bound = 8 * np.spacing(f32(scale) * power) + np.spacing(np.abs(want))
-        assert np.all(np.abs(got - want)[~lin] <= bound[~lin])
-        # within a few float32 roundings of the float64 curve: the bound above plus
-        # the float32 steps' own roundings (the decode's argument rounded twice, then
-        # raised to 2.4: about 5 ulp of the result), so 4 x the bound
-        assert np.all(np.abs(got - ref)[~lin] <= 4 * bound[~lin])
+    v = rng.normal(0, 2, 99_999).astype(np.float32)
+    np.testing.assert_array_equal(encode(-v, "srgb"), -encode(v, "srgb"))
+    np.testing.assert_array_equal(decode(-v, "srgb"), -decode(v, "srgb"))
+    lin = np.float32([0.0, 1e-30, 0.001, 0.0031308])
+    np.testing.assert_array_equal(encode(lin, "srgb"), np.float32(12.92) * lin)
+    cod = np.float32([0.0, 0.01, 0.04045])
+    np.testing.assert_array_equal(decode(cod, "srgb"), cod / np.float32(12.92))
+    big = np.float32([2 * CODE_TOP, 1e6])
+    np.testing.assert_allclose(encode(big, "srgb"), 1.055 * big.astype(np.float64) ** (1 / 2.4)
+                               - 0.055, rtol=1e-6)
     assert encode(np.float32(0.5), "srgb").shape == ()
+
+
+def test_direct_display_codes_are_the_encoders_codes_of_the_decoded_blend():
+    """The 8-bit look-up on the coded blend (no decoding) gives the display encoder's
+    code of the decoded value: around every threshold (its neighbours to 2000 float32
+    steps), and on values of all kinds."""
+    from l3cli.io.encode import display_encode
+    from l3cli.multiscale import decode, direct_table
+
+    cell_code, uthr = direct_table()
+
+    def direct(v):
+        v = np.asarray(v, np.float32)
+        pos = np.where(v > 0, v, 0).astype(np.float32)
+        cell = (np.minimum(pos, np.float32(1.0)) * np.float32(cell_code.size - 1)).astype(int)
+        q = cell_code[cell].astype(int)
+        q += (v >= uthr[q + 1]) & (q < 255)
+        return np.where(v > 0, q, 0)
+
+    bits = uthr[1:256].view(np.int32).astype(np.int64)
+    near = (bits[:, None] + np.arange(-2000, 2001)[None, :]).ravel()
+    v = np.concatenate([near.astype(np.int32).view(np.float32),
+                        np.random.default_rng(5).uniform(-0.5, 1.5, 200_000).astype(np.float32),
+                        np.float32([np.nan, np.inf, -np.inf, 0, 1, 2])])
+    want = display_encode(decode(v, "srgb").reshape(-1, 1, 1).repeat(3, 2), "linear-srgb", 8)
+    np.testing.assert_array_equal(direct(v), want[:, 0, 0])
+
+
+@pytest.mark.parametrize("transfer", ["none", "srgb"])
+@pytest.mark.parametrize("space,bits", [("linear-srgb", 8), ("linear-srgb", 16), ("xyz", 8),
+                                        ("srgb", 8)])
+def test_fused_display_output_is_the_encoded_float_output(transfer, space, bits):
+    """apply_display (the blend display-encoded row by row, or looked up straight from the
+    coding) gives display_encode of apply_stage's float output, code for code."""
+    from l3cli.io.encode import display_encode
+    from l3cli.multiscale import apply_display
+
+    rng = np.random.default_rng(6)
+    y = (rng.random((70, 45, 3), dtype=np.float32) * 1.3 - 0.1)
+    y[3, 4] = np.nan
+    stage = Multiscale(np.array([1.0, 3.0, 6.0]), np.array([0.4, 0.6]),
+                       np.array([[0.05, 0.1], [0.05, 0.1], [0.05, 0.2]]),
+                       rng.normal(size=(9, 9, 3)) * 0.5, np.ones(9, np.int64), transfer)
+    got = apply_display(stage, y, space, bits)
+    assert got.dtype == (np.uint8 if bits == 8 else np.uint16)
+    np.testing.assert_array_equal(got, display_encode(apply_stage(stage, y), space, bits))
 
 
 def _numpy_classes(lev, en, level_cuts, energy_cuts):
@@ -304,29 +368,36 @@ def _numpy_classes(lev, en, level_cuts, energy_cuts):
     return (lb.astype(np.int32) * (cuts.shape[1] + 1) + eb).astype(np.int32)
 
 
-def test_stage_classes_are_the_numpy_rule():
-    """The parallel level and class passes (features) against numpy's mean and the class
-    rule in numpy."""
-    from l3cli.multiscale import bands, energy, level
+def test_stage_classes_and_blend_are_the_numpy_rule():
+    """The features' level (numpy's channel mean of the coarse low-pass), the classes (the
+    rule in numpy), the finest low-pass (scipy's Gaussian, within float32 rounding), and
+    the output (coarse + the class's blend of the bands, in numpy, float64)."""
+    from scipy.ndimage import gaussian_filter
+
+    from l3cli.multiscale import classes
 
     rng = np.random.default_rng(13)
     ramp = np.linspace(0.05, 1.0, 80, dtype=np.float32)[None, :, None]  # levels vary
     noise = rng.normal(0, 1, (60, 80, 3)).astype(np.float32)
     y = ramp + noise * np.linspace(0.0, 0.1, 60, dtype=np.float32)[:, None, None]  # energy
+    y = np.ascontiguousarray(y, dtype=np.float32)
     stage = Multiscale(np.array([1.0, 3.0]), np.array([0.3, 0.5, 0.7]),
                        np.array([[0.01, 0.05], [0.02, 0.06], [0.03, 0.07], [0.04, 0.08]]),
                        rng.normal(size=(12, 6, 3)), np.ones(12, np.int64), "none")
-    stack, coarse, cls = stage.features(y)
-    s2, c2 = bands(y, stage.sigmas)
-    lev = c2.mean(axis=2, dtype=np.float32)
-    np.testing.assert_array_equal(level(c2).view(np.uint32), lev.view(np.uint32))
-    want = _numpy_classes(lev, energy(y, c2, stage.sigmas[0]), stage.level_cuts,
-                          stage.energy_cuts)
-    np.testing.assert_array_equal(stack, s2)
-    np.testing.assert_array_equal(cls, want)
+    stack, coarse, lev, en = feature_maps(y, stage.sigmas)
+    np.testing.assert_array_equal(lev.view(np.uint32),
+                                  coarse.mean(axis=2, dtype=np.float32).view(np.uint32))
+    cls = classes(lev, en, stage.level_cuts, stage.energy_cuts)
+    np.testing.assert_array_equal(cls, _numpy_classes(lev, en, stage.level_cuts,
+                                                      stage.energy_cuts))
     assert len(np.unique(cls)) > 4
-    work = np.empty(stage.work_size(y.shape), np.float32)  # the preallocated path
-    s3, c3, k3 = stage.features(y, work=work)
-    np.testing.assert_array_equal(s3, s2)
-    np.testing.assert_array_equal(c3, c2)
-    np.testing.assert_array_equal(k3, want)
+    _, fine, _, _ = feature_maps(y, stage.sigmas[:1])  # one scale: lp_1 is the coarsest
+    want = gaussian_filter(y, sigma=(1.0, 1.0, 0.0), mode="reflect", truncate=TRUNCATE)
+    np.testing.assert_allclose(fine, want, atol=1e-6, rtol=0)
+    # the energy: sqrt of the low-passed channel mean of (y - lp_n)², in float64
+    e = ((y.astype(np.float64) - coarse) ** 2).mean(axis=2)
+    np.testing.assert_allclose(en, np.sqrt(gaussian_filter(e, 1.0, mode="reflect",
+                                                           truncate=TRUNCATE)), atol=1e-6)
+    out = coarse + np.einsum("hwr,hwrc->hwc", stack.astype(np.float64), stage.blend[cls])
+    np.testing.assert_allclose(apply_stage(stage, y), out, atol=1e-5)
+    np.testing.assert_array_equal(stage.features(y)[2], cls)

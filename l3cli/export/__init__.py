@@ -94,7 +94,7 @@ def check_exportable(table: TransformTable, output: str = "linear") -> None:
 #: Table and class-definition fields the export knows how to build (or refuses above).
 _KNOWN_TABLE = {"definition", "kernels", "counts", "lambdas", "empty", "source_class",
                 "output_space", "provenance", "format", "version", "white_balance",
-                "conditions", "tone_lut", "shading"}
+                "conditions", "tone_lut", "shading", "multiscale"}
 _KNOWN_DEFINITION = {"cfa", "patch", "level_cuts", "level_spacing", "contrast_cuts",
                      "saturation_threshold", "position_group", "contrast_eps", "contrast_rule",
                      "saturation_rule", "orientation_bins", "coherence_threshold",
@@ -185,6 +185,8 @@ def _features(table: TransformTable) -> list[str]:
         out.append("as-shot white balance + adaptation")
     if table.tone_lut is not None:
         out.append("tone curve")
+    if table.multiscale is not None:
+        out.append(f"multiscale stage ({table.multiscale.n_classes} classes)")
     return out
 
 
@@ -260,6 +262,10 @@ def _post_stages(table: TransformTable, output: str, bits: int, gains: str | Non
 
         model = WhiteBalanceModel.from_dict(table.white_balance)
         out.append((True, lambda g, img: stages.adaptation(g, img, gains, model)))
+    if table.multiscale is not None:  # noise reduction beyond the patch: the whole image
+        from l3cli.export.multiscale import stage
+
+        out.append((False, lambda g, img: stage(g, img, table.multiscale)))
     if output == "display":
         out.append((True, lambda g, img: stages.display(g, img, table.output_space,
                                                         table.n_out, bits)))

@@ -26,24 +26,18 @@ from l3cli.colourspace import convert
 from l3cli.errors import InputError
 from l3cli.multiscale import (
     Multiscale,
-    MultiscaleStats,
-    accumulate,
-    bands,
-    blend_bands,
+    blend_features,
     classes,
     decode,
     default_transfer,
     encode,
-    energy,
-    level,
-    place_cuts,
+    feature_maps,
     radius,
-    solve,
 )
 from l3cli.train.curve import attach_curve
 from l3cli.train.cv import CV_SPACES, CVImage, LayoutStats, Unit, display_xyz, fold_stats
 from l3cli.train.fit import TrainOptions, table_from_stats
-from l3cli.train.multiscale import cut_sample
+from l3cli.train.multiscale import MultiscaleStats, accumulate, cut_sample, place_cuts, solve
 
 __all__ = ["multiscale_fold_scores"]
 
@@ -98,9 +92,7 @@ def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
         feats, levs, ens = {}, [], []
         for i, img in enumerate(images):  # each image's render and bands, once per fold
             plain = render_mosaic(table, img.mosaic)
-            y = encode(plain, transfer)
-            stack, coarse = bands(y, np.asarray(sigmas))
-            lev, en = level(coarse), energy(y, coarse, sigmas[0])
+            stack, coarse, lev, en = feature_maps(encode(plain, transfer), sigmas)
             mask = _train_mask(img, i, units, train_units, guard)
             feats[i] = (plain, stack, coarse, lev, en, mask)
             lev_s, en_s = cut_sample(lev, en, mask, rng)
@@ -125,8 +117,8 @@ def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
             unit = units[u]
             img = images[unit.image]
             plain, stack, coarse, cls = feats[unit.image]
-            # the stage on the whole image (apply_stage does it in row bands, bit for bit)
-            staged = decode(blend_bands(stack, coarse, cls, blend), transfer)
+            # the stage on the whole image (apply_stage's blend of the same features)
+            staged = decode(blend_features(stack, coarse, cls, blend), transfer)
             for out, arr in ((without, plain), (with_stage, staged)):
                 out[u] = img.scorer.mean(display_xyz(arr, space, img.display),
                                          columns=unit.columns)

@@ -20,25 +20,17 @@ from __future__ import annotations
 import copy
 import logging
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from l3cli import defaults
 from l3cli.errors import InputError
-from l3cli.multiscale import (
-    Multiscale,
-    MultiscaleStats,
-    accumulate,
-    default_transfer,
-    encode,
-    energy,
-    level,
-    place_cuts,
-    solve,
-)
+from l3cli.multiscale import Multiscale, default_transfer, encode, feature_maps
 from l3cli.pairs import Pair, load_pair
 
-__all__ = ["CUT_SAMPLES", "attach_multiscale", "cut_sample", "fit_multiscale"]
+__all__ = ["CUT_SAMPLES", "MultiscaleStats", "accumulate", "attach_multiscale", "cut_sample",
+           "fit_multiscale", "place_cuts", "solve"]
 
 log = logging.getLogger(__name__)
 
@@ -102,13 +94,12 @@ def fit_multiscale(table, pairs: Sequence[Pair], *, sigmas=defaults.MULTISCALE_S
     if getattr(table, "multiscale", None) is not None:  # fit on the kernels' own render
         table = copy.copy(table)
         table.multiscale = None
-    probe = Multiscale.identity(table.n_out, sigmas)
     rng = np.random.default_rng([seed, 27])
     levs, ens = [], []
     for pair in progress(pairs, label="multiscale cuts", enabled=show_progress):
         y, _, mask = _rendered(table, pair)
-        stack, coarse, _ = probe.features(y)
-        lev_s, en_s = cut_sample(level(coarse), energy(y, coarse, sigmas[0]), mask, rng)
+        _, _, lev, en = feature_maps(y, sigmas)
+        lev_s, en_s = cut_sample(lev, en, mask, rng)
         levs.append(lev_s)
         ens.append(en_s)
     if not levs or sum(v.size for v in levs) == 0:
@@ -136,3 +127,104 @@ def attach_multiscale(table, pairs: Sequence[Pair], **options) -> None:
         "energy_bins": int(stage.energy_cuts.shape[1] + 1),
         "ridge": float(options.get("ridge", defaults.MULTISCALE_RIDGE)),
         "transfer": stage.transfer, "pixels": int(stage.counts.sum())}
+
+
+def place_cuts(lev: np.ndarray, en: np.ndarray, n_levels: int,
+               n_energy: int) -> tuple[np.ndarray, np.ndarray]:
+    """Level cuts at quantiles of ``lev``, energy cuts at quantiles of ``en`` within each level.
+
+    Returns
+    -------
+    level_cuts, energy_cuts
+        float64 (n_levels - 1,) and (n_levels, n_energy - 1), strictly increasing
+        (ties, as in a constant image, are spread by a tiny step).
+    """
+    lev = np.asarray(lev, dtype=np.float64).ravel()
+    en = np.asarray(en, dtype=np.float64).ravel()
+    q = np.linspace(0, 1, n_levels + 1)[1:-1]
+    lcuts = _increasing(np.quantile(lev, q)) if n_levels > 1 else np.zeros(0)
+    lb = np.searchsorted(lcuts, lev, side="right")
+    qe = np.linspace(0, 1, n_energy + 1)[1:-1]
+    ecuts = np.zeros((n_levels, n_energy - 1))
+    for b in range(n_levels):
+        sel = en[lb == b]
+        ecuts[b] = _increasing(np.quantile(sel if sel.size else en, qe)) if n_energy > 1 else 0
+    return lcuts, ecuts
+
+
+def _increasing(cuts: np.ndarray) -> np.ndarray:
+    cuts = np.asarray(cuts, dtype=np.float64).copy()
+    for i in range(1, cuts.size):
+        if cuts[i] <= cuts[i - 1]:
+            cuts[i] = np.nextafter(cuts[i - 1], np.inf) + 1e-12 * max(1.0, abs(cuts[i - 1]))
+    return cuts
+
+
+
+
+@dataclass(eq=False)
+class MultiscaleStats:
+    """Per-class normal equations of the blend (they add across images).
+
+    ``xtx[k] = sum stack stackᵀ``, ``xty[k] = sum stack (target - coarse)ᵀ``
+    over the pixels of class ``k``.
+    """
+
+    xtx: np.ndarray  # float64 (n_classes, R, R), R = n_scales * C
+    xty: np.ndarray  # float64 (n_classes, R, C)
+    n: np.ndarray    # int64 (n_classes,)
+
+    @classmethod
+    def zeros(cls, n_classes: int, n_scales: int, n_out: int) -> MultiscaleStats:
+        r = n_scales * n_out
+        return cls(np.zeros((n_classes, r, r)), np.zeros((n_classes, r, n_out)),
+                   np.zeros(n_classes, np.int64))
+
+    def __add__(self, other: MultiscaleStats) -> MultiscaleStats:
+        return MultiscaleStats(self.xtx + other.xtx, self.xty + other.xty, self.n + other.n)
+
+
+def accumulate(stats: MultiscaleStats, stack: np.ndarray, coarse: np.ndarray, cls: np.ndarray,
+               target: np.ndarray, mask: np.ndarray | None = None) -> MultiscaleStats:
+    """Add one image's pixels (``mask``: those that train; None = all) to ``stats``."""
+    r = stack.shape[2]
+    x = stack.reshape(-1, r).astype(np.float64)
+    t = (np.asarray(target, dtype=np.float64) - coarse).reshape(x.shape[0], -1)
+    k = cls.reshape(-1)
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool).reshape(-1)
+        x, t, k = x[m], t[m], k[m]
+    ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(t), axis=1)
+    x, t, k = x[ok], t[ok], k[ok]
+    order = np.argsort(k, kind="stable")
+    x, t, k = x[order], t[order], k[order]
+    bounds = np.searchsorted(k, np.arange(stats.n.size + 1))
+    for c in range(stats.n.size):
+        a, b = bounds[c], bounds[c + 1]
+        if b > a:
+            stats.xtx[c] += x[a:b].T @ x[a:b]
+            stats.xty[c] += x[a:b].T @ t[a:b]
+            stats.n[c] += b - a
+    return stats
+
+
+def solve(stats: MultiscaleStats, ridge: float, n_out: int) -> np.ndarray:
+    """The blend of each class: ridge regression shrunk towards ``A = I``.
+
+    ``A_k = argmin |t - X A|^2 + lam_k |A - I|^2`` with
+    ``lam_k = ridge * trace(XᵀX) / R``: a class with no data keeps the
+    identity (the L3 render unchanged).
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 (n_classes, R, C).
+    """
+    nc, r, _ = stats.xtx.shape
+    prior = np.tile(np.eye(n_out), (r // n_out, 1))
+    out = np.empty((nc, r, n_out), dtype=np.float64)
+    for k in range(nc):
+        g = stats.xtx[k]
+        lam = ridge * max(np.trace(g) / r, 1e-300)
+        out[k] = np.linalg.solve(g + lam * np.eye(r), stats.xty[k] + lam * prior)
+    return out.astype(np.float32)
