@@ -31,11 +31,10 @@ and that space's renders are mapped back through it before scoring.
 
 from __future__ import annotations
 
-import copy
 import functools
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,6 +47,7 @@ from l3cli.train.curve import attach_curve, chosen_curve, curve_samples
 from l3cli.train.cvscore import DEFAULT_OPPONENT, ReferenceSCIELAB
 from l3cli.train.fit import (
     TONE_CURVE_SPACE,
+    Fitted,
     TrainOptions,
     definition_from_histogram,
     histogram_task,
@@ -106,8 +106,11 @@ class CVImage:
 
 
 def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
-                   opponent: str = DEFAULT_OPPONENT) -> list[CVImage]:
+                   opponent: str = DEFAULT_OPPONENT, shading_field=None) -> list[CVImage]:
     """Read every pair once, with its targets in all :data:`CV_SPACES`.
+
+    With ``shading_field`` (:class:`l3cli.shading.GainField`) the mosaics are
+    corrected by it, as ``l3 train`` corrects them.
 
     With ``opts.white_balance`` (raws that carry a white balance) the images
     are what ``l3 train`` trains on: mosaics normalised by their white
@@ -118,22 +121,22 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
     """
     from l3cli.whitebalance import training_mosaic, training_target
 
+    fitted = Fitted(shading_field=shading_field)
     wb_opts = None
     if opts.white_balance:
         from l3cli.train.adaptation import fit_white_adaptation
 
-        wb_opts = copy.copy(opts)
-        wb_opts.target_space = "linear-srgb"
-        wb_opts.target_adapt = fit_white_adaptation(pairs, wb_opts)[1] or None
+        wb_opts = replace(opts, target_space="linear-srgb")
+        fitted = replace(fitted, target_adapt=fit_white_adaptation(pairs, wb_opts)[1] or None)
     images = []
     for i, pair in enumerate(pairs):
         loaded = load_pair(pair, target_space="linear-srgb")
         raw, lin, valid = loaded.raw, loaded.target, loaded.weight_mask
         if wb_opts is not None:
-            raw.mosaic = training_mosaic(raw, wb_opts)
-            lin = training_target(lin, pair.raw, wb_opts)
-        elif getattr(opts, "shading_field", None) is not None:  # lens shading corrected
-            raw.mosaic = training_mosaic(raw, opts)
+            raw.mosaic = training_mosaic(raw, wb_opts, fitted)
+            lin = training_target(lin, pair.raw, wb_opts, fitted)
+        elif shading_field is not None:  # lens shading corrected
+            raw.mosaic = training_mosaic(raw, opts, fitted)
         targets = np.empty(lin.shape[:2] + (3 * len(CV_SPACES),), dtype=np.float32)
         for k, space in enumerate(CV_SPACES):
             targets[:, :, 3 * k:3 * k + 3] = convert(lin, "linear-srgb", space)
@@ -222,11 +225,13 @@ class LayoutStats:
     total: ClassStats
 
 
-def histogram(images: Sequence[CVImage], opts: TrainOptions) -> ContrastHistogram:
-    """Pass 1 of ``l3 train`` over the raws (for ``opts.patch``), summed in input order."""
+def histogram(images: Sequence[CVImage], opts: TrainOptions,
+              shading_field=None) -> ContrastHistogram:
+    """Pass 1 of ``l3 train`` over the raws (for ``opts.patch``; corrected by the lens
+    shading ``shading_field`` when given), summed in input order."""
     hist = ContrastHistogram.empty()
     for i, img in enumerate(images):
-        hist = hist + histogram_task((i, img.pair, opts, True))[2]
+        hist = hist + histogram_task((i, img.pair, opts, True, Fitted(shading_field)))[2]
     return hist
 
 

@@ -48,7 +48,6 @@ inspect`` shows them).
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import os
@@ -265,15 +264,16 @@ class _Search:
         self.t0 = time.perf_counter()
 
     def opts(self, c: Candidate) -> TrainOptions:
-        o = replace_opts(self.base, c)
-        o.shading_field = self.field if c.shading else None
-        return o
+        return replace_opts(self.base, c)
+
+    def field_for(self, shading: bool):
+        """The lens-shading gain field of candidates with ``shading`` (None: none)."""
+        return self.field if shading else None
 
     def images_for(self, shading: bool):
         if shading not in self.images:
-            o = copy.copy(self.base)
-            o.shading_field = self.field if shading else None
-            self.images[shading] = load_cv_images(self.pairs, o, opponent=self.opponent)
+            self.images[shading] = load_cv_images(self.pairs, self.base, opponent=self.opponent,
+                                                  shading_field=self.field_for(shading))
         return self.images[shading]
 
     def layout(self, c: Candidate):
@@ -283,7 +283,8 @@ class _Search:
             images = self.images_for(c.shading)
             opts = self.opts(c)
             if (c.shading, c.patch) not in self.hists:
-                self.hists[(c.shading, c.patch)] = histogram(images, opts)
+                self.hists[(c.shading, c.patch)] = histogram(images, opts,
+                                                             self.field_for(c.shading))
             while len(self.layouts) >= 2:  # bounded memory: the two latest layouts
                 del self.layouts[next(iter(self.layouts))]
             self.layouts[key] = layout_stats(images, self.units, opts,
@@ -371,9 +372,7 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     if True in shadings:  # the lens-shading field first, once: every candidate with it
         from l3cli.train.shading import learn_shading  # sees the corrected mosaics
 
-        o = copy.copy(base)
-        o.shading = True
-        field, shading_record = learn_shading(pairs, o)
+        field, shading_record = learn_shading(pairs, replace(base, shading=True))
         if field is None:  # not kept: shading on is shading off
             shadings = (False,)
     s = _Search(pairs, base, grid, field, opponent, report)
@@ -443,10 +442,8 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
     if opts.white_balance:
         # the shots' adaptation model belongs in the table and its targets are fitted in
         # the chosen target space: the regular training path, once, with the chosen options
-        o = copy.copy(opts)
-        o.shading = False  # the field learned for the search, not learned again
-        o.shading_field = s.field if c.shading else None
-        table = train(s.pairs, o)
+        # (the field learned for the search, not learned again)
+        table = train(s.pairs, replace(opts, shading=False), shading_field=s.field_for(c.shading))
         table.provenance.update(prov)
         table.provenance["options"] = opts.as_dict()
     else:
@@ -469,12 +466,10 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
 def replace_opts(base: TrainOptions, c: Candidate) -> TrainOptions:
     """``base`` with the candidate's target space, patch, levels, contrast bins and rule,
     augmentation, sample weights and shading."""
-    d = base.as_dict()
-    d.update(target_space=c.target_space, patch=c.patch, levels=c.levels,
-             contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
-             tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE,
-             augment=c.augment, sample_weight=c.sample_weight, shading=c.shading)
-    return TrainOptions(**d)
+    return replace(base, target_space=c.target_space, patch=c.patch, levels=c.levels,
+                   contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
+                   tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE,
+                   augment=c.augment, sample_weight=c.sample_weight, shading=c.shading)
 
 
 def format_candidates(record: dict) -> str:
