@@ -227,8 +227,9 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     of the best (--no-tune: the fixed defaults).
 
     With --workers or --scheduler each input is read and reduced to
-    statistics by a dask.distributed worker; the table is the same as in
-    process (docs/distributed.md).
+    statistics by a dask.distributed worker, and self-tuning scores its
+    candidates' folds there; the table is the same as in process
+    (docs/distributed.md).
 
     The same from Python: l3cli.train(INPUTS, **options) (README, "From Python").
     """

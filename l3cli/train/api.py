@@ -304,39 +304,35 @@ def train(inputs: str | os.PathLike | Sequence[str | os.PathLike], *,
 
 def _train_pairs(pairs: list[Pair], request: TrainRequest, *, workers, scheduler,
                  show_progress, report, note):
+    from l3cli.parallel import dask_client
     from l3cli.train.fit import train as fit_table
 
     opts = resolve_options(request, pairs)
     tune, why = wants_tune(request, pairs, opts)
-    if tune and (workers is not None or scheduler is not None):
-        if request.tune:
-            raise OptionError("tune", "{name} runs in this process; drop workers/scheduler")
-        why, tune = Note("workers/scheduler: training the fixed defaults (the self-tuning "
-                         "of pairs folders runs in this process; docs/training.md)"), False
     if why is not None:
         note(why)
     table = None
-    if tune:
-        from l3cli.train.tune import TuneGrid
-        from l3cli.train.tune import tune as run_tune
+    with dask_client(workers, scheduler) as client:  # None: in process
+        if tune:
+            from l3cli.train.tune import TuneGrid
+            from l3cli.train.tune import tune as run_tune
 
-        grid = request.tune_grid or TuneGrid()
-        values = {**dataclasses.asdict(opts), "multiscale": request.multiscale}
-        grid = grid.fixed(**{k: values[k] for k in TuneGrid.OPTIONS
-                             if getattr(request, k) is not None})
-        try:
-            table = run_tune(pairs, opts, grid, show_progress=show_progress,
-                             report=report).table
-        except (InputError, TableError) as exc:
-            if request.tune:  # asked for: its error is the user's answer
-                raise
-            # the default search cannot score these inputs (e.g. too little data for its
-            # folds): the fixed defaults, which need less, with a note
-            tune = False
-            note(Note(f"self-tuning skipped ({exc}); training the fixed defaults"))
-    if table is None:
-        table = fit_table(pairs, opts, workers=workers, scheduler=scheduler,
-                          show_progress=show_progress)
+            grid = request.tune_grid or TuneGrid()
+            values = {**dataclasses.asdict(opts), "multiscale": request.multiscale}
+            grid = grid.fixed(**{k: values[k] for k in TuneGrid.OPTIONS
+                                 if getattr(request, k) is not None})
+            try:
+                table = run_tune(pairs, opts, grid, show_progress=show_progress,
+                                 report=report, client=client).table
+            except (InputError, TableError) as exc:
+                if request.tune:  # asked for: its error is the user's answer
+                    raise
+                # the default search cannot score these inputs (e.g. too little data for
+                # its folds): the fixed defaults, which need less, with a note
+                tune = False
+                note(Note(f"self-tuning skipped ({exc}); training the fixed defaults"))
+        if table is None:
+            table = fit_table(pairs, opts, client=client, show_progress=show_progress)
     if request.multiscale and not tune:  # the learned stage after the kernels
         from l3cli.train.multiscale import attach_multiscale
 

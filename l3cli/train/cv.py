@@ -58,7 +58,8 @@ from l3cli.train.stats import ClassStats, accumulate
 
 __all__ = ["CV_SPACES", "CVImage", "Unit", "load_cv_images", "make_units", "make_folds", "histogram",
            "space_stats", "display_xyz",
-           "LayoutStats", "layout_stats", "fold_stats", "score_fold", "fold_scores"]
+           "LayoutStats", "layout_stats", "unit_stats_task", "fold_stats", "score_fold",
+           "score_fold_task", "fold_scores"]
 
 log = logging.getLogger(__name__)
 
@@ -236,31 +237,43 @@ def histogram(images: Sequence[CVImage], opts: TrainOptions,
 
 
 def layout_stats(images: Sequence[CVImage], units: Sequence[Unit], opts: TrainOptions,
-                 hist: ContrastHistogram | None) -> LayoutStats:
+                 hist: ContrastHistogram | None, *, client=None,
+                 remote_images=None) -> LayoutStats:
     """One statistics pass per unit for the layout of ``opts`` (patch, levels, contrast
     bins), weighted as ``opts.sample_weight`` (:func:`l3cli.train.weights.sample_weights`).
 
     The augmentation of ``opts.augment`` applies later, when a fold's table is
-    solved (:func:`l3cli.train.fit.table_from_stats`).
+    solved (:func:`l3cli.train.fit.table_from_stats`). With a dask ``client``
+    each unit is a task (:func:`unit_stats_task`) over the images scattered to
+    the workers (``remote_images``, futures of ``images``); the units' statistics
+    are summed here in unit order, so the total is the same bit for bit.
     """
-    from l3cli.train.weights import sample_weights
+    from l3cli.parallel import map_reduce
 
     d = definition_from_histogram(images[0].cfa, hist, opts)
-    n_out = 3 * len(CV_SPACES)
-    per_unit = []
-    for u in units:
-        img = images[u.image]
-        st = ClassStats.zeros(d, n_out, target_space="cv")
-        mask = _unit_mask(img, u, guard=opts.patch // 2)
-        # as l3 train: weights from the target's Y (the xyz channels), mean 1 over the image
-        weight = sample_weights(img.targets[:, :, 3 * CV_SPACES.index("xyz") + 1], img.mask,
-                                opts.sample_weight)
-        accumulate(st, img.mosaic, img.targets, mask=mask, weight=weight)
-        per_unit.append(st)
-    total = ClassStats.zeros(d, n_out, target_space="cv")
+    held = images if client is None else remote_images
+    per_unit = map_reduce(unit_stats_task, [(held, u, d, opts) for u in units], client=client,
+                          label="cv statistics", show_progress=False)
+    total = ClassStats.zeros(d, 3 * len(CV_SPACES), target_space="cv")
     for st in per_unit:
         total += st
     return LayoutStats(d, per_unit, total)
+
+
+def unit_stats_task(item: tuple) -> ClassStats:
+    """The statistics of one unit (a map task): ``(images, unit, definition, opts)``,
+    every target space's channels (:data:`CV_SPACES`)."""
+    from l3cli.train.weights import sample_weights
+
+    images, u, d, opts = item
+    img = images[u.image]
+    st = ClassStats.zeros(d, 3 * len(CV_SPACES), target_space="cv")
+    mask = _unit_mask(img, u, guard=opts.patch // 2)
+    # as l3 train: weights from the target's Y (the xyz channels), mean 1 over the image
+    weight = sample_weights(img.targets[:, :, 3 * CV_SPACES.index("xyz") + 1], img.mask,
+                            opts.sample_weight)
+    accumulate(st, img.mosaic, img.targets, mask=mask, weight=weight)
+    return st
 
 
 def fold_stats(layout: LayoutStats, held_out: Sequence[int], space: str) -> ClassStats:
@@ -339,10 +352,26 @@ def score_fold(images: Sequence[CVImage], units: Sequence[Unit], layout: LayoutS
     return scores
 
 
+def score_fold_task(item: tuple) -> list[float]:
+    """:func:`score_fold` as a map task: ``(images, units, layout, held_out, opts)``."""
+    return score_fold(*item)
+
+
 def fold_scores(images: Sequence[CVImage], units: Sequence[Unit], folds: Sequence[Sequence[int]],
-                layout: LayoutStats, opts: TrainOptions) -> np.ndarray:
-    """S-CIELAB of every unit when its fold is held out (float64 (n_units,))."""
+                layout: LayoutStats, opts: TrainOptions, *, client=None, remote=None
+                ) -> np.ndarray:
+    """S-CIELAB of every unit when its fold is held out (float64 (n_units,)).
+
+    With a dask ``client`` each fold is a task (:func:`score_fold_task`) over the
+    images and layout statistics scattered to the workers (``remote``: their
+    futures, ``(images, layout)``); the scores are the same bit for bit.
+    """
+    from l3cli.parallel import map_reduce
+
+    imgs, lay = (images, layout) if client is None else remote
+    scores = map_reduce(score_fold_task, [(imgs, units, lay, held, opts) for held in folds],
+                        client=client, label="cv folds", show_progress=False)
     out = np.full(len(units), np.nan)
-    for held in folds:
-        out[list(held)] = score_fold(images, units, layout, held, opts)
+    for held, sc in zip(folds, scores, strict=True):
+        out[list(held)] = sc
     return out

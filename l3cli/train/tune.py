@@ -254,10 +254,12 @@ def choose(results: Sequence[CandidateResult], tolerance: float = defaults.TUNE_
 class _Search:
     """The state of one search: images per shading setting, statistics cache, results."""
 
-    def __init__(self, pairs, base, grid, field, opponent, report):
+    def __init__(self, pairs, base, grid, field, opponent, report, client=None):
         self.pairs, self.base, self.grid, self.field = pairs, base, grid, field
-        self.opponent, self.report = opponent, report
+        self.opponent, self.report, self.client = opponent, report, client
         self.images: dict[bool, list] = {}
+        self.remote_images: dict[bool, list] = {}  # on a cluster: the images' futures
+        self.remote_layouts: dict[tuple, object] = {}  # and the layouts' (same keys)
         self.hists: dict[tuple, object] = {}
         self.layouts: dict[tuple, object] = {}
         self.results: list[CandidateResult] = []
@@ -276,9 +278,35 @@ class _Search:
                                                   shading_field=self.field_for(shading))
         return self.images[shading]
 
+    def images_on_cluster(self, shading: bool):
+        """The images of ``shading`` scattered to every worker (once), or None in process.
+
+        Every worker holds a copy: a fold task whose worker is lost is retried on
+        another, which has them."""
+        if self.client is None:
+            return None
+        if shading not in self.remote_images:
+            self.remote_images[shading] = self.client.scatter(
+                list(self.images_for(shading)), broadcast=True, hash=False)
+        return self.remote_images[shading]
+
+    @staticmethod
+    def layout_key(c: Candidate) -> tuple:
+        return (c.shading, c.patch, c.levels, c.contrast_bins, c.contrast_threshold,
+                c.sample_weight)
+
+    def remote(self, c: Candidate):
+        """``(images, layout)`` of ``c`` on the cluster (futures), or None in process."""
+        if self.client is None:
+            return None
+        key = self.layout_key(c)
+        lay = self.layout(c)
+        if key not in self.remote_layouts:
+            self.remote_layouts[key] = self.client.scatter(lay, broadcast=True, hash=False)
+        return self.images_on_cluster(c.shading), self.remote_layouts[key]
+
     def layout(self, c: Candidate):
-        key = (c.shading, c.patch, c.levels, c.contrast_bins, c.contrast_threshold,
-               c.sample_weight)
+        key = self.layout_key(c)
         if key not in self.layouts:
             images = self.images_for(c.shading)
             opts = self.opts(c)
@@ -286,9 +314,13 @@ class _Search:
                 self.hists[(c.shading, c.patch)] = histogram(images, opts,
                                                              self.field_for(c.shading))
             while len(self.layouts) >= 2:  # bounded memory: the two latest layouts
-                del self.layouts[next(iter(self.layouts))]
+                old = next(iter(self.layouts))
+                del self.layouts[old]
+                self.remote_layouts.pop(old, None)  # released on the workers too
             self.layouts[key] = layout_stats(images, self.units, opts,
-                                             self.hists[(c.shading, c.patch)])
+                                             self.hists[(c.shading, c.patch)],
+                                             client=self.client,
+                                             remote_images=self.images_on_cluster(c.shading))
         return self.layouts[key]
 
     def evaluate(self, cands: Sequence[Candidate]) -> None:
@@ -305,12 +337,15 @@ class _Search:
 
                 try:
                     scores, _ = multiscale_fold_scores(images, self.units, self.folds, lay,
-                                                       opts, seed=opts.seed)
+                                                       opts, seed=opts.seed,
+                                                       client=self.client,
+                                                       remote=self.remote(c))
                 except InputError as exc:  # too little data for the stage: not a candidate
                     log.warning("tune: the multi-scale stage is not scored: %s", exc)
                     continue
             else:
-                scores = fold_scores(images, self.units, self.folds, lay, opts)
+                scores = fold_scores(images, self.units, self.folds, lay, opts,
+                                     client=self.client, remote=self.remote(c))
             self.results.append(CandidateResult(c, scores))
             log.info("tune %s: %.4f", c.as_dict(), self.results[-1].mean)
             if self.report is not None:
@@ -336,7 +371,8 @@ class _Search:
 
 def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid | None = None,
          *, show_progress: bool | None = False, opponent: str = DEFAULT_OPPONENT,
-         report: Callable[[int, Candidate, float, float], None] | None = None) -> TuneResult:
+         report: Callable[[int, Candidate, float, float], None] | None = None,
+         client=None) -> TuneResult:
     """Search the options of ``grid`` by cross-validation; train the chosen candidate.
 
     Parameters
@@ -354,6 +390,11 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         S-CIELAB opponent transform of the score.
     report
         Called after every candidate with (number, candidate, CV score, seconds so far).
+    client
+        A dask client (:func:`l3cli.parallel.dask_client`): the statistics of every
+        unit and the folds of every candidate run as tasks on its workers, over the
+        images and statistics scattered to them; the result is the same bit for bit
+        as in process (None).
 
     Returns
     -------
@@ -375,7 +416,7 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         field, shading_record = learn_shading(pairs, replace(base, shading=True))
         if field is None:  # not kept: shading on is shading off
             shadings = (False,)
-    s = _Search(pairs, base, grid, field, opponent, report)
+    s = _Search(pairs, base, grid, field, opponent, report, client)
     images = s.images_for(shadings[0])
     s.units = make_units(images)
     s.folds = make_folds(s.units, grid.folds)
@@ -443,7 +484,8 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
         # the shots' adaptation model belongs in the table and its targets are fitted in
         # the chosen target space: the regular training path, once, with the chosen options
         # (the field learned for the search, not learned again)
-        table = train(s.pairs, replace(opts, shading=False), shading_field=s.field_for(c.shading))
+        table = train(s.pairs, replace(opts, shading=False), shading_field=s.field_for(c.shading),
+                      client=s.client)
         table.provenance.update(prov)
         table.provenance["options"] = opts.as_dict()
     else:
