@@ -258,8 +258,7 @@ class _Search:
         self.pairs, self.base, self.grid, self.field = pairs, base, grid, field
         self.opponent, self.report, self.client = opponent, report, client
         self.images: dict[bool, list] = {}
-        self.remote_images: dict[bool, list] = {}  # on a cluster: the images' futures
-        self.remote_layouts: dict[tuple, object] = {}  # and the layouts' (same keys)
+        self.remote_images, self.remote_layouts = {}, {}  # on a cluster: their futures
         self.hists: dict[tuple, object] = {}
         self.layouts: dict[tuple, object] = {}
         self.results: list[CandidateResult] = []
@@ -279,10 +278,8 @@ class _Search:
         return self.images[shading]
 
     def images_on_cluster(self, shading: bool):
-        """The images of ``shading`` scattered to every worker (once), or None in process.
-
-        Every worker holds a copy: a fold task whose worker is lost is retried on
-        another, which has them."""
+        """The images of ``shading`` scattered to every worker (once: a task whose worker
+        is lost is retried on another, which has them too), or None in process."""
         if self.client is None:
             return None
         if shading not in self.remote_images:
@@ -292,8 +289,7 @@ class _Search:
 
     @staticmethod
     def layout_key(c: Candidate) -> tuple:
-        return (c.shading, c.patch, c.levels, c.contrast_bins, c.contrast_threshold,
-                c.sample_weight)
+        return (c.shading, c.patch, c.levels, c.contrast_bins, c.contrast_threshold, c.sample_weight)
 
     def remote(self, c: Candidate):
         """``(images, layout)`` of ``c`` on the cluster (futures), or None in process."""
