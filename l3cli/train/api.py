@@ -49,9 +49,20 @@ from l3cli.train.options import (
 
 __all__ = ["TrainRequest", "Note", "resolve_options", "wants_tune", "train"]
 
-_CHOICES = {"spacing": ("log", "linear"), "target_space": ("xyz", "linear-srgb", "srgb", "lab"),
-            "by": ("iso", "exposure", "white-balance"), "augment": ("none", "flips", "d4"),
-            "sample_weight": ("none", "luminance"), "context_rule": ("mean", "ratio")}
+
+
+def _choices() -> dict[str, tuple[str, ...]]:
+    """The allowed values of the options with a choice (each from its one definition)."""
+    from l3cli.classify.features import CONTEXT_RULES
+    from l3cli.classify.levels import SPACINGS
+    from l3cli.colourspace import SPACES
+    from l3cli.conditions import CONDITIONS
+    from l3cli.train.augment import AUGMENT_CHOICES
+    from l3cli.train.weights import WEIGHT_CHOICES
+
+    return {"spacing": SPACINGS, "target_space": SPACES, "by": CONDITIONS,
+            "augment": AUGMENT_CHOICES, "sample_weight": WEIGHT_CHOICES,
+            "context_rule": CONTEXT_RULES}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -100,7 +111,7 @@ class TrainRequest:
     seed: int = defaults.SEED
 
     def __post_init__(self) -> None:
-        for name, allowed in _CHOICES.items():
+        for name, allowed in _choices().items():
             v = getattr(self, name)
             if v is not None and v not in allowed:
                 raise OptionError(name, f"{v!r} is not allowed; choose from "

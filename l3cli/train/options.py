@@ -206,7 +206,7 @@ class TrainOptions:
             set_(name, float(getattr(self, name)))
         if self.tone_curve and self.target_space != TONE_CURVE_SPACE:
             raise OptionError("tone_curve", f"needs the {TONE_CURVE_SPACE} target, not "
-                              f"{self.target_space}; turn it off (False)")
+                              f"{self.target_space}; turn it off")
         set_("tone_curve", bool(self.tone_curve))
         augment_elements(self.augment)  # a known choice
         set_("sample_weight", check_weight(self.sample_weight))
