@@ -58,7 +58,7 @@ from l3cli.train.stats import ClassStats, accumulate
 
 __all__ = ["CV_SPACES", "CVImage", "Unit", "load_cv_images", "make_units", "make_folds", "histogram",
            "space_stats", "display_xyz",
-           "LayoutStats", "layout_stats", "unit_stats_task", "fold_stats", "score_fold",
+           "LayoutStats", "RemoteLayout", "as_layout", "layout_stats", "unit_stats_task", "fold_stats", "score_fold",
            "score_fold_task", "fold_scores"]
 
 log = logging.getLogger(__name__)
@@ -225,6 +225,37 @@ class LayoutStats:
     units: list[ClassStats]
     total: ClassStats
 
+    @classmethod
+    def of(cls, definition: ClassDefinition, per_unit: Sequence[ClassStats]) -> LayoutStats:
+        """The layout of these units' statistics, their total summed in unit order."""
+        total = ClassStats.zeros(definition, 3 * len(CV_SPACES), target_space="cv")
+        for st in per_unit:
+            total += st
+        return cls(definition, list(per_unit), total)
+
+
+@dataclass
+class RemoteLayout:
+    """A layout whose units' statistics stay on a dask cluster (``units``: futures).
+
+    A fold task receives ``(definition, units)`` and makes the layout itself
+    (:meth:`LayoutStats.of`: the same sums as in process); :meth:`gather`
+    brings it here (the chosen candidate's table)."""
+
+    definition: ClassDefinition
+    units: list
+
+    def gather(self, client) -> LayoutStats:
+        return LayoutStats.of(self.definition, client.gather(self.units))
+
+    def for_task(self) -> tuple:
+        return self.definition, self.units
+
+
+def as_layout(layout) -> LayoutStats:
+    """A task's layout argument: a :class:`LayoutStats`, or ``(definition, units)``."""
+    return layout if isinstance(layout, LayoutStats) else LayoutStats.of(*layout)
+
 
 def histogram(images: Sequence[CVImage], opts: TrainOptions,
               shading_field=None) -> ContrastHistogram:
@@ -238,26 +269,22 @@ def histogram(images: Sequence[CVImage], opts: TrainOptions,
 
 def layout_stats(images: Sequence[CVImage], units: Sequence[Unit], opts: TrainOptions,
                  hist: ContrastHistogram | None, *, client=None,
-                 remote_images=None) -> LayoutStats:
+                 remote_images=None) -> LayoutStats | RemoteLayout:
     """One statistics pass per unit for the layout of ``opts`` (patch, levels, contrast
     bins), weighted as ``opts.sample_weight`` (:func:`l3cli.train.weights.sample_weights`).
 
     The augmentation of ``opts.augment`` applies later, when a fold's table is
     solved (:func:`l3cli.train.fit.table_from_stats`). With a dask ``client``
     each unit is a task (:func:`unit_stats_task`) over the images scattered to
-    the workers (``remote_images``, futures of ``images``); the units' statistics
-    are summed here in unit order, so the total is the same bit for bit.
+    the workers (``remote_images``, futures of ``images``), whose result stays
+    there for the fold tasks (a :class:`RemoteLayout`; a result lost with its
+    worker is computed again).
     """
-    from l3cli.parallel import map_reduce
-
     d = definition_from_histogram(images[0].cfa, hist, opts)
-    held = images if client is None else remote_images
-    per_unit = map_reduce(unit_stats_task, [(held, u, d, opts) for u in units], client=client,
-                          label="cv statistics", show_progress=False)
-    total = ClassStats.zeros(d, 3 * len(CV_SPACES), target_space="cv")
-    for st in per_unit:
-        total += st
-    return LayoutStats(d, per_unit, total)
+    if client is None:
+        return LayoutStats.of(d, [unit_stats_task((images, u, d, opts)) for u in units])
+    return RemoteLayout(d, [client.submit(unit_stats_task, (remote_images, u, d, opts),
+                                          retries=1, pure=False) for u in units])
 
 
 def unit_stats_task(item: tuple) -> ClassStats:
@@ -353,8 +380,10 @@ def score_fold(images: Sequence[CVImage], units: Sequence[Unit], layout: LayoutS
 
 
 def score_fold_task(item: tuple) -> list[float]:
-    """:func:`score_fold` as a map task: ``(images, units, layout, held_out, opts)``."""
-    return score_fold(*item)
+    """:func:`score_fold` as a map task: ``(images, units, layout, held_out, opts)``
+    (the layout as :func:`as_layout` takes it)."""
+    images, units, layout, held, opts = item
+    return score_fold(images, units, as_layout(layout), held, opts)
 
 
 def fold_scores(images: Sequence[CVImage], units: Sequence[Unit], folds: Sequence[Sequence[int]],
@@ -363,8 +392,8 @@ def fold_scores(images: Sequence[CVImage], units: Sequence[Unit], folds: Sequenc
     """S-CIELAB of every unit when its fold is held out (float64 (n_units,)).
 
     With a dask ``client`` each fold is a task (:func:`score_fold_task`) over the
-    images and layout statistics scattered to the workers (``remote``: their
-    futures, ``(images, layout)``); the scores are the same bit for bit.
+    images and layout statistics on the workers (``remote``: the images' futures
+    and :meth:`RemoteLayout.for_task`); the scores are the same bit for bit.
     """
     from l3cli.parallel import map_reduce
 

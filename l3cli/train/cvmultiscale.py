@@ -41,7 +41,15 @@ from l3cli.multiscale import (
     solve,
 )
 from l3cli.train.curve import attach_curve
-from l3cli.train.cv import CV_SPACES, CVImage, LayoutStats, Unit, display_xyz, fold_stats
+from l3cli.train.cv import (
+    CV_SPACES,
+    CVImage,
+    LayoutStats,
+    Unit,
+    as_layout,
+    display_xyz,
+    fold_stats,
+)
 from l3cli.train.fit import TrainOptions, table_from_stats
 from l3cli.train.multiscale import cut_sample
 
@@ -76,8 +84,8 @@ def multiscale_fold_scores(images: Sequence[CVImage], units: Sequence[Unit],
     """S-CIELAB of every unit when its fold is held out, with and without the stage.
 
     With a dask ``client`` each fold is a task (:func:`multiscale_fold_task`) over
-    the images and layout statistics scattered to the workers (``remote``: their
-    futures, ``(images, layout)``); the scores are the same bit for bit.
+    the images and layout statistics on the workers (``remote``: as
+    :func:`l3cli.train.cv.fold_scores` takes it); the scores are the same bit for bit.
 
     Returns
     -------
@@ -106,6 +114,7 @@ def multiscale_fold_task(item: tuple) -> tuple[list[float], list[float]]:
     from l3cli.kernelset import render_mosaic
 
     images, units, folds, f, layout, opts, seed, (sigmas, levels, energy_bins, ridge) = item
+    layout = as_layout(layout)
     held = folds[f]
     space = opts.target_space
     transfer = default_transfer(space)

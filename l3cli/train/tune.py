@@ -258,7 +258,7 @@ class _Search:
         self.pairs, self.base, self.grid, self.field = pairs, base, grid, field
         self.opponent, self.report, self.client = opponent, report, client
         self.images: dict[bool, list] = {}
-        self.remote_images, self.remote_layouts = {}, {}  # on a cluster: their futures
+        self.remote_images = {}  # on a cluster: the images' futures
         self.hists: dict[tuple, object] = {}
         self.layouts: dict[tuple, object] = {}
         self.results: list[CandidateResult] = []
@@ -295,11 +295,7 @@ class _Search:
         """``(images, layout)`` of ``c`` on the cluster (futures), or None in process."""
         if self.client is None:
             return None
-        key = self.layout_key(c)
-        lay = self.layout(c)
-        if key not in self.remote_layouts:
-            self.remote_layouts[key] = self.client.scatter(lay, broadcast=True, hash=False)
-        return self.images_on_cluster(c.shading), self.remote_layouts[key]
+        return self.images_on_cluster(c.shading), self.layout(c).for_task()
 
     def layout(self, c: Candidate):
         key = self.layout_key(c)
@@ -310,9 +306,7 @@ class _Search:
                 self.hists[(c.shading, c.patch)] = histogram(images, opts,
                                                              self.field_for(c.shading))
             while len(self.layouts) >= 2:  # bounded memory: the two latest layouts
-                old = next(iter(self.layouts))
-                del self.layouts[old]
-                self.remote_layouts.pop(old, None)  # released on the workers too
+                del self.layouts[next(iter(self.layouts))]  # (on the workers too)
             self.layouts[key] = layout_stats(images, self.units, opts,
                                              self.hists[(c.shading, c.patch)],
                                              client=self.client,
@@ -485,8 +479,10 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
         table.provenance.update(prov)
         table.provenance["options"] = opts.as_dict()
     else:
-        table = table_from_stats(space_stats(s.layout(c), opts.target_space), opts,
-                                 provenance=prov)
+        lay = s.layout(c)
+        if s.client is not None:  # the units' statistics, from the workers
+            lay = lay.gather(s.client)
+        table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
         if opts.tone_curve:  # with the curve's record, as l3 train writes it
             attach_curve(table, images[0].curve, images[0].curve_record)
     if c.shading:
