@@ -138,3 +138,16 @@ def test_readme_from_python_session_runs(monkeypatch):
     res = doctest.testfile(str(ROOT / "README.md"), module_relative=False,
                            optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert res.attempted >= 8 and res.failed == 0, res
+
+
+def test_every_train_flag_is_a_parameter_of_the_library():
+    """``l3 train`` maps flags only: each of its options is a keyword of ``l3cli.train``
+    (the run's own: the output, the config file, the cluster), under the same name."""
+    from l3cli.cli.train import train
+    from l3cli.train.api import TrainRequest
+
+    fields = {f.name for f in dataclasses.fields(TrainRequest)}
+    flags = {p.name for p in train.params if p.expose_value} - {"inputs", "output",
+                                                                 "workers", "scheduler"}
+    assert flags <= fields, flags - fields
+    assert fields - flags == {"tune_grid"}  # the CLI's --config [train.tune] table
