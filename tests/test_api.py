@@ -98,7 +98,6 @@ def test_python_train_equals_l3_train_simulate_folder(tmp_path, runner):
     np.testing.assert_array_equal(back.render(raw), table.render(str(raw)))
 
 
-@pytest.mark.slow
 def test_python_train_equals_l3_train_tuned_pairs_folder(tmp_path, runner):
     """The default path of a pairs folder (self-tuning, as-shot white balance off: the
     raws carry none): the same table from the command and from Python, every array
