@@ -11,6 +11,7 @@ __all__ = [
     "L3Error",
     "InputError",
     "ConfigError",
+    "OptionError",
     "TableError",
     "OutputError",
 ]
@@ -26,6 +27,26 @@ class InputError(L3Error):
 
 class ConfigError(L3Error):
     """A camera TOML or option value is invalid (names file, key and allowed values)."""
+
+
+class OptionError(ConfigError):
+    """A library option's value is not allowed: the message names the *parameter*.
+
+    ``message`` may hold ``{name}`` where the name goes (else it follows the
+    name); a command line says its flag instead (:meth:`named`).
+    """
+
+    def __init__(self, parameter: str, message: str) -> None:
+        self.parameter = parameter
+        self.template = message if "{name}" in message else "{name} " + message
+        super().__init__(self.named(parameter))
+
+    def named(self, name: str) -> str:
+        """The message with ``name`` (e.g. a flag, ``--levels``) for the parameter."""
+        return self.template.replace("{name}", name)
+
+    def __reduce__(self):  # pickled with its parts (a task's error on a dask worker)
+        return type(self), (self.parameter, self.template)
 
 
 class TableError(L3Error):

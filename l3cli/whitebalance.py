@@ -340,10 +340,13 @@ def training_gains(raw: Any, opts: Any) -> np.ndarray:
     return g
 
 
-def training_mosaic(raw: Any, opts: Any) -> np.ndarray:
-    """The mosaic training sees: shading-corrected when ``opts.shading_field`` is set
-    (:mod:`l3cli.shading`), then normalised by the white balance when ``opts.white_balance``."""
-    field = getattr(opts, "shading_field", None)
+def training_mosaic(raw: Any, opts: Any, fitted: Any = None) -> np.ndarray:
+    """The mosaic training sees: shading-corrected when ``fitted.shading_field`` is set
+    (:mod:`l3cli.shading`), then normalised by the white balance when ``opts.white_balance``.
+
+    ``fitted`` is what training fitted before (:class:`l3cli.train.options.Fitted`;
+    None: nothing)."""
+    field = getattr(fitted, "shading_field", None)
     if field is not None:
         from l3cli.shading import corrected_raw
 
@@ -359,9 +362,11 @@ def _key(raw_path: Any) -> str:
     return str(Path(raw_path).absolute())
 
 
-def training_target(target: np.ndarray, raw_path: Any, opts: Any) -> np.ndarray:
-    """The target with the modelled adaptation of its capture taken out (when set)."""
-    adapt = getattr(opts, "target_adapt", None)
+def training_target(target: np.ndarray, raw_path: Any, opts: Any,
+                    fitted: Any = None) -> np.ndarray:
+    """The target with the modelled adaptation of its capture (``fitted.target_adapt``)
+    taken out (when set)."""
+    adapt = getattr(fitted, "target_adapt", None)
     if not adapt or _key(raw_path) not in adapt:
         return target
     space = ADAPT_SPACE[opts.target_space]

@@ -1,6 +1,13 @@
-"""``l3 train``: learn a transform table from (raw, target) pairs."""
+"""``l3 train``: learn a transform table from (raw, target) pairs.
+
+A thin mapping of flags onto :func:`l3cli.train.api.train` (which holds the
+policy: the inputs' defaults, white balance, self-tuning, the multi-scale
+stage); the library's errors and notes name parameters, said here as flags.
+"""
 
 from __future__ import annotations
+
+import logging
 
 import click
 
@@ -220,162 +227,78 @@ def train(inputs: tuple[str, ...], output: str, patch: int, levels: int, spacing
     of the best (--no-tune: the fixed defaults).
 
     With --workers or --scheduler each input is read and reduced to
-    statistics by a dask.distributed worker; the table is the same as in
-    process (docs/distributed.md; pairs folders then train the fixed defaults).
+    statistics by a dask.distributed worker, and self-tuning scores its
+    candidates' folds there; the table is the same as in process
+    (docs/distributed.md).
+
+    The same from Python: l3cli.train(INPUTS, **options) (README, "From Python").
     """
-    import logging
+    from pathlib import Path
 
     from l3cli.cli.options import distinct_inputs
     from l3cli.cli.paths import check_outputs
-    from l3cli.table import save_table
-    from l3cli.train import TrainOptions, find_pairs
-    from l3cli.train import train as train_table
-    from l3cli.train.fit import layout_defaults
+    from l3cli.errors import ConfigError, OptionError
+    from l3cli.train.api import train as train_inputs
 
     check_outputs([(output, "-o")], inputs)
     distinct_inputs(inputs, "a training input")
-    if embedded_preview:
-        import shutil
-        import tempfile
-        from pathlib import Path
+    ctx = click.get_current_context()
+    flags = _flags(ctx.command)
+    loud = not silenced()
+    options = dict(
+        patch=patch, levels=levels, spacing=spacing,
+        level_range=tuple(level_range) if level_range else None,
+        contrast_bins=contrast_bins, contrast_threshold=contrast_threshold,
+        saturation=saturation, merge_positions=merge_positions, target_space=target_space,
+        tone_curve=tone_curve, shading=shading, sample_fraction=sample_fraction,
+        min_samples_factor=min_samples_factor, scaled_renders=scaled_renders, by=by,
+        embedded_preview=embedded_preview, as_shot_wb=as_shot_wb,
+        white_balance=None if white_balance is None else tuple(white_balance.tolist()),
+        tune=tune, tune_grid=ctx.meta.get("l3.tune_grid"),
+        orientation_bins=orientation_bins, coherence=coherence, context_block=context_block,
+        context_bins=context_bins, context_rule=context_rule,
+        highlight_bins=int(highlight_bins), highlight_fraction=highlight_fraction,
+        augment=augment, sample_weight=sample_weight, multiscale=multiscale, seed=seed)
 
-        from l3cli.preview import preview_pairs
+    def note(n) -> None:
+        if loud:
+            click.echo(f"note: {n.named(flags.get(n.parameter))}", err=True)
 
-        parent = Path(output).absolute().parent
-        work = tempfile.mkdtemp(prefix=".l3-tmp-previews-",
-                                dir=parent if parent.is_dir() else None)
-        click.get_current_context().call_on_close(lambda: shutil.rmtree(work, ignore_errors=True))
-        pairs = preview_pairs(list(inputs), work)
-    else:
-        pairs = find_pairs(list(inputs), scaled_renders=scaled_renders)
-    # the layout's defaults depend on what is trained from (l3cli.defaults)
-    layout = layout_defaults(pairs)
-    patch = layout["patch"] if patch is None else patch
-    levels = layout["levels"] if levels is None else levels
-    contrast_bins = layout["contrast_bins"] if contrast_bins is None else contrast_bins
-    if contrast_threshold is None:
-        contrast_threshold = layout["contrast_threshold"]
-    elif contrast_threshold == "quantile":
-        contrast_threshold = None
-    target_space = target_space or layout["target_space"]
-    if tone_curve is None:  # the layout's, where its target space is used
-        from l3cli.train.fit import TONE_CURVE_SPACE
-
-        tone_curve = layout["tone_curve"] and target_space == TONE_CURVE_SPACE
-    augment = augment or layout["augment"]
-    sample_weight = sample_weight or layout["sample_weight"]
-    shading = layout["shading"] if shading is None else shading
-    gains = white_balance
-    if gains is not None:
-        if as_shot_wb is False:
-            raise click.BadParameter("--white-balance needs white-balanced training; drop "
-                                     "--no-as-shot-wb", param_hint="--white-balance")
-        as_shot_wb = True
-    if as_shot_wb is None:  # real cameras: on when every raw says its white balance
-        from l3cli.whitebalance import file_gains
-
-        as_shot_wb = all(p.align for p in pairs) and all(
-            file_gains(p.raw) is not None for p in pairs)
-    opts = TrainOptions(patch=patch, levels=levels, spacing=spacing,
-                        level_range=tuple(level_range) if level_range else None,
-                        contrast_bins=contrast_bins, contrast_threshold=contrast_threshold,
-                        saturation=saturation, merge_positions=merge_positions,
-                        target_space=target_space, sample_fraction=sample_fraction, seed=seed,
-                        min_samples_factor=min_samples_factor, white_balance=as_shot_wb,
-                        wb_override=None if gains is None else gains.tolist(), by=by,
-                        orientation_bins=orientation_bins, coherence=coherence,
-                        context_block=context_block, context_bins=context_bins,
-                        context_rule=context_rule, highlight_bins=int(highlight_bins),
-                        highlight_fraction=highlight_fraction, tone_curve=tone_curve,
-                        augment=augment, sample_weight=sample_weight, shading=shading)
-    show = not quiet()
-    asked = tune is not None
-    tune = _want_tune(tune, pairs, opts, workers, scheduler)
-    table = None
-    if tune:
-        from l3cli.errors import InputError, TableError
-
-        try:
-            table = _tune(pairs, opts, multiscale, show)
-        except (InputError, TableError) as exc:
-            if asked:  # --tune: its error is the user's answer
-                raise
-            # the default search cannot score these inputs (e.g. too little data for its
-            # folds): the fixed defaults, which need less, with a note
-            tune = False
-            if not silenced():
-                click.echo(f"note: self-tuning skipped ({exc}); training the fixed defaults",
-                           err=True)
-    if table is None:
-        table = train_table(pairs, opts, workers=workers, scheduler=scheduler,
-                            show_progress=show)
-    if multiscale and not tune:  # the learned stage after the kernels (l3cli.multiscale)
-        from l3cli.train.multiscale import attach_multiscale
-
-        attach_multiscale(table, pairs, seed=seed, show_progress=show)
-    save_table(output, table)
-    n_tr = int((~table.empty).sum())
-    logging.getLogger(__name__).info("wrote %s", output)
-    if not silenced():
-        click.echo(f"{output}: {n_tr} of {table.empty.size} classes trained from "
-                   f"{len(pairs)} captures ({int(table.counts.sum())} samples)", err=True)
-
-
-def _given(name: str) -> bool:
-    """Whether the user set option ``name`` (command line, environment or --config)."""
-    from click.core import ParameterSource
-
-    src = click.get_current_context().get_parameter_source(name)
-    return src in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT,
-                   ParameterSource.DEFAULT_MAP)
-
-
-def _want_tune(tune, pairs, opts, workers, scheduler) -> bool:
-    """``--tune``/``--no-tune``, else the default of the inputs' kind
-    (:data:`l3cli.defaults.TUNE_PAIRS`); a defaulted search gives way (with a note)
-    to what it cannot do: a cluster (--workers/--scheduler), --by, or a target
-    space it cannot score."""
-    from l3cli.train.cv import CV_SPACES
-    from l3cli.train.fit import pairs_kind
-
-    if tune is not None:
-        if tune and (workers is not None or scheduler is not None):
-            raise click.UsageError("--tune runs in this process; drop --workers/--scheduler")
-        return tune
-    if not (defaults.TUNE_PAIRS if pairs_kind(pairs) == "pairs" else defaults.TUNE_SIMULATE):
-        return False
-    why = ("--workers/--scheduler" if workers is not None or scheduler is not None
-           else "--by" if opts.by else f"--target {opts.target_space}"
-           if opts.target_space not in CV_SPACES else None)
-    if why is None:
-        return True
-    if not silenced():
-        click.echo(f"note: {why}: training the fixed defaults (the self-tuning of pairs "
-                   "folders runs in this process without it; docs/training.md)", err=True)
-    return False
-
-
-def _tune(pairs, opts, multiscale, show):
-    """The cross-validated search; prints progress and the candidate table."""
-    from l3cli.train.tune import TuneGrid, format_candidates
-    from l3cli.train.tune import tune as run_tune
-
-    grid = click.get_current_context().meta.get("l3.tune_grid") or TuneGrid()
-    values = {**vars(opts), "multiscale": multiscale}
-    grid = grid.fixed(**{k: values[k] for k in TuneGrid.OPTIONS if _given(k)})
-    loud = not (click.get_current_context().find_root().obj or {}).get("quiet")
-
-    def report(k, c, score, seconds):
+    def report(k, c, score, seconds) -> None:
         if loud:
             on = {True: "on", False: "off"}
             click.echo(f"tune {k:>2}: {c.target_space:<11} patch {c.patch} shading "
                        f"{on[c.shading]:<3} multiscale {on[c.multiscale]:<3}  CV {score:.4f}  "
                        f"({seconds:.0f} s)", err=True)
 
-    res = run_tune(pairs, opts, grid, show_progress=show, report=report)
-    if loud:
-        rec = res.record
+    try:
+        table = train_inputs(inputs, workers=workers, scheduler=scheduler,
+                             show_progress=not quiet(), report=report, note=note,
+                             scratch=Path(output).absolute().parent, **options)
+    except OptionError as exc:  # the library names parameters; here, their flags
+        raise ConfigError(exc.named(flags.get(exc.parameter, exc.parameter))) from None
+    rec = table.tuning
+    if rec is not None and loud:
+        from l3cli.train.tune import format_candidates
+
         click.echo(f"tune: {len(rec['candidates'])} candidates, {len(rec['folds'])} folds, "
                    f"{rec['seconds']:.0f} s; {rec['metric']}", err=True)
         click.echo(format_candidates(rec), err=True)
-    return res.table
+    table.save(output)
+    n_tr = int((~table.empty).sum())
+    logging.getLogger(__name__).info("wrote %s", output)
+    if loud:
+        n_pairs = len(table.provenance.get("inputs", ()))
+        click.echo(f"{output}: {n_tr} of {table.empty.size} classes trained from "
+                   f"{n_pairs} captures ({int(table.counts.sum())} samples)", err=True)
+
+
+def _flags(command: click.Command) -> dict[str, str]:
+    """Each parameter's flag (its long name: ``target_space`` -> ``--target``), for the
+    library's errors and notes, which name parameters."""
+    out = {"wb_override": "--white-balance", "white_balance": "--white-balance"}
+    for p in command.params:
+        longs = [o for o in p.opts if o.startswith("--")]
+        if longs:
+            out[p.name] = longs[0]
+    return out

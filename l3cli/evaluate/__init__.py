@@ -1,5 +1,8 @@
 """Evaluate rendered images against references: S-CIELAB, PSNR, Macbeth ΔE, MTF50.
 
+The package is callable: ``l3cli.evaluate(image, reference)`` is
+:func:`~l3cli.evaluate.metrics.evaluate_images` (one image, a file or an array).
+
 The library core of ``l3 evaluate`` (it knows nothing of click), one module a
 concern: :mod:`~l3cli.evaluate.inputs` (pairing, images read as XYZ),
 :mod:`~l3cli.evaluate.options` (:class:`EvalOptions`),
@@ -74,11 +77,15 @@ before S-CIELAB and PSNR (some camera ISPs corrupt the outer pixels); chart
 patches and edge regions keep their full-image coordinates.
 """
 
+import sys
+import types
+
 from l3cli.evaluate.inputs import IMAGE_SUFFIXES, EvalItem, find_items, load_xyz
 from l3cli.evaluate.metrics import (
     ImageReport,
     align_reference,
     evaluate,
+    evaluate_images,
     evaluate_item,
     summarise,
     white_point_for,
@@ -97,8 +104,19 @@ __all__ = [
     "white_point_for",
     "evaluate_item",
     "evaluate",
+    "evaluate_images",
     "summarise",
     "report_dict",
     "write_report",
     "format_table",
 ]
+
+
+class _CallableEvaluate(types.ModuleType):
+    """The package's type: calling it evaluates one image (:func:`evaluate_images`)."""
+
+    def __call__(self, image, reference, **options):
+        return evaluate_images(image, reference, **options)
+
+
+sys.modules[__name__].__class__ = _CallableEvaluate

@@ -21,13 +21,27 @@ from l3cli.pairs import (
     read_simulation_manifest,
 )
 
-__all__ = ["IMAGE_SUFFIXES", "EvalItem", "find_items", "load_xyz", "load_image"]
+__all__ = ["IMAGE_SUFFIXES", "EvalItem", "ArrayImage", "find_items", "load_xyz", "load_image"]
 
 log = logging.getLogger("l3cli.evaluate")
 
 #: Suffixes of rendered images looked for in a render folder, in order of
 #: preference: the input layer's (:data:`l3cli.pairs.RENDER_SUFFIXES`).
 IMAGE_SUFFIXES = RENDER_SUFFIXES
+
+
+@dataclass(frozen=True, eq=False)
+class ArrayImage:
+    """An image held in memory, evaluated as a file would be: float (H, W, 3) values in
+    colour space ``space`` (linear spaces: a display white has Y = 1; ``srgb``: display
+    code values in [0, 1]); ``name`` stands for the file in messages."""
+
+    values: np.ndarray
+    space: str
+    name: str = "the image"
+
+    def __str__(self) -> str:
+        return self.name
 
 
 @dataclass(frozen=True)
@@ -39,7 +53,7 @@ class EvalItem:
     name
         Name in the report (the capture stem, or the rendered file name).
     rendered, reference
-        Image paths.
+        Image paths (or :class:`ArrayImage`).
     capture
         The manifest's capture record when the reference is a simulation.
     camera
@@ -232,7 +246,14 @@ def load_image(path: str | os.PathLike, space: str | None) -> tuple[np.ndarray, 
     from l3cli.colourspace import check_space, convert
     from l3cli.io.image import read_image
 
-    img, file_space = read_image(path)
+    if isinstance(path, ArrayImage):
+        img, file_space = np.asarray(path.values, dtype=np.float32), path.space
+        if img.ndim == 2:
+            img = img[:, :, None]
+        if img.ndim != 3:
+            raise InputError(f"{path}: an image array is (H, W, 3), not {img.shape}")
+    else:
+        img, file_space = read_image(path)
     name = space or file_space
     try:
         space = check_space(name)

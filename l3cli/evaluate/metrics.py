@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from l3cli.errors import InputError
-from l3cli.evaluate.inputs import EvalItem, find_items, load_image
+from l3cli.errors import InputError, OptionError
+from l3cli.evaluate.inputs import ArrayImage, EvalItem, find_items, load_image
 from l3cli.evaluate.options import EvalOptions
 from l3cli.metrics.macbeth import (
     MACBETH_WHITE_INDEX,
@@ -231,7 +231,8 @@ def _psnr(rend: np.ndarray, ref: np.ndarray, rend_codes: np.ndarray | None, ref_
     return psnr(_crop(ref, exclude_border), _crop(rend, exclude_border), data_range=float(white[1]))
 
 
-def evaluate_item(item: EvalItem, options: EvalOptions | None = None) -> ImageReport:
+def evaluate_item(item: EvalItem, options: EvalOptions | None = None, *,
+                  rendered_space: str | None = None) -> ImageReport:
     """Compute every applicable metric for one pair.
 
     Parameters
@@ -240,6 +241,8 @@ def evaluate_item(item: EvalItem, options: EvalOptions | None = None) -> ImageRe
         The pair (see :func:`~l3cli.evaluate.inputs.find_items`).
     options
         How (:class:`~l3cli.evaluate.options.EvalOptions`; default: its defaults).
+    rendered_space
+        The render's colour space (None: the file's own).
 
     Returns
     -------
@@ -247,7 +250,7 @@ def evaluate_item(item: EvalItem, options: EvalOptions | None = None) -> ImageRe
     """
     o = options or EvalOptions()
     exclude_border, align = o.exclude_border, o.align
-    rend, rend_space, rend_values = load_image(item.rendered, None)
+    rend, rend_space, rend_values = load_image(item.rendered, rendered_space)
     ref, ref_space, ref_values = load_image(item.reference, item.reference_space)
     if align:
         from l3cli.align import apply_flip
@@ -369,3 +372,43 @@ def evaluate(
         log.info("evaluating %s against %s", item.rendered, item.reference)
         reports.append(evaluate_item(item, options))
     return reports, summarise(reports)
+
+
+def evaluate_images(image, reference, *, space: str | None = None,
+                    reference_space: str | None = None, **options) -> dict[str, float]:
+    """The metrics of one image against its reference, as ``l3 evaluate`` computes them
+    (``l3cli.evaluate(image, reference)``).
+
+    Parameters
+    ----------
+    image, reference
+        Image files (EXR, TIFF, PNG, JPEG), or float arrays (H, W, 3).
+    space, reference_space
+        The colour space of each (:data:`l3cli.colourspace.SPACES`): needed for an
+        array (e.g. a table's render is in its ``output_space``, linear); a file's
+        own by default.
+    **options
+        :class:`~l3cli.evaluate.options.EvalOptions` fields, e.g. ``exclude_border=4``.
+
+    Returns
+    -------
+    dict
+        Metric name -> value (``scielab_mean``, ``psnr_db``, ...; the keys of the
+        JSON report's per-image ``metrics``).
+    """
+    import pathlib
+
+    def source(x, sp, param, what):
+        if isinstance(x, np.ndarray):
+            if sp is None:
+                raise OptionError(param, "{name} is needed with an array (its colour space: "
+                                  "xyz, linear-srgb, srgb or lab)")
+            return ArrayImage(x, sp, f"the {what} array")
+        return pathlib.Path(x)
+
+    rendered = source(image, space, "space", "image")
+    ref = source(reference, reference_space, "reference_space", "reference")
+    item = EvalItem(getattr(rendered, "stem", "image"), rendered, ref,
+                    reference_space=reference_space)
+    report = evaluate_item(item, EvalOptions(**options), rendered_space=space)
+    return dict(report.values)

@@ -17,7 +17,7 @@ import numpy as np
 from l3cli.colourspace import srgb_encode
 from l3cli.pairs import Pair, load_pair
 from l3cli.table import TransformTable
-from l3cli.train.options import NO_CURVE, TrainOptions
+from l3cli.train.options import NO_CURVE, NOTHING, Fitted, TrainOptions
 from l3cli.train.pixels import training_pixels
 
 __all__ = ["curve_samples", "fit_pairs_curve", "chosen_curve", "attach_curve"]
@@ -34,8 +34,9 @@ def curve_samples(mosaic: np.ndarray, cfa, target: np.ndarray, mask: np.ndarray 
     return block_samples(mosaic, cfa, enc, saturation=opts.saturation, mask=mask)
 
 
-def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions):
-    """The renders' tone curve, from every training pair (as pass 2 sees them).
+def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions, fitted: Fitted = NOTHING):
+    """The renders' tone curve, from every training pair (as pass 2 sees them: with the
+    shading field and the white adaptation of ``fitted``).
 
     Returns
     -------
@@ -51,8 +52,9 @@ def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions):
     for i, pair in enumerate(pairs):
         loaded = load_pair(pair, target_space=opts.target_space)
         mask = training_pixels(loaded.raw.mosaic.shape, loaded.weight_mask, opts, i)
-        samples.append(curve_samples(training_mosaic(loaded.raw, opts), loaded.raw.cfa,
-                                     training_target(loaded.target, pair.raw, opts), mask, opts))
+        samples.append(curve_samples(training_mosaic(loaded.raw, opts, fitted), loaded.raw.cfa,
+                                     training_target(loaded.target, pair.raw, opts, fitted),
+                                     mask, opts))
     return chosen_curve(samples)
 
 

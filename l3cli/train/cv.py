@@ -31,11 +31,10 @@ and that space's renders are mapped back through it before scoring.
 
 from __future__ import annotations
 
-import copy
 import functools
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -48,6 +47,7 @@ from l3cli.train.curve import attach_curve, chosen_curve, curve_samples
 from l3cli.train.cvscore import DEFAULT_OPPONENT, ReferenceSCIELAB
 from l3cli.train.fit import (
     TONE_CURVE_SPACE,
+    Fitted,
     TrainOptions,
     definition_from_histogram,
     histogram_task,
@@ -58,7 +58,8 @@ from l3cli.train.stats import ClassStats, accumulate
 
 __all__ = ["CV_SPACES", "CVImage", "Unit", "load_cv_images", "make_units", "make_folds", "histogram",
            "space_stats", "display_xyz",
-           "LayoutStats", "layout_stats", "fold_stats", "score_fold", "fold_scores"]
+           "LayoutStats", "RemoteLayout", "as_layout", "layout_stats", "unit_stats_task", "fold_stats", "score_fold",
+           "score_fold_task", "fold_scores"]
 
 log = logging.getLogger(__name__)
 
@@ -106,8 +107,11 @@ class CVImage:
 
 
 def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
-                   opponent: str = DEFAULT_OPPONENT) -> list[CVImage]:
+                   opponent: str = DEFAULT_OPPONENT, shading_field=None) -> list[CVImage]:
     """Read every pair once, with its targets in all :data:`CV_SPACES`.
+
+    With ``shading_field`` (:class:`l3cli.shading.GainField`) the mosaics are
+    corrected by it, as ``l3 train`` corrects them.
 
     With ``opts.white_balance`` (raws that carry a white balance) the images
     are what ``l3 train`` trains on: mosaics normalised by their white
@@ -118,22 +122,22 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
     """
     from l3cli.whitebalance import training_mosaic, training_target
 
+    fitted = Fitted(shading_field=shading_field)
     wb_opts = None
     if opts.white_balance:
         from l3cli.train.adaptation import fit_white_adaptation
 
-        wb_opts = copy.copy(opts)
-        wb_opts.target_space = "linear-srgb"
-        wb_opts.target_adapt = fit_white_adaptation(pairs, wb_opts)[1] or None
+        wb_opts = replace(opts, target_space="linear-srgb")
+        fitted = replace(fitted, target_adapt=fit_white_adaptation(pairs, wb_opts)[1] or None)
     images = []
     for i, pair in enumerate(pairs):
         loaded = load_pair(pair, target_space="linear-srgb")
         raw, lin, valid = loaded.raw, loaded.target, loaded.weight_mask
         if wb_opts is not None:
-            raw.mosaic = training_mosaic(raw, wb_opts)
-            lin = training_target(lin, pair.raw, wb_opts)
-        elif getattr(opts, "shading_field", None) is not None:  # lens shading corrected
-            raw.mosaic = training_mosaic(raw, opts)
+            raw.mosaic = training_mosaic(raw, wb_opts, fitted)
+            lin = training_target(lin, pair.raw, wb_opts, fitted)
+        elif shading_field is not None:  # lens shading corrected
+            raw.mosaic = training_mosaic(raw, opts, fitted)
         targets = np.empty(lin.shape[:2] + (3 * len(CV_SPACES),), dtype=np.float32)
         for k, space in enumerate(CV_SPACES):
             targets[:, :, 3 * k:3 * k + 3] = convert(lin, "linear-srgb", space)
@@ -221,41 +225,82 @@ class LayoutStats:
     units: list[ClassStats]
     total: ClassStats
 
+    @classmethod
+    def of(cls, definition: ClassDefinition, per_unit: Sequence[ClassStats]) -> LayoutStats:
+        """The layout of these units' statistics, their total summed in unit order."""
+        total = ClassStats.zeros(definition, 3 * len(CV_SPACES), target_space="cv")
+        for st in per_unit:
+            total += st
+        return cls(definition, list(per_unit), total)
 
-def histogram(images: Sequence[CVImage], opts: TrainOptions) -> ContrastHistogram:
-    """Pass 1 of ``l3 train`` over the raws (for ``opts.patch``), summed in input order."""
+
+@dataclass
+class RemoteLayout:
+    """A layout whose units' statistics stay on a dask cluster (``units``: futures).
+
+    A fold task receives ``(definition, units)`` and makes the layout itself
+    (:meth:`LayoutStats.of`: the same sums as in process); :meth:`gather`
+    brings it here (the chosen candidate's table)."""
+
+    definition: ClassDefinition
+    units: list
+
+    def gather(self, client) -> LayoutStats:
+        return LayoutStats.of(self.definition, client.gather(self.units))
+
+    def for_task(self) -> tuple:
+        return self.definition, self.units
+
+
+def as_layout(layout) -> LayoutStats:
+    """A task's layout argument: a :class:`LayoutStats`, or ``(definition, units)``."""
+    return layout if isinstance(layout, LayoutStats) else LayoutStats.of(*layout)
+
+
+def histogram(images: Sequence[CVImage], opts: TrainOptions,
+              shading_field=None) -> ContrastHistogram:
+    """Pass 1 of ``l3 train`` over the raws (for ``opts.patch``; corrected by the lens
+    shading ``shading_field`` when given), summed in input order."""
     hist = ContrastHistogram.empty()
     for i, img in enumerate(images):
-        hist = hist + histogram_task((i, img.pair, opts, True))[2]
+        hist = hist + histogram_task((i, img.pair, opts, True, Fitted(shading_field)))[2]
     return hist
 
 
 def layout_stats(images: Sequence[CVImage], units: Sequence[Unit], opts: TrainOptions,
-                 hist: ContrastHistogram | None) -> LayoutStats:
+                 hist: ContrastHistogram | None, *, client=None,
+                 remote_images=None) -> LayoutStats | RemoteLayout:
     """One statistics pass per unit for the layout of ``opts`` (patch, levels, contrast
     bins), weighted as ``opts.sample_weight`` (:func:`l3cli.train.weights.sample_weights`).
 
     The augmentation of ``opts.augment`` applies later, when a fold's table is
-    solved (:func:`l3cli.train.fit.table_from_stats`).
+    solved (:func:`l3cli.train.fit.table_from_stats`). With a dask ``client``
+    each unit is a task (:func:`unit_stats_task`) over the images scattered to
+    the workers (``remote_images``, futures of ``images``), whose result stays
+    there for the fold tasks (a :class:`RemoteLayout`; a result lost with its
+    worker is computed again).
     """
+    d = definition_from_histogram(images[0].cfa, hist, opts)
+    if client is None:
+        return LayoutStats.of(d, [unit_stats_task((images, u, d, opts)) for u in units])
+    return RemoteLayout(d, [client.submit(unit_stats_task, (remote_images, u, d, opts),
+                                          retries=1, pure=False) for u in units])
+
+
+def unit_stats_task(item: tuple) -> ClassStats:
+    """The statistics of one unit (a map task): ``(images, unit, definition, opts)``,
+    every target space's channels (:data:`CV_SPACES`)."""
     from l3cli.train.weights import sample_weights
 
-    d = definition_from_histogram(images[0].cfa, hist, opts)
-    n_out = 3 * len(CV_SPACES)
-    per_unit = []
-    for u in units:
-        img = images[u.image]
-        st = ClassStats.zeros(d, n_out, target_space="cv")
-        mask = _unit_mask(img, u, guard=opts.patch // 2)
-        # as l3 train: weights from the target's Y (the xyz channels), mean 1 over the image
-        weight = sample_weights(img.targets[:, :, 3 * CV_SPACES.index("xyz") + 1], img.mask,
-                                opts.sample_weight)
-        accumulate(st, img.mosaic, img.targets, mask=mask, weight=weight)
-        per_unit.append(st)
-    total = ClassStats.zeros(d, n_out, target_space="cv")
-    for st in per_unit:
-        total += st
-    return LayoutStats(d, per_unit, total)
+    images, u, d, opts = item
+    img = images[u.image]
+    st = ClassStats.zeros(d, 3 * len(CV_SPACES), target_space="cv")
+    mask = _unit_mask(img, u, guard=opts.patch // 2)
+    # as l3 train: weights from the target's Y (the xyz channels), mean 1 over the image
+    weight = sample_weights(img.targets[:, :, 3 * CV_SPACES.index("xyz") + 1], img.mask,
+                            opts.sample_weight)
+    accumulate(st, img.mosaic, img.targets, mask=mask, weight=weight)
+    return st
 
 
 def fold_stats(layout: LayoutStats, held_out: Sequence[int], space: str) -> ClassStats:
@@ -334,10 +379,28 @@ def score_fold(images: Sequence[CVImage], units: Sequence[Unit], layout: LayoutS
     return scores
 
 
+def score_fold_task(item: tuple) -> list[float]:
+    """:func:`score_fold` as a map task: ``(images, units, layout, held_out, opts)``
+    (the layout as :func:`as_layout` takes it)."""
+    images, units, layout, held, opts = item
+    return score_fold(images, units, as_layout(layout), held, opts)
+
+
 def fold_scores(images: Sequence[CVImage], units: Sequence[Unit], folds: Sequence[Sequence[int]],
-                layout: LayoutStats, opts: TrainOptions) -> np.ndarray:
-    """S-CIELAB of every unit when its fold is held out (float64 (n_units,))."""
+                layout: LayoutStats, opts: TrainOptions, *, client=None, remote=None
+                ) -> np.ndarray:
+    """S-CIELAB of every unit when its fold is held out (float64 (n_units,)).
+
+    With a dask ``client`` each fold is a task (:func:`score_fold_task`) over the
+    images and layout statistics on the workers (``remote``: the images' futures
+    and :meth:`RemoteLayout.for_task`); the scores are the same bit for bit.
+    """
+    from l3cli.parallel import map_reduce
+
+    imgs, lay = (images, layout) if client is None else remote
+    scores = map_reduce(score_fold_task, [(imgs, units, lay, held, opts) for held in folds],
+                        client=client, label="cv folds", show_progress=False)
     out = np.full(len(units), np.nan)
-    for held in folds:
-        out[list(held)] = score_fold(images, units, layout, held, opts)
+    for held, sc in zip(folds, scores, strict=True):
+        out[list(held)] = sc
     return out

@@ -21,7 +21,6 @@ group (same saturation pattern and contrast first, nearest level).
 
 from __future__ import annotations
 
-import copy
 import logging
 import platform
 from collections.abc import Iterable, Sequence
@@ -40,7 +39,9 @@ from l3cli.pairs import Pair, load_pair
 from l3cli.table import TransformTable
 from l3cli.train.options import (  # re-exported: l3cli.train.fit's public names
     NO_CURVE,
+    NOTHING,
     TONE_CURVE_SPACE,
+    Fitted,
     TrainOptions,
     check_class_budget,
     default_target_space,
@@ -74,15 +75,14 @@ def _for_workers(pairs: Sequence[Pair], client) -> list[Pair]:
             for p in pairs]
 
 
-def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
-                   ) -> tuple[int, CFA, ContrastHistogram | None]:
+def histogram_task(item: tuple) -> tuple[int, CFA, ContrastHistogram | None]:
     """Pass 1 on one input (a map task): its CFA and (level, contrast) histogram.
 
     Parameters
     ----------
     item
-        ``(index, pair, opts, with_histogram)``; ``index`` numbers the image for
-        the sampling seed.
+        ``(index, pair, opts, with_histogram[, fitted])``; ``index`` numbers the image
+        for the sampling seed; ``fitted`` (:class:`Fitted`): the lens-shading field.
 
     Returns
     -------
@@ -92,9 +92,10 @@ def histogram_task(item: tuple[int, Pair, TrainOptions, bool]
     from l3cli.io.raw import read_raw
     from l3cli.whitebalance import training_mosaic
 
-    i, pair, opts, with_hist = item
+    i, pair, opts, with_hist, *rest = item
+    fitted = rest[0] if rest else NOTHING
     raw = read_raw(pair.raw)
-    mosaic = training_mosaic(raw, opts)
+    mosaic = training_mosaic(raw, opts, fitted)
     if not with_hist:
         return i, raw.cfa, None
     hist = ContrastHistogram.empty()
@@ -145,21 +146,23 @@ class PartialStats:
         return stats
 
 
-def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> PartialStats:
+def stats_task(item: tuple) -> PartialStats:
     """Pass 2 on one input (a map task): the sufficient statistics of one pair.
 
     Parameters
     ----------
     item
-        ``(index, pair, definition, opts)``; ``index`` numbers the image for the
-        sampling seed (:func:`sample_mask`).
+        ``(index, pair, definition, opts[, fitted])``; ``index`` numbers the image for
+        the sampling seed (:func:`sample_mask`); ``fitted`` (:class:`Fitted`): the
+        shading field, white adaptation and tone curve fitted before.
 
     Returns
     -------
     PartialStats
         The statistics of this pair alone (its classes with samples); they add.
     """
-    i, pair, definition, opts = item
+    i, pair, definition, opts, *rest = item
+    fitted = rest[0] if rest else NOTHING
     loaded = load_pair(pair, target_space=opts.target_space)
     raw, target, valid = loaded.raw, loaded.target, loaded.weight_mask
     if raw.cfa.spec != definition.cfa.spec:
@@ -170,20 +173,21 @@ def stats_task(item: tuple[int, Pair, ClassDefinition, TrainOptions]) -> Partial
     from l3cli.train.weights import luminance, sample_weights
     from l3cli.whitebalance import training_mosaic, training_target
 
-    mosaic = training_mosaic(raw, opts)
-    target = training_target(target, pair.raw, opts)
+    mosaic = training_mosaic(raw, opts, fitted)
+    target = training_target(target, pair.raw, opts, fitted)
     weight = None
     if opts.sample_weight != "none":
         weight = sample_weights(luminance(target, opts.target_space), mask, opts.sample_weight)
-    if opts.tone_model is not None:
-        target = opts.tone_model.linearise(srgb_encode(np.clip(target, 0.0, 1.0)))
+    if fitted.tone_model is not None:
+        target = fitted.tone_model.linearise(srgb_encode(np.clip(target, 0.0, 1.0)))
     stats = ClassStats.zeros(definition, target.shape[2], target_space=opts.target_space)
     accumulate(stats, mosaic, target, mask=mask, weight=weight)
     return PartialStats.of(stats)
 
 
 def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
-                   show_progress: bool | None = False) -> ClassDefinition:
+                   show_progress: bool | None = False,
+                   fitted: Fitted = NOTHING) -> ClassDefinition:
     """Class definition for the data: CFA from the raws, cut points from pass 1.
 
     Pass 1 maps :func:`histogram_task` over the raws (only the first one when
@@ -206,7 +210,7 @@ def define_classes(pairs: Sequence[Pair], opts: TrainOptions, *, client=None,
     pairs = list(pairs)
     need_hist = _need_histogram(opts)
     sent = _for_workers(pairs, client)
-    items = [(i, p, opts, need_hist) for i, p in enumerate(sent)]
+    items = [(i, p, opts, need_hist, fitted) for i, p in enumerate(sent)]
     if not need_hist:
         items = items[:1]
     first: dict = {}
@@ -269,8 +273,8 @@ def definition_from_histogram(cfa: CFA, hist: ContrastHistogram | None,
 
 
 def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: TrainOptions, *,
-                  index_offset: int = 0, client=None,
-                  show_progress: bool | None = False) -> ClassStats:
+                  index_offset: int = 0, client=None, show_progress: bool | None = False,
+                  fitted: Fitted = NOTHING) -> ClassStats:
     """Sufficient statistics of ``pairs`` (pass 2).
 
     Maps :func:`stats_task` over the pairs (one task per pair) and sums the
@@ -281,7 +285,7 @@ def collect_stats(pairs: Sequence[Pair], definition: ClassDefinition, opts: Trai
     from l3cli.parallel import map_reduce
 
     sent = _for_workers(pairs, client)
-    items = [(i + index_offset, p, definition, opts) for i, p in enumerate(sent)]
+    items = [(i + index_offset, p, definition, opts, fitted) for i, p in enumerate(sent)]
     stats = ClassStats.zeros(definition, 3, target_space=opts.target_space)
     map_reduce(stats_task, items, reduce=lambda acc, part: part.add_to(stats), client=client,
                label="statistics", show_progress=show_progress)
@@ -358,7 +362,7 @@ def solve_stats(stats: ClassStats, opts: TrainOptions
             if sw != n:  # weighted: weights sum to the count
                 f = n / sw
                 xtx, xty, yy = xtx * f, xty * f, yy * f
-            sol = solve_class(n, xtx, xty, yy, grid=opts.lambda_grid)
+            sol = solve_class(n, xtx, xty, yy, grid=np.asarray(opts.lambda_grid))
             kernels[c] = sol.kernel
             lambdas[c] = sol.lam
             lam_rel[c] = sol.lam_rel
@@ -408,9 +412,11 @@ def table_from_stats(stats: ClassStats, opts: TrainOptions, *,
 
 
 def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
-          workers: int | None = None, scheduler: str | None = None,
-          show_progress: bool | None = False) -> TransformTable:
-    """Train a table from pairs: both passes, in process or on a dask cluster.
+          workers: int | None = None, scheduler: str | None = None, client=None,
+          show_progress: bool | None = False, shading_field=None) -> TransformTable:
+    """Train a table from pairs with these options: both passes, in process or on a
+    dask cluster. (What ``l3 train`` does, input-kind defaults and self-tuning
+    included, is :func:`l3cli.train.api.train`.)
 
     Each pass is a map over the inputs (one task reads one pair and returns
     its histogram or statistics) folded in input order; the solve runs here.
@@ -426,8 +432,14 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
         Run the passes on a local dask cluster of this many worker processes.
     scheduler
         Run them on the running dask scheduler at this address.
+    client
+        An open dask client (:func:`l3cli.parallel.dask_client`) to run them on
+        (takes precedence over ``workers`` and ``scheduler``).
     show_progress
         Progress bars on stderr.
+    shading_field
+        A lens-shading gain field learned already (:mod:`l3cli.train.shading`), used
+        instead of learning one (``opts.shading``).
 
     Raises
     ------
@@ -442,6 +454,10 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     pairs = list(pairs)
     if not pairs:
         raise InputError("no training pairs")
+    if client is None and (workers is not None or scheduler is not None):
+        with dask_client(workers, scheduler) as c:
+            return train(pairs, opts, client=c, show_progress=show_progress,
+                         shading_field=shading_field)
     prov = {"inputs": [str(p.raw) for p in pairs], "targets": [str(p.target) for p in pairs],
             "seed": opts.seed}
     groups: dict[float, list[int]] = {}
@@ -450,49 +466,47 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
 
         groups = group_pairs(pairs, opts.by)
     shading_record = None
-    if opts.shading:  # lens shading (on for pairs folders): corrected in every pass
+    fitted = Fitted(shading_field=shading_field)
+    if opts.shading and shading_field is None:  # lens shading: corrected in every pass
         from l3cli.train.shading import learn_shading
 
         field, shading_record = learn_shading(pairs, opts)
-        if field is not None:
-            opts = copy.copy(opts)
-            opts.shading_field = field
-    with dask_client(workers, scheduler) as client:
-        definition = define_classes(pairs, opts, client=client, show_progress=show_progress)
-        model = None
-        curve_record = None
-        stats_opts = opts
-        if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
-            from l3cli.train.adaptation import fit_white_adaptation
+        fitted = Fitted(shading_field=field)
+    definition = define_classes(pairs, opts, client=client, show_progress=show_progress,
+                                fitted=fitted)
+    model = None
+    curve_record = None
+    if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
+        from l3cli.train.adaptation import fit_white_adaptation
 
-            model, adapt = fit_white_adaptation(pairs, opts)
-            if adapt:
-                stats_opts = copy.copy(opts)
-                stats_opts.target_adapt = adapt
-        if opts.tone_curve:  # the renders' own curve: train in its linear space
-            from l3cli.train.curve import fit_pairs_curve
+        model, adapt = fit_white_adaptation(pairs, opts)
+        fitted = replace(fitted, target_adapt=adapt or None)
+    if opts.tone_curve:  # the renders' own curve: train in its linear space
+        from l3cli.train.curve import fit_pairs_curve
 
-            stats_opts = copy.copy(stats_opts)
-            stats_opts.tone_model, curve_record = fit_pairs_curve(pairs, stats_opts)
-        if opts.by:
-            parts = [collect_stats([pairs[i] for i in idx], definition, stats_opts,
-                                   index_offset=min(idx), client=client,
-                                   show_progress=show_progress) for idx in groups.values()]
-            stats = parts[0]
-            for part in parts[1:]:
-                stats = stats + part
-        else:
-            stats = collect_stats(pairs, definition, stats_opts, client=client,
-                                  show_progress=show_progress)
+        tone_model, curve_record = fit_pairs_curve(pairs, opts, fitted)
+        fitted = replace(fitted, tone_model=tone_model)
+    if opts.by:
+        parts = [collect_stats([pairs[i] for i in idx], definition, opts,
+                               index_offset=min(idx), client=client,
+                               show_progress=show_progress, fitted=fitted)
+                 for idx in groups.values()]
+        stats = parts[0]
+        for part in parts[1:]:
+            stats = stats + part
+    else:
+        stats = collect_stats(pairs, definition, opts, client=client,
+                              show_progress=show_progress, fitted=fitted)
     table = table_from_stats(stats, opts, provenance=prov)
     if opts.tone_curve:
         from l3cli.train.curve import attach_curve
 
-        attach_curve(table, stats_opts.tone_model, curve_record)
+        attach_curve(table, fitted.tone_model, curve_record)
     if model is not None:
         table.white_balance = model.as_dict()
+    if fitted.shading_field is not None or shading_record is not None:
+        table.shading = fitted.shading_field
     if shading_record is not None:
-        table.shading = opts.shading_field
         table.provenance["shading"] = shading_record
     if opts.by:
         from l3cli.conditions import Conditioned

@@ -3,14 +3,13 @@
 ``l3 train`` learns the gain field from the pairs before anything else, so
 that every later step (level cut points, white adaptation, tone curve,
 statistics) sees the corrected mosaics (:func:`l3cli.whitebalance.training_mosaic`
-applies ``opts.shading_field``). The field is fitted in the renders' linear
+applies the fitted field, :class:`l3cli.train.options.Fitted`). The field is fitted in the renders' linear
 space (sRGB decoding), then once more in the space of the learned tone curve
 when there is one (:func:`refit_in_curve_space`): the second alternation.
 """
 
 from __future__ import annotations
 
-import copy
 import logging
 from collections.abc import Sequence
 
@@ -28,8 +27,10 @@ log = logging.getLogger(__name__)
 ALTERNATIONS = 2
 
 
-def pair_blocks(pairs: Sequence[Pair], opts) -> tuple[list[BlockSamples], object, tuple | None]:
-    """Block samples of every pair (uncorrected mosaics), the full raws' CFA and size.
+def pair_blocks(pairs: Sequence[Pair], opts, tone_model=None
+                ) -> tuple[list[BlockSamples], object, tuple | None]:
+    """Block samples of every pair (uncorrected mosaics), the full raws' CFA and size;
+    the targets in the space of ``tone_model`` (the renders' tone curve) when given.
 
     The size is None when the training raws differ in size or a render is a
     resized copy (no field is learned then).
@@ -38,8 +39,6 @@ def pair_blocks(pairs: Sequence[Pair], opts) -> tuple[list[BlockSamples], object
     from l3cli.train.pixels import training_pixels
     from l3cli.whitebalance import training_mosaic, training_target
 
-    plain = copy.copy(opts)
-    plain.shading_field = None
     samples, sizes, cfa = [], set(), None
     for i, pair in enumerate(pairs):
         loaded = load_pair(pair, target_space=opts.target_space)
@@ -54,11 +53,11 @@ def pair_blocks(pairs: Sequence[Pair], opts) -> tuple[list[BlockSamples], object
         cfa = raw.cfa.shifted(-y0, -x0)
         mask = training_pixels(raw.mosaic.shape, loaded.weight_mask, opts, i)
         target = training_target(loaded.target, pair.raw, opts)
-        if opts.tone_model is not None:
-            target = opts.tone_model.linearise(srgb_encode(np.clip(target, 0.0, 1.0)))
+        if tone_model is not None:
+            target = tone_model.linearise(srgb_encode(np.clip(target, 0.0, 1.0)))
         elif opts.target_space in ("srgb", "lab"):  # the model needs a linear space
             target = convert(target, opts.target_space, "linear-srgb")
-        samples.append(block_samples(training_mosaic(raw, plain), raw.cfa, target, mask,
+        samples.append(block_samples(training_mosaic(raw, opts), raw.cfa, target, mask,
                                      full_shape=full, origin=(int(y0), int(x0)),
                                      saturation=opts.saturation))
     if len(sizes) != 1:
@@ -68,7 +67,8 @@ def pair_blocks(pairs: Sequence[Pair], opts) -> tuple[list[BlockSamples], object
     return samples, cfa, sizes.pop()
 
 
-def fit_pairs_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, dict]:
+def fit_pairs_shading(pairs: Sequence[Pair], opts, tone_model=None
+                      ) -> tuple[GainField | None, dict]:
     """The gain field of the pairs (None when it does not help on held-out images).
 
     Returns
@@ -76,7 +76,7 @@ def fit_pairs_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, di
     field, record
         The record goes to the table's provenance (``shading``).
     """
-    samples, cfa, size = pair_blocks(pairs, opts)
+    samples, cfa, size = pair_blocks(pairs, opts, tone_model)
     if size is None:
         return None, {"reason": "raws of different sizes or resized renders"}
     field, record = fit_field(samples, cfa, size)
@@ -102,15 +102,16 @@ def learn_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, dict]:
     decoding of the renders).
     """
     from l3cli.train.curve import fit_pairs_curve
+    from l3cli.train.options import Fitted
 
-    work = copy.copy(opts)
-    work.shading_field = None
+    work = Fitted()
     field, record = None, {}
     for _ in range(ALTERNATIONS if opts.tone_curve else 1):
         if opts.tone_curve:
-            work.tone_model, _ = fit_pairs_curve(pairs, work)
-        field, record = fit_pairs_shading(pairs, work)
+            work = Fitted(shading_field=work.shading_field,
+                          tone_model=fit_pairs_curve(pairs, opts, work)[0])
+        field, record = fit_pairs_shading(pairs, opts, work.tone_model)
         if field is None:
             break
-        work.shading_field = field
+        work = Fitted(shading_field=field, tone_model=work.tone_model)
     return field, record

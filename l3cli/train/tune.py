@@ -48,7 +48,6 @@ inspect`` shows them).
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import os
@@ -255,39 +254,63 @@ def choose(results: Sequence[CandidateResult], tolerance: float = defaults.TUNE_
 class _Search:
     """The state of one search: images per shading setting, statistics cache, results."""
 
-    def __init__(self, pairs, base, grid, field, opponent, report):
+    def __init__(self, pairs, base, grid, field, opponent, report, client=None):
         self.pairs, self.base, self.grid, self.field = pairs, base, grid, field
-        self.opponent, self.report = opponent, report
+        self.opponent, self.report, self.client = opponent, report, client
         self.images: dict[bool, list] = {}
+        self.remote_images = {}  # on a cluster: the images' futures
         self.hists: dict[tuple, object] = {}
         self.layouts: dict[tuple, object] = {}
         self.results: list[CandidateResult] = []
         self.t0 = time.perf_counter()
 
     def opts(self, c: Candidate) -> TrainOptions:
-        o = replace_opts(self.base, c)
-        o.shading_field = self.field if c.shading else None
-        return o
+        return replace_opts(self.base, c)
+
+    def field_for(self, shading: bool):
+        """The lens-shading gain field of candidates with ``shading`` (None: none)."""
+        return self.field if shading else None
 
     def images_for(self, shading: bool):
         if shading not in self.images:
-            o = copy.copy(self.base)
-            o.shading_field = self.field if shading else None
-            self.images[shading] = load_cv_images(self.pairs, o, opponent=self.opponent)
+            self.images[shading] = load_cv_images(self.pairs, self.base, opponent=self.opponent,
+                                                  shading_field=self.field_for(shading))
         return self.images[shading]
 
+    def images_on_cluster(self, shading: bool):
+        """The images of ``shading`` scattered to every worker (once: a task whose worker
+        is lost is retried on another, which has them too), or None in process."""
+        if self.client is None:
+            return None
+        if shading not in self.remote_images:
+            self.remote_images[shading] = self.client.scatter(
+                list(self.images_for(shading)), broadcast=True, hash=False)
+        return self.remote_images[shading]
+
+    @staticmethod
+    def layout_key(c: Candidate) -> tuple:
+        return (c.shading, c.patch, c.levels, c.contrast_bins, c.contrast_threshold, c.sample_weight)
+
+    def remote(self, c: Candidate):
+        """``(images, layout)`` of ``c`` on the cluster (futures), or None in process."""
+        if self.client is None:
+            return None
+        return self.images_on_cluster(c.shading), self.layout(c).for_task()
+
     def layout(self, c: Candidate):
-        key = (c.shading, c.patch, c.levels, c.contrast_bins, c.contrast_threshold,
-               c.sample_weight)
+        key = self.layout_key(c)
         if key not in self.layouts:
             images = self.images_for(c.shading)
             opts = self.opts(c)
             if (c.shading, c.patch) not in self.hists:
-                self.hists[(c.shading, c.patch)] = histogram(images, opts)
+                self.hists[(c.shading, c.patch)] = histogram(images, opts,
+                                                             self.field_for(c.shading))
             while len(self.layouts) >= 2:  # bounded memory: the two latest layouts
-                del self.layouts[next(iter(self.layouts))]
+                del self.layouts[next(iter(self.layouts))]  # (on the workers too)
             self.layouts[key] = layout_stats(images, self.units, opts,
-                                             self.hists[(c.shading, c.patch)])
+                                             self.hists[(c.shading, c.patch)],
+                                             client=self.client,
+                                             remote_images=self.images_on_cluster(c.shading))
         return self.layouts[key]
 
     def evaluate(self, cands: Sequence[Candidate]) -> None:
@@ -304,12 +327,15 @@ class _Search:
 
                 try:
                     scores, _ = multiscale_fold_scores(images, self.units, self.folds, lay,
-                                                       opts, seed=opts.seed)
+                                                       opts, seed=opts.seed,
+                                                       client=self.client,
+                                                       remote=self.remote(c))
                 except InputError as exc:  # too little data for the stage: not a candidate
                     log.warning("tune: the multi-scale stage is not scored: %s", exc)
                     continue
             else:
-                scores = fold_scores(images, self.units, self.folds, lay, opts)
+                scores = fold_scores(images, self.units, self.folds, lay, opts,
+                                     client=self.client, remote=self.remote(c))
             self.results.append(CandidateResult(c, scores))
             log.info("tune %s: %.4f", c.as_dict(), self.results[-1].mean)
             if self.report is not None:
@@ -335,7 +361,8 @@ class _Search:
 
 def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid | None = None,
          *, show_progress: bool | None = False, opponent: str = DEFAULT_OPPONENT,
-         report: Callable[[int, Candidate, float, float], None] | None = None) -> TuneResult:
+         report: Callable[[int, Candidate, float, float], None] | None = None,
+         client=None) -> TuneResult:
     """Search the options of ``grid`` by cross-validation; train the chosen candidate.
 
     Parameters
@@ -353,6 +380,11 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
         S-CIELAB opponent transform of the score.
     report
         Called after every candidate with (number, candidate, CV score, seconds so far).
+    client
+        A dask client (:func:`l3cli.parallel.dask_client`): the statistics of every
+        unit and the folds of every candidate run as tasks on its workers, over the
+        images and statistics scattered to them; the result is the same bit for bit
+        as in process (None).
 
     Returns
     -------
@@ -371,12 +403,10 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     if True in shadings:  # the lens-shading field first, once: every candidate with it
         from l3cli.train.shading import learn_shading  # sees the corrected mosaics
 
-        o = copy.copy(base)
-        o.shading = True
-        field, shading_record = learn_shading(pairs, o)
+        field, shading_record = learn_shading(pairs, replace(base, shading=True))
         if field is None:  # not kept: shading on is shading off
             shadings = (False,)
-    s = _Search(pairs, base, grid, field, opponent, report)
+    s = _Search(pairs, base, grid, field, opponent, report, client)
     images = s.images_for(shadings[0])
     s.units = make_units(images)
     s.folds = make_folds(s.units, grid.folds)
@@ -443,15 +473,16 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
     if opts.white_balance:
         # the shots' adaptation model belongs in the table and its targets are fitted in
         # the chosen target space: the regular training path, once, with the chosen options
-        o = copy.copy(opts)
-        o.shading = False  # the field learned for the search, not learned again
-        o.shading_field = s.field if c.shading else None
-        table = train(s.pairs, o)
+        # (the field learned for the search, not learned again)
+        table = train(s.pairs, replace(opts, shading=False), shading_field=s.field_for(c.shading),
+                      client=s.client)
         table.provenance.update(prov)
         table.provenance["options"] = opts.as_dict()
     else:
-        table = table_from_stats(space_stats(s.layout(c), opts.target_space), opts,
-                                 provenance=prov)
+        lay = s.layout(c)
+        if s.client is not None:  # the units' statistics, from the workers
+            lay = lay.gather(s.client)
+        table = table_from_stats(space_stats(lay, opts.target_space), opts, provenance=prov)
         if opts.tone_curve:  # with the curve's record, as l3 train writes it
             attach_curve(table, images[0].curve, images[0].curve_record)
     if c.shading:
@@ -469,12 +500,10 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
 def replace_opts(base: TrainOptions, c: Candidate) -> TrainOptions:
     """``base`` with the candidate's target space, patch, levels, contrast bins and rule,
     augmentation, sample weights and shading."""
-    d = base.as_dict()
-    d.update(target_space=c.target_space, patch=c.patch, levels=c.levels,
-             contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
-             tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE,
-             augment=c.augment, sample_weight=c.sample_weight, shading=c.shading)
-    return TrainOptions(**d)
+    return replace(base, target_space=c.target_space, patch=c.patch, levels=c.levels,
+                   contrast_bins=c.contrast_bins, contrast_threshold=c.contrast_threshold,
+                   tone_curve=base.tone_curve and c.target_space == TONE_CURVE_SPACE,
+                   augment=c.augment, sample_weight=c.sample_weight, shading=c.shading)
 
 
 def format_candidates(record: dict) -> str:

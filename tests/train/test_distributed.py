@@ -40,6 +40,19 @@ def npz_equal(a: Path, b: Path) -> None:
             np.testing.assert_array_equal(za[k], zb[k], err_msg=k)
 
 
+def npz_equal_but_tune_time(a: Path, b: Path) -> None:
+    """:func:`npz_equal`, the provenance compared as JSON without the search's wall time
+    (``tune.seconds``: two runs never take the same time)."""
+    with np.load(a, allow_pickle=False) as za, np.load(b, allow_pickle=False) as zb:
+        assert sorted(za.files) == sorted(zb.files)
+        for k in za.files:
+            if k != "provenance":
+                assert za[k].tobytes() == zb[k].tobytes() and za[k].dtype == zb[k].dtype, k
+        pa, pb = json.loads(str(za["provenance"])), json.loads(str(zb["provenance"]))
+        assert pa["tune"].pop("seconds") >= 0 and pb["tune"].pop("seconds") >= 0
+        assert pa == pb
+
+
 def ran_on(address: str, task: str) -> bool:
     """Whether the scheduler at ``address`` has run tasks of the function ``task``."""
     from distributed import Client
@@ -168,10 +181,28 @@ def test_train_with_one_local_worker_equals_in_process_pairs_folder(runner, tmp_
         write_raw(d / f"{stem}.dng", mosaic_dn(lin, "RGGB", 4095), "RGGB", white_level=4095)
         write_image(d / f"{stem}.png", srgb_encode(lin)[crop:H - crop, crop:W - crop],
                     space="srgb")
-    extra = ["--patch", "3", "--levels", "4", "--no-tune"]  # workers: the fixed defaults
+    extra = ["--patch", "3", "--levels", "4", "--no-tune"]
     local = _train(runner, [d], tmp_path / "local.npz", *extra)
     dist = _train(runner, [d], tmp_path / "dist.npz", *extra, "--workers", "1")
     npz_equal(local, dist)
+
+
+@pytest.mark.slow
+def test_tuned_pairs_folder_on_cluster_equals_one_process(runner, cluster, tmp_path):
+    """The default training of a pairs folder self-tunes on the cluster (the units'
+    statistics and every candidate's folds are tasks there) and writes the table one
+    process writes, every array byte for byte (the provenance but for the wall time)."""
+    from tests.test_tune import _pairs
+
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    extra = ["--levels", "4", "--contrast-bins", "1", "--level-range", "0.02", "0.6",
+             "--patch", "5", "--seed", "1"]  # small: spaces, shading, multi-scale searched
+    local = _train(runner, [folder], tmp_path / "a.npz", *extra)
+    dist = _train(runner, [folder], tmp_path / "b.npz", *extra, "--scheduler", cluster)
+    npz_equal_but_tune_time(local, dist)
+    assert len(json.loads(str(np.load(dist)["provenance"]))["tune"]["candidates"]) >= 3
+    assert ran_on(cluster, "score_fold_task") and ran_on(cluster, "unit_stats_task")
+    assert ran_on(cluster, "multiscale_fold_task")
 
 
 @pytest.mark.slow
@@ -260,3 +291,48 @@ def test_failing_job_on_local_workers_prints_one_line(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("Error: "), res.stderr
     assert "cap2.target.exr" in lines[0] and "NaN" in lines[0]
     assert not out.exists() and no_leftovers(tmp_path)
+
+
+def _fold_or_die(arg):
+    """score_fold_task, except that the worker scoring fold 1 dies the first time."""
+    from l3cli.train.cv import score_fold_task
+
+    marker, item = arg
+    if item[3] == [1] and not Path(marker).exists():
+        Path(marker).write_text("killed")
+        os._exit(1)
+    return score_fold_task(item)
+
+
+@pytest.mark.slow
+def test_tuning_folds_survive_a_killed_worker(tmp_path):
+    """A worker lost while it scores a fold: the fold is retried on the other worker,
+    which holds the scattered images and statistics too; the scores are one process's."""
+    from l3cli.parallel import dask_client, map_reduce
+    from l3cli.train.cv import (
+        fold_scores,
+        histogram,
+        layout_stats,
+        load_cv_images,
+        make_folds,
+        make_units,
+    )
+    from tests.test_tune import _pairs
+
+    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    opts = TrainOptions(target_space="linear-srgb", patch=5, levels=4, contrast_bins=1,
+                        level_range=(0.02, 0.6))
+    images = load_cv_images(find_pairs([folder]), opts)
+    units = make_units(images)
+    folds = make_folds(units, 3)
+    lay = layout_stats(images, units, opts, histogram(images, opts))
+    expect = fold_scores(images, units, folds, lay, opts)
+    marker = str(tmp_path / "killed")
+    with dask_client(workers=2) as client:
+        imgs = client.scatter(images, broadcast=True, hash=False)
+        remote = client.scatter(lay, broadcast=True, hash=False)
+        items = [(marker, (imgs, units, remote, held, opts)) for held in folds]
+        got = map_reduce(_fold_or_die, items, client=client)
+    assert Path(marker).exists()  # a worker really died mid-task
+    for held, sc in zip(folds, got, strict=True):
+        np.testing.assert_array_equal(sc, expect[held])

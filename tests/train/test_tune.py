@@ -337,17 +337,19 @@ def test_cli_tunes_pairs_by_default_keeping_the_options_given(tmp_path: Path, ru
 
 
 def test_simulate_folders_are_not_tuned_by_default(tmp_path: Path):
-    from l3cli.cli.train import _want_tune
     from l3cli.pairs import Pair
+    from l3cli.train.api import TrainRequest, wants_tune
 
     sim = [Pair("x", tmp_path / "x.dng", tmp_path / "x.exr", align=False)]
     real = [Pair("x", tmp_path / "x.dng", tmp_path / "x.png", align=True)]
     opts = TrainOptions()
-    assert _want_tune(None, sim, opts, None, None) is False
-    assert _want_tune(True, sim, opts, None, None) is True
-    assert _want_tune(None, real, opts, None, None) is True
-    assert _want_tune(False, real, opts, None, None) is False
-    assert _want_tune(None, real, opts, 2, None) is False  # a cluster: the fixed defaults
+    assert wants_tune(TrainRequest(), sim, opts) == (False, None)
+    assert wants_tune(TrainRequest(tune=True), sim, opts) == (True, None)
+    assert wants_tune(TrainRequest(), real, opts) == (True, None)
+    assert wants_tune(TrainRequest(tune=False), real, opts) == (False, None)
+    tune, why = wants_tune(TrainRequest(by="iso"), real, TrainOptions(by="iso"))
+    assert tune is False and why.parameter == "by"  # a search it cannot run: a note
+    assert why.named("--by").startswith("--by iso: training the fixed defaults")
 
 
 def _holdout_score(runner, table: Path, holdout: Path, out: Path) -> float:
