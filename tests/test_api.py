@@ -13,13 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_train import _sim_dir
-from test_tune import _pairs
 
 import l3cli
 from l3cli.cli.main import cli
 from l3cli.errors import OptionError
 from l3cli.train import TrainOptions
+from tests.builders import sim_dir, tune_pairs
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--levels", "4", "--contrast-bins", "1", "--level-range", "0.02", "0.6", "--patch", "5",
@@ -70,7 +69,7 @@ def test_options_are_frozen_and_hold_no_fitted_state():
 
 
 def test_library_errors_name_parameters_the_cli_its_flags(tmp_path, runner):
-    sim = _sim_dir(tmp_path)
+    sim = sim_dir(tmp_path)
     with pytest.raises(OptionError, match=r"^orientation_bins 3 is not allowed"):
         l3cli.train(sim, orientation_bins=3)
     with pytest.raises(OptionError, match=r"^min_samples is not an option of l3cli.train"):
@@ -85,7 +84,7 @@ def test_library_errors_name_parameters_the_cli_its_flags(tmp_path, runner):
 
 
 def test_python_train_equals_l3_train_simulate_folder(tmp_path, runner):
-    sim = _sim_dir(tmp_path, n=3)
+    sim = sim_dir(tmp_path, n=3)
     out = tmp_path / "cli.npz"
     res = runner.invoke(cli, ["-q", "train", str(sim), "-o", str(out), "--seed", "1",
                               "--levels", "4"])
@@ -102,7 +101,7 @@ def test_python_train_equals_l3_train_tuned_pairs_folder(tmp_path, runner):
     """The default path of a pairs folder (self-tuning, as-shot white balance off: the
     raws carry none): the same table from the command and from Python, every array
     (the provenance too, but for the search's wall time)."""
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     out = tmp_path / "cli.npz"
     res = runner.invoke(cli, ["-q", "train", str(folder), "-o", str(out), "--seed", "1",
                               *TINY])
@@ -113,10 +112,9 @@ def test_python_train_equals_l3_train_tuned_pairs_folder(tmp_path, runner):
 
 
 def test_evaluate_files_and_arrays(tmp_path):
-    from test_align import scene
-
     from l3cli.colourspace import srgb_encode
     from l3cli.io.image import read_image, write_image
+    from tests.builders import scene
 
     ref = tmp_path / "ref.png"
     write_image(ref, srgb_encode(scene(64, 80, seed=3)), space="srgb")

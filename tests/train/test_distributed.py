@@ -192,9 +192,9 @@ def test_tuned_pairs_folder_on_cluster_equals_one_process(runner, cluster, tmp_p
     """The default training of a pairs folder self-tunes on the cluster (the units'
     statistics and every candidate's folds are tasks there) and writes the table one
     process writes, every array byte for byte (the provenance but for the wall time)."""
-    from tests.test_tune import _pairs
+    from tests.builders import tune_pairs
 
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     extra = ["--levels", "4", "--contrast-bins", "1", "--level-range", "0.02", "0.6",
              "--patch", "5", "--seed", "1"]  # small: spaces, shading, multi-scale searched
     local = _train(runner, [folder], tmp_path / "a.npz", *extra)
@@ -317,9 +317,9 @@ def test_tuning_folds_survive_a_killed_worker(tmp_path):
         make_folds,
         make_units,
     )
-    from tests.test_tune import _pairs
+    from tests.builders import tune_pairs
 
-    folder = _pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     opts = TrainOptions(target_space="linear-srgb", patch=5, levels=4, contrast_bins=1,
                         level_range=(0.02, 0.6))
     images = load_cv_images(find_pairs([folder]), opts)
