@@ -24,10 +24,13 @@ def export(table_path: str, output: str, display: bool, bits: str | None) -> Non
     (docs/export.md). A table feature the graph cannot express is refused by
     name. `l3 inspect PIPELINE.onnx` shows the model's metadata.
     """
+    from l3cli.cli.paths import check_outputs
     from l3cli.export import export_table
 
     if bits is not None and not display:
         raise click.UsageError("--bits applies to display output only; add --display")
+    # before any work, as every writing command: the output may not be (or alias) the table
+    check_outputs([(output, "-o")], [table_path])
     path = export_table(table_path, output, output="display" if display else "linear",
                         bits=int(bits or 8))
     click.echo(f"wrote {path}", err=True)
