@@ -443,8 +443,13 @@ def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any],
     pixels of its ``plane .. plane + planes - 1`` with map plane
     ``min(plane, map_planes - 1)``.
     """
+    from l3cli.startup import stop_if_interrupted
+
     h, w = mosaic.shape
+    # the image's planes bound the loop over a map's planes, not the map's field
+    n_planes = 1 if planes is None else int(np.max(planes, initial=-1)) + 1
     for gm in maps:
+        stop_if_interrupted()
         top, left = max(gm.top, 0), max(gm.left, 0)
         bottom, right = min(gm.bottom, h), min(gm.right, w)
         if bottom <= top or right <= left:
@@ -459,9 +464,8 @@ def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any],
         av = _interp_matrix((rows + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
         ah = _interp_matrix((cols + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
         which = None if planes is None else np.asarray(planes)[area]
-        for plane in range(gm.plane, gm.plane + gm.planes):
-            if which is None and plane != 0:  # a one-plane mosaic: plane 0 only
-                continue
+        for plane in range(gm.plane, min(gm.plane + gm.planes, n_planes)):
+            stop_if_interrupted()
             sel = None if which is None else which == plane
             if sel is not None and not sel.any():
                 continue
@@ -492,7 +496,8 @@ def _interp_weights(pos: np.ndarray, origin: float, spacing: float, points: int
     """Lower grid index and fraction of ``pos`` on a map axis (clamped at its ends)."""
     if points < 2:
         return np.zeros(pos.size), np.zeros(pos.size, dtype=np.int64)
-    f = (pos - origin) / spacing
+    # clamped before the integer cast: an extreme origin or spacing stays on the grid
+    f = np.clip((pos - origin) / spacing, -1.0, float(points))
     idx = np.floor(f).astype(np.int64)
     frac = f - idx
     low = idx < 0

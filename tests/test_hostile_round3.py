@@ -1,0 +1,284 @@
+"""Issue 42's hostile cases (round 3): what is new since round 2 holds bad input too.
+
+Each case of the issue's table is a test here: `l3 export` onto its own input,
+DNG GainMap opcodes that do not fit their image, signals during long steps and a
+FIFO in the kernel store, a shading fit on small data, the optional table groups
+(lens shading, multi-scale) with finite but absurd values, a lossy DNG without
+its tiles, a `.npy` header claiming 2**40 values, and the image writers' last
+line of defence against NaN. Files are tiny and made here.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from l3cli.cli.main import cli
+from l3cli.errors import InputError, TableError
+from l3cli.io.raw import write_raw
+from l3cli.table import load_table, save_table
+from tests.conftest import REPO
+from tests.test_bad_input_cli import assert_one_line_error
+from tests.test_table import make_table
+
+L3 = [sys.executable, "-c", "from l3cli.cli.main import main; main()"]
+
+
+@pytest.fixture
+def work(tmp_path: Path) -> Path:
+    """A valid table and a valid DNG in a folder."""
+    save_table(tmp_path / "t.npz", make_table("RGGB"))
+    dn = np.random.default_rng(0).integers(64, 4000, (40, 48)).astype(np.uint16)
+    write_raw(tmp_path / "good.dng", dn, "RGGB", black_level=64, white_level=4095)
+    return tmp_path
+
+
+def _run(args: list[str], *, code: str = "", cwd: Path | None = None,
+         timeout: float = 120) -> subprocess.CompletedProcess:
+    """``l3 args`` in a fresh Python (``code`` run first: a patch)."""
+    prog = code + f"import sys\nsys.argv = ['l3', *{args!r}]\nfrom l3cli.cli.main import main\nmain()\n"
+    return subprocess.run([sys.executable, "-c", prog], cwd=cwd or REPO, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def _one_line(res: subprocess.CompletedProcess, *words: str) -> str:
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 1 and len(lines) == 1, (res.returncode, res.stderr[-3000:])
+    assert "Traceback" not in res.stderr and "internal error" not in lines[0], lines
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    return lines[0]
+
+
+# ---------------------------------------------------------------- l3 export onto its input
+@pytest.mark.parametrize("kind", ["same file", "symbolic link", "hard link"])
+def test_export_refuses_an_output_that_is_the_table(runner, work: Path, kind: str) -> None:
+    """`l3 export t.onnx -o t.onnx` overwrote the table; a link to it was replaced. Now
+    one line naming both, before any work (the table is not even loaded)."""
+    table = work / "t.npz"
+    before = table.read_bytes()
+    if kind == "same file":
+        table = work / "t.onnx"  # a table whose name ends in .onnx
+        table.write_bytes(before)
+        out = table
+    elif kind == "symbolic link":
+        out = work / "s.onnx"
+        out.symlink_to(table)
+    else:
+        out = work / "h.onnx"
+        os.link(table, out)
+    res = runner.invoke(cli, ["export", str(table), "-o", str(out)])
+    line = assert_one_line_error(res, str(out), "overwrite the input")
+    assert str(table) in line
+    assert table.read_bytes() == before
+    assert out.is_symlink() == (kind == "symbolic link")
+    assert not list(work.glob(".l3-tmp*"))
+
+
+# ---------------------------------------------------------------- DNG GainMap opcodes
+def _gain_map(**fields):
+    from l3cli.io.dng_opcodes import GainMap
+
+    f = dict(top=0, left=0, bottom=40, right=48, plane=0, planes=1, row_pitch=1, col_pitch=1,
+             points_v=2, points_h=2, spacing_v=1.0, spacing_h=1.0, origin_v=0.0,
+             origin_h=0.0, gains=np.full((2, 2, 1), 1.5, np.float32))
+    f.update(fields)
+    return GainMap(**f)
+
+
+def _dng_with_opcodes(path: Path, list2: bytes | None = None, list3: bytes | None = None,
+                      shape=(40, 48)) -> Path:
+    """A 16-bit RGGB DNG (tests/dngmake.py) with OpcodeList2/3 tags."""
+    from tests.dngmake import make_dng
+
+    dn = np.random.default_rng(1).integers(64, 4000, shape).astype(np.uint16)
+    lists = {n: d for n, d in ((2, list2), (3, list3)) if d is not None}
+    return make_dng(path, dn, black=64, white=4095, opcode_lists=lists)
+
+
+def _raw_opcodes(maps_params: list[dict], gains: np.ndarray | None = None) -> bytes:
+    """An opcode list of GainMaps written field by field (any uint32, as a hostile file)."""
+    from l3cli.io.dng_opcodes import _HEAD
+
+    out = [struct.pack(">I", len(maps_params))]
+    for p in maps_params:
+        q = dict(top=0, left=0, bottom=40, right=48, plane=0, planes=1, row_pitch=1,
+                 col_pitch=1, pv=2, ph=2, sv=1.0, sh=1.0, ov=0.0, oh=0.0, mp=1)
+        q.update(p)
+        g = np.full(q["pv"] * q["ph"] * q["mp"], 1.5, ">f4") if gains is None else gains
+        body = _HEAD.pack(*q.values()) + np.asarray(g, ">f4").tobytes()
+        out.append(struct.pack(">I4sII", 9, bytes((1, 3, 0, 0)), 0, len(body)) + body)
+    return b"".join(out)
+
+
+BAD_MAPS = {
+    "planes 0xFFFFFFFF in OpcodeList2": ({"planes": 0xFFFFFFFF}, "list2", "planes"),
+    "planes 0xFFFFFFFF in OpcodeList3": ({"planes": 0xFFFFFFFF}, "list3", "planes"),
+    "plane beyond the image's": ({"plane": 7}, "list3", "planes 7"),
+    "area beyond the image": ({"bottom": 4000}, "list2", "outside the 48x40 image"),
+    "pitch beyond the area": ({"row_pitch": 100}, "list2", "pitch"),
+    "map finer than the pixels": ({"pv": 300, "ph": 2}, "list2", "finer"),
+    "map planes beyond the image's": ({"mp": 9}, "list2", "map planes"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_MAPS))
+def test_gain_map_that_does_not_fit_the_image_is_refused(work: Path, case: str) -> None:
+    """Validated against the image before any pixel: a map's planes among the image's,
+    its area inside it, its grid no finer than the pixels. Planes = 0xFFFFFFFF ran for
+    over 13 minutes (a loop per plane); now one line naming the DNG, at once."""
+    params, where, words = BAD_MAPS[case]
+    data = _raw_opcodes([params])
+    dng = _dng_with_opcodes(work / "gm.dng", **{where: data})
+    res = _run(["render", str(work / "t.npz"), str(dng), "-o", str(work / "o.png")],
+               timeout=60)
+    _one_line(res, "gm.dng", f"OpcodeList{where[-1]}", words)
+    assert not (work / "o.png").exists()
+
+
+@pytest.mark.parametrize("gain", [3e38, 1e5, 0.0, -1.0])
+def test_gain_map_gains_beyond_the_sdk_range_are_refused(work: Path, gain: float) -> None:
+    """Two GainMaps of 3e38 rendered a PNG from NaN (negative pixels times 3e38 twice);
+    gains outside the DNG SDK's 1/4096 .. 4096 are refused, naming the DNG."""
+    g = np.full(4, gain, ">f4")
+    dng = _dng_with_opcodes(work / "big.dng", list2=_raw_opcodes([{}, {}], gains=g))
+    res = _run(["render", str(work / "t.npz"), str(dng), "-o", str(work / "o.png")],
+               timeout=60)
+    _one_line(res, "big.dng", "OpcodeList2, opcode 1", "outside the 0.000244141 .. 4096")
+    assert not (work / "o.png").exists()
+
+
+def test_gain_maps_within_range_still_apply(work: Path) -> None:
+    """The checks leave a valid list alone: OpcodeList3's maps of gain 2 on R and B (a
+    plane each) double those pixels below white (the DNG SDK's arithmetic, by hand)."""
+    from l3cli.io.raw import read_raw
+
+    g = np.full(4, 2.0, ">f4")
+    plain = read_raw(_dng_with_opcodes(work / "plain.dng"))
+    dng = _dng_with_opcodes(work / "gm.dng",
+                            list3=_raw_opcodes([{"plane": 0}, {"plane": 2}], gains=g))
+    raw = read_raw(dng)
+    assert raw.metadata["gain_maps"] == {"OpcodeList2": 0, "OpcodeList3": 2}
+    want = plain.mosaic.astype(np.float64).copy()
+    for sl in ((slice(0, None, 2), slice(0, None, 2)), (slice(1, None, 2), slice(1, None, 2))):
+        want[sl] = np.minimum(want[sl] * 2.0, 1.0)  # R and B of RGGB
+    np.testing.assert_allclose(raw.mosaic, want, rtol=0, atol=1e-6)
+
+
+def test_opcode_count_beyond_the_bytes_is_refused() -> None:
+    from l3cli.io.dng_opcodes import parse_opcode_list
+
+    with pytest.raises(InputError, match="claims 4294967295 opcodes"):
+        parse_opcode_list(b"\xff\xff\xff\xff" + bytes(40), "x.dng: OpcodeList2")
+
+
+def test_too_many_gain_maps_are_refused() -> None:
+    from l3cli.io.dng_opcodes import MAX_GAIN_MAPS, parse_opcode_list
+
+    data = _raw_opcodes([{}] * (MAX_GAIN_MAPS + 1))
+    with pytest.raises(InputError, match=f"more than {MAX_GAIN_MAPS} GainMap"):
+        parse_opcode_list(data, "x.dng: OpcodeList2")
+
+
+def test_extreme_map_spacing_stays_on_the_grid() -> None:
+    """Spacing 1e-300 (positions far beyond the grid): the gain of the grid's edge, not an
+    integer overflow's garbage."""
+    from l3cli.shading import apply_gain_maps
+
+    gains = np.array([1.5, 1.5, 1.25, 1.25], np.float32).reshape(2, 2, 1)
+    m = np.full((40, 48), 0.25, np.float32)
+    apply_gain_maps(m, [_gain_map(spacing_v=1e-300, spacing_h=1e-300, gains=gains)])
+    np.testing.assert_allclose(m, 0.25 * 1.25, rtol=1e-6)  # the last grid row everywhere
+
+
+# ---------------------------------------------------------------- signals and the kernel store
+def test_sigterm_ends_a_render_inside_a_long_opcode_loop(work: Path) -> None:
+    """SIGTERM to a render busy applying GainMaps in a worker thread: "Aborted.", 143.
+
+    Deterministic: the (patched) list of maps never ends once applied, and its start
+    sends the signal; the loop must see it and stop (before, only SIGKILL ended the run).
+    """
+    patch = (
+        "import os, signal, itertools\n"
+        "import numpy as np\n"
+        "import l3cli.io.dng_opcodes as ops\n"
+        "from l3cli.io.dng_opcodes import GainMap\n"
+        "gm = GainMap(0, 0, 40, 48, 0, 1, 1, 1, 2, 2, 1.0, 1.0, 0.0, 0.0,\n"
+        "             np.ones((2, 2, 1), np.float32))\n"
+        "class Maps:  # checked once (one map), then applied without end\n"
+        "    checked = False\n"
+        "    def __iter__(self):\n"
+        "        if not self.checked:\n"
+        "            self.checked = True\n"
+        "            return iter([gm])\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        return itertools.repeat(gm)\n"
+        "ops.read_gain_maps = lambda path: (Maps(), [])\n")
+    res = _run(["render", str(work / "t.npz"), str(work / "good.dng"), "-o",
+                str(work / "o.png")], code=patch, timeout=120)
+    assert res.returncode == 128 + signal.SIGTERM, res.stderr[-2000:]
+    assert "Aborted" in res.stderr and "Traceback" not in res.stderr
+    assert not (work / "o.png").exists() and not list(work.glob(".l3-tmp*"))
+
+
+def test_stop_if_interrupted_raises_in_workers_only(monkeypatch) -> None:
+    import threading
+
+    from l3cli import startup
+
+    monkeypatch.setattr(startup, "_first_signal", [0.0, int(signal.SIGTERM)])
+    startup.stop_if_interrupted()  # the main thread: its handler raised already
+    seen: list[BaseException] = []
+
+    def worker() -> None:
+        try:
+            startup.stop_if_interrupted()
+        except BaseException as exc:  # noqa: BLE001 - recorded
+            seen.append(exc)
+
+    t = threading.Thread(target=worker)
+    t.start()
+    t.join()
+    assert len(seen) == 1 and isinstance(seen[0], startup.Interrupted)
+    assert seen[0].signum == signal.SIGTERM
+
+
+def test_fifo_in_the_kernel_store_is_not_waited_on(tmp_path: Path, work: Path) -> None:
+    """A FIFO in place of every stored kernel file: the render does not block on it
+    (opened non-blocking, refused as not a regular file) and falls back to numba, as
+    for a damaged file. Nothing writes to the FIFOs: a blocking open would never
+    return, so completing is the test."""
+    from l3cli.kernel_store import store_dirs
+
+    real = [d for d in store_dirs() if d.is_dir() and any(d.glob("*.bin"))]
+    fifos = tmp_path / "fifos"
+    fifos.mkdir()
+    names = {p.name for d in real for p in d.glob("*.bin")}
+    for name in names:
+        os.mkfifo(fifos / name)
+    patch = ("import l3cli.kernel_store as ks\n"
+             "real = ks.store_dirs\n"
+             f"ks.store_dirs = lambda: [__import__('pathlib').Path({str(fifos)!r}), *real()]\n")
+    res = _run(["render", str(work / "t.npz"), str(work / "good.dng"), "-o",
+                str(work / "o.png")], code=patch, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (work / "o.png").exists()
+
+
+def test_kernel_store_refuses_a_fifo_as_damaged(tmp_path: Path, monkeypatch) -> None:
+    from l3cli import kernel_store
+
+    monkeypatch.setattr(kernel_store, "store_dirs", lambda: [tmp_path])
+    monkeypatch.setattr(kernel_store, "_digest", lambda sources: "d")
+    fifo = kernel_store._file(tmp_path, "k", "d", "t")
+    os.mkfifo(fifo)
+    assert kernel_store.load("k", [], "t") is None  # returns at once: nothing writes
+    with pytest.raises(ValueError, match="not a regular file"):
+        kernel_store._read_regular(fifo)
