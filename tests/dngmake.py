@@ -44,11 +44,14 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
              active_area: tuple[int, int, int, int] | None = None,
              linearization: np.ndarray | None = None, lossless_jpeg: bool = False, predictor: int = 1,
              components: int = 1,
-             neutral=(0.5, 1.0, 0.7), opcode_lists: dict[int, bytes] | None = None) -> Path:
+             neutral=(0.5, 1.0, 0.7), opcode_lists: dict[int, bytes] | None = None,
+             lossy_jpeg: bool = False) -> Path:
     """Write ``dn`` (uint16, H x W, values < 2**bits) as a DNG of the layout asked for.
 
     ``opcode_lists``: ``{2: bytes, 3: bytes}``, the OpcodeList2/3 tags' values
-    (``l3cli.io.dng_opcodes.encode_gain_maps``, or any bytes).
+    (``l3cli.io.dng_opcodes.encode_gain_maps``, or any bytes). ``lossy_jpeg``: tiles
+    of 12-bit lossy JPEG (SOF1, by imagecodecs), each JPEG row two sensor rows as
+    Blackmagic cameras write them (``tile`` required).
     """
     import tifffile
 
@@ -80,6 +83,21 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
         kw["tile"] = tile
     if rowsperstrip is not None:
         kw["rowsperstrip"] = rowsperstrip
+    if lossy_jpeg:
+        import imagecodecs
+
+        th, tw = tile
+        padded = np.zeros((-(-h // th) * th, -(-w // tw) * tw), np.uint16)
+        padded[:h, :w] = dn
+        tiles = [imagecodecs.jpeg8_encode(
+            np.ascontiguousarray(padded[y:y + th, x:x + tw]).reshape(th // 2, 2 * tw),
+            bitspersample=12, level=95)
+            for y in range(0, padded.shape[0], th) for x in range(0, padded.shape[1], tw)]
+        with tifffile.TiffWriter(path, byteorder=byteorder) as tw_:
+            kw.pop("byteorder")
+            tw_.write(iter(tiles), shape=(h, w), dtype=np.uint16, compression=7,
+                      bitspersample=12, **kw)
+        return path
     if lossless_jpeg and components == 2:  # as cameras write: each row as 2 interleaved halves
         import imagecodecs
 
