@@ -348,12 +348,15 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         raise TableError(f"{path}: cannot read table ({exc.strerror})") from exc
     if magic[:2] != b"PK":
         raise TableError(f"{path}: not an NPZ table (not a zip archive)")
+    from l3cli.io.npz import check_members, read_members
+
+    check_members(path, TableError)  # no header may claim more values than the file holds
     try:
         with np.load(path, allow_pickle=False) as npz:
             keys = set(npz.files)
             if "format" not in keys:
                 raise TableError(f"{path}: not an l3 table (no 'format' key)")
-            arrs = {k: npz[k] for k in npz.files}
+            arrs = read_members(npz, path, TableError)
     except TableError:
         raise
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:

@@ -250,6 +250,7 @@ def test_stop_if_interrupted_raises_in_workers_only(monkeypatch) -> None:
     assert seen[0].signum == signal.SIGTERM
 
 
+@pytest.mark.slow
 def test_fifo_in_the_kernel_store_is_not_waited_on(tmp_path: Path, work: Path) -> None:
     """A FIFO in place of every stored kernel file: the render does not block on it
     (opened non-blocking, refused as not a regular file) and falls back to numba, as
@@ -282,3 +283,250 @@ def test_kernel_store_refuses_a_fifo_as_damaged(tmp_path: Path, monkeypatch) -> 
     assert kernel_store.load("k", [], "t") is None  # returns at once: nothing writes
     with pytest.raises(ValueError, match="not a regular file"):
         kernel_store._read_regular(fifo)
+
+
+# ---------------------------------------------------------------- optional table groups
+def _group_table(tmp_path: Path) -> Path:
+    """A valid table with both optional groups: a shading gain field and a multi-scale
+    stage (the identity blend on two low-passes, three coarse levels)."""
+    from l3cli.multiscale import Multiscale
+    from l3cli.shading import GainField
+
+    t = make_table("RGGB")
+    coeffs = np.array([[1.0, 0.3, 0.05]] * 4)
+    t.shading = GainField(np.array([0.05, -0.1]), coeffs, (40, 48))
+    t.multiscale = Multiscale.identity(t.n_out, sigmas=(1.0, 3.0), level_cuts=[0.2, 0.5])
+    return save_table(tmp_path / "groups.npz", t)
+
+
+def _changed(path: Path, out: Path, key: str, change) -> Path:
+    with np.load(path, allow_pickle=False) as z:
+        arrs = {k: z[k] for k in z.files}
+    arrs[key] = change(arrs[key].copy())
+    np.savez(out, **arrs)
+    return out
+
+
+def _at(index, value, dtype=None):
+    def change(a):
+        a = a.astype(dtype or a.dtype)
+        a[index] = value
+        return a
+    return change
+
+
+BAD_GROUPS = {
+    "shading constant 1e39": ("shading_coeffs", _at((0, 0), 1e39), "shading_coeffs"),
+    "shading r2 term 1e300": ("shading_coeffs", _at((slice(None), 1), 1e300), "shading_coeffs"),
+    "shading constant 3e38": ("shading_coeffs", _at((2, 0), 3e38), "shading_coeffs"),
+    "shading gains beyond 4096": ("shading_coeffs", _at((1, 0), 5000.0), "shading_coeffs"),
+    "shading gain negative far out": ("shading_coeffs", _at((3, 2), -2.0), "not positive"),
+    "shading 20 terms": ("shading_coeffs", lambda a: np.pad(a, ((0, 0), (0, 17))),
+                         "shading_coeffs"),
+    "shading_size NaN": ("shading_size", lambda a: np.array([np.nan, 48.0]), "shading_size"),
+    "shading_size 1e30": ("shading_size", lambda a: np.array([1e30, 48.0]), "shading_size"),
+    "shading_size 2**62": ("shading_size", lambda a: np.array([2**62, 48]), "shading_size"),
+    "multiscale blend 3e38": ("multiscale_blend", _at((0, 0, 0), 3e38), "multiscale_blend"),
+    "multiscale blend 1e39": ("multiscale_blend", _at((1, 0, 0), 1e39, np.float64),
+                              "multiscale_blend"),
+    "multiscale blend 1e300": ("multiscale_blend", _at((2, 1, 1), 1e300, np.float64),
+                               "multiscale_blend"),
+    "multiscale blend 1e4": ("multiscale_blend", _at((0, 0, 0), 1e4), "multiscale_blend"),
+    "multiscale_sigmas 1e-300": ("multiscale_sigmas", lambda a: np.array([1e-300, 3.0]),
+                                 "multiscale_sigmas"),
+    "multiscale_sigmas 1e12": ("multiscale_sigmas", lambda a: np.array([1.0, 1e12]),
+                               "multiscale_sigmas"),
+    "multiscale_sigmas 1e5": ("multiscale_sigmas", lambda a: np.array([1.0, 1e5]),
+                              "multiscale_sigmas"),
+    "multiscale level cut 1e300": ("multiscale_level_cuts", _at(1, 1e300),
+                                   "multiscale_level_cuts"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_GROUPS))
+def test_absurd_optional_group_is_refused_at_load(tmp_path: Path, case: str) -> None:
+    """Finite but absurd values in the optional groups loaded and rendered NaN (or ended
+    in "internal error"): refused at load, one line naming the table and the field."""
+    good = _group_table(tmp_path)
+    load_table(good)  # the table itself is valid
+    key, change, words = BAD_GROUPS[case]
+    bad = _changed(good, tmp_path / "bad.npz", key, change)
+    with pytest.raises(TableError) as exc:
+        load_table(bad)
+    msg = str(exc.value)
+    assert msg.startswith(str(bad)) and words in msg and "\n" not in msg, msg
+
+
+@pytest.mark.parametrize("case", ["multiscale_sigmas 1e-300", "shading_size NaN",
+                                  "multiscale blend 3e38", "shading constant 1e39"])
+def test_absurd_group_render_is_one_line(runner, work: Path, case: str) -> None:
+    key, change, words = BAD_GROUPS[case]
+    bad = _changed(_group_table(work), work / "bad.npz", key, change)
+    res = runner.invoke(cli, ["render", str(bad), str(work / "good.dng"), "-o",
+                              str(work / "o.png")])
+    line = assert_one_line_error(res, "bad.npz", words)
+    assert "internal error" not in line
+    assert not (work / "o.png").exists()
+
+
+def test_a_table_with_both_groups_renders_finite(runner, work: Path) -> None:
+    from l3cli.io.image import read_image
+
+    table = _group_table(work)
+    for out in ("o.exr", "o.png"):
+        res = runner.invoke(cli, ["render", str(table), str(work / "good.dng"), "-o",
+                                  str(work / out)])
+        assert res.exit_code == 0, res.output
+    img, _ = read_image(work / "o.exr")
+    assert img.shape == (40, 48, 3) and np.all(np.isfinite(img))
+
+
+def test_shading_extremes_find_a_dip_between_grid_points() -> None:
+    """A gain that dips below zero between the 257 grid points of r^2 (a narrow quadratic
+    well at t = 0.5004) is found by the derivative's root: gain 1 - 1e8 (t - 0.5004)^2..."""
+    from l3cli.shading import GainField
+
+    # g(t) = a (t - t0)^2 - d: min -d at t0, positive one grid step away
+    t0, a, d = 0.50037, 1e8, 1e-3
+    coeffs = np.array([[a * t0 * t0 - d, -2 * a * t0, a]] * 4)
+    with pytest.raises(TableError, match="not positive"):
+        GainField(np.zeros(2), coeffs, (40, 48))
+
+
+# ---------------------------------------------------------------- shading fit on small data
+def _unusable_fit(monkeypatch) -> None:
+    """A fit that passes the fit's own checks on the training area but whose gains turn
+    negative before the farthest corner of any raw (an r^4 term of -0.3, centre (0.4, 0)):
+    what small crops gave."""
+    import l3cli.shading as shading
+
+    def fit(samples, order):
+        a = np.zeros((samples[0].raw.shape[1], order))
+        a[:, 1] = -0.3
+        return a, np.array([0.4, 0.0]), 0.0
+
+    monkeypatch.setattr(shading, "_scores", lambda samples, order, n: (0.5, 1.0))
+    monkeypatch.setattr(shading, "_fit_samples", fit)
+
+
+def test_unusable_shading_fit_is_dropped(monkeypatch) -> None:
+    from l3cli.cfa import CFA
+    from l3cli.shading import BlockSamples, fit_field
+
+    _unusable_fit(monkeypatch)
+    rng = np.random.default_rng(0)
+    s = BlockSamples(rng.random(64), rng.random(64), rng.random((64, 3)), rng.random((64, 3)))
+    field, record = fit_field([s, s], CFA.from_spec("GRBG"), (192, 256))
+    assert field is None and record["unusable"]
+    assert "not positive" in record["reason"]
+
+
+def _crops(folder: Path, names=("Indoor1_crop", "Outdoor1_crop"), box=(200, 300, 192, 256)):
+    """Two pairs cut from the bundled frames (mosaic TIFF + sidecar, its render)."""
+    import shutil
+
+    import tifffile
+    from PIL import Image
+
+    src = REPO / "examples" / "infinite_isp" / "frames"
+    y0, x0, h, w = box
+    folder.mkdir()
+    for name in names:
+        tifffile.imwrite(folder / f"{name}.tif",
+                         tifffile.imread(src / f"{name}.tif")[y0:y0 + h, x0:x0 + w])
+        shutil.copy(src / f"{name}.tif.toml", folder / f"{name}.tif.toml")
+        Image.fromarray(np.asarray(Image.open(src / f"{name}.png"))[y0:y0 + h, x0:x0 + w]
+                        ).save(folder / f"{name}.png")
+    return folder
+
+
+@pytest.mark.slow
+def test_train_on_two_small_pairs_writes_the_table(runner, tmp_path: Path, monkeypatch) -> None:
+    """`l3 train --no-tune` on two crops of the bundled frames ended in "bad shading gain
+    field: gains are not positive over the sensor" (naming no file): the unusable fit is
+    dropped with one note line, and the table is written without a gain field."""
+    _unusable_fit(monkeypatch)
+    pairs = _crops(tmp_path / "pairs")
+    out = tmp_path / "t.npz"
+    res = runner.invoke(cli, ["train", str(pairs), "--no-tune", "--shading", "--levels", "4",
+                              "--patch", "3", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    notes = [ln for ln in res.output.splitlines() if "shading" in ln]
+    assert len(notes) == 1 and "not usable" in notes[0], res.output
+    assert load_table(out).shading is None
+
+
+# ---------------------------------------------------------------- a lossy DNG cut short
+@pytest.mark.parametrize("libraw_only", [False, True])
+def test_lossy_dng_cut_after_its_header_is_refused(work: Path, libraw_only: bool) -> None:
+    """LibRaw decodes what is there (a black or garbage image, exit 0); the tiles lie
+    past the end: "Unexpected end of file", exit 1, whichever decoder would run."""
+    from l3cli.io import dng_lossy
+    from l3cli.io.raw import read_raw
+    from tests.dngmake import make_dng
+
+    dn = np.random.default_rng(0).integers(64, 4000, (32, 48)).astype(np.uint16)
+    whole = make_dng(work / "lossy.dng", dn, bits=12, tile=(16, 16), lossy_jpeg=True)
+    tiles = dng_lossy.probe(whole)
+    assert tiles is not None  # the layout the lossy decoder takes
+    data = whole.read_bytes()
+    for name, size in (("cut.dng", min(tiles.offsets)), ("half.dng", tiles.offsets[2] + 10)):
+        (work / name).write_bytes(data[:size])
+        with pytest.raises(InputError, match="Unexpected end of file") as exc:
+            read_raw(work / name, libraw_only=libraw_only)
+        assert str(exc.value).startswith(str(work / name))
+    res = _run(["render", str(work / "t.npz"), str(work / "cut.dng"), "-o",
+                str(work / "o.png")], timeout=120)
+    _one_line(res, "cut.dng", "Unexpected end of file")
+
+
+def test_real_lossy_dng_cut_after_its_header(shared_data: Path, tmp_path: Path) -> None:
+    from l3cli.io import dng_lossy
+    from l3cli.io.raw import read_raw
+
+    data = (shared_data / "raw/misc/blackmagic_pocket4k_rggb.dng").read_bytes()
+    cut = tmp_path / "cut.dng"
+    cut.write_bytes(data[:min(dng_lossy.probe(data).offsets)])
+    with pytest.raises(InputError, match="Unexpected end of file"):
+        read_raw(cut)
+
+
+# ---------------------------------------------------------------- .npy header of 2**40 values
+def test_npy_header_claiming_2_40_values_names_file_and_key(runner, work: Path) -> None:
+    """It ended in "Error: out of memory" naming no file."""
+    import io
+    import zipfile
+
+    bad = work / "huge.npz"
+    head = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        head, {"descr": "<f8", "fortran_order": False, "shape": (2**40,)})
+    with zipfile.ZipFile(work / "t.npz") as zin, zipfile.ZipFile(bad, "w") as zout:
+        for info in zin.infolist():
+            data = zin.read(info)
+            if info.filename == "lambdas.npy":
+                data = b"\x93NUMPY\x01\x00" + head.getvalue()[8:] + bytes(64)
+            zout.writestr(info.filename, data)
+    with pytest.raises(TableError, match="key 'lambdas' claims 1099511627776 values"):
+        load_table(bad)
+    res = runner.invoke(cli, ["render", str(bad), str(work / "good.dng"), "-o",
+                              str(work / "o.png")])
+    line = assert_one_line_error(res, "huge.npz", "lambdas")
+    assert "memory" not in line
+
+
+# ---------------------------------------------------------------- the writers' last defence
+@pytest.mark.parametrize("suffix", [".png", ".jpg", ".tif"])
+def test_display_writers_refuse_nan(tmp_path: Path, suffix: str) -> None:
+    """PNG/JPEG/TIFF were encoded from NaN (some integer per NaN): refused as EXR is,
+    naming the output and the input it was rendered from; nothing written."""
+    from l3cli.errors import OutputError
+    from l3cli.io.image import write_image
+
+    for bad in (np.nan, np.inf, -np.inf):
+        img = np.full((4, 5, 3), 0.5, np.float32)
+        img[1, 2, 0] = bad
+        with pytest.raises(OutputError, match="rendered from in.dng.*NaN or infinite") as exc:
+            write_image(tmp_path / f"x{suffix}", img, space="srgb", source="in.dng")
+        assert str(exc.value).startswith(str(tmp_path / f"x{suffix}"))
+        assert list(tmp_path.iterdir()) == []

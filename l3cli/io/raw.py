@@ -353,8 +353,9 @@ def _read_rawpy(path: Path, libraw_only: bool = False, libraw: bool = False) -> 
     fast = None
     if path.suffix.lower() == ".dng":
         from l3cli import kernel_store
-        from l3cli.io import dng_direct  # uncompressed and lossless JPEG: numpy, imagecodecs
-        from l3cli.io import dng_lossy
+
+        # uncompressed and lossless JPEG: numpy, imagecodecs; lossy JPEG: numba
+        from l3cli.io import dng_direct, dng_lossy
 
         fast = None if libraw else dng_direct.read(path)
         if fast is None and not (libraw or libraw_only):
