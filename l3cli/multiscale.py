@@ -400,8 +400,9 @@ class Multiscale:
         for k in keys[1:5]:
             if arrs[k].dtype.kind != "f":
                 raise TableError(f"key {k!r} has dtype {arrs[k].dtype}, expected floating point")
-        blend = arrs["multiscale_blend"]
-        if blend.size and float(np.nanmax(np.abs(blend.astype(np.float64)))) > _F32_MAX:
+        blend = np.asarray(arrs["multiscale_blend"], dtype=np.float64)
+        finite = np.abs(blend[np.isfinite(blend)])  # NaN and Inf: refused by the stage
+        if finite.size and float(finite.max()) > _F32_MAX:
             raise TableError("multiscale_blend holds values beyond float32's range")
         if arrs["multiscale_counts"].dtype.kind not in "iu":
             raise TableError("key 'multiscale_counts' must hold integers")

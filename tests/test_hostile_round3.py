@@ -82,6 +82,16 @@ def test_export_refuses_an_output_that_is_the_table(runner, work: Path, kind: st
     assert not list(work.glob(".l3-tmp*"))
 
 
+def test_export_refuses_a_fifo_table_at_once(runner, work: Path) -> None:
+    """A FIFO as the table: one line, never opened for reading (it blocked forever)."""
+    fifo = work / "pipe.npz"
+    os.mkfifo(fifo)
+    res = runner.invoke(cli, ["export", str(fifo), "-o", str(work / "x.onnx")])
+    assert_one_line_error(res, "pipe.npz", "FIFO")
+    with pytest.raises(TableError, match="not a regular file"):
+        load_table(fifo)  # the library's own reader: opened non-blocking, refused
+
+
 # ---------------------------------------------------------------- DNG GainMap opcodes
 def _gain_map(**fields):
     from l3cli.io.dng_opcodes import GainMap

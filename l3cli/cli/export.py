@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 
-from l3cli.cli.options import output_opt
+from l3cli.cli.options import InputPath, output_opt
 
 
 @click.command(short_help="Write a table as an ONNX graph that renders as `l3 render` does.")
-@click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
+@click.argument("table_path", metavar="TABLE.npz", type=InputPath(dir_okay=False))
 @output_opt
 @click.option("--display", "display", is_flag=True,
               help="The graph ends in the display encoding (sRGB integers for 3-channel "
