@@ -571,8 +571,8 @@ def test_fuzz_table_groups(tmp_path_factory, edits):
     _count("table groups")
     arrays = {k: v.copy() for k, v in _GTABLE.items()}
     for key, index, value, whole, dtype in edits:
-        a = arrays[key] if dtype is None else arrays[key].astype(dtype)
         with np.errstate(all="ignore"):
+            a = arrays[key] if dtype is None else arrays[key].astype(dtype)
             v = np.array(value).astype(a.dtype)  # ints wrap, NaN becomes some integer
             if whole or a.ndim == 0:
                 a = np.full(a.shape, v, dtype=a.dtype)
