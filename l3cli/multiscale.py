@@ -62,9 +62,11 @@ SIGMA_RANGE = (0.25, 64.0)
 #: Scales (low-passes) at most: each is a pass over the image.
 MAX_SCALES = 16
 #: The largest absolute sum of one class's blend weights onto one output channel: the
-#: stage's output is then within (1 + 2 MAX_BLEND) times the render's range, finite in
-#: float32 (a fitted blend is near 0 .. 1 per band).
-MAX_BLEND = 1e3
+#: stage's output is then within (1 + 2 MAX_BLEND) times the render's range (to the
+#: power 2.4 in the sRGB coding), finite in float32 for any render of a sane raw. A
+#: fitted blend is near 0 .. 1 per band; a class of a few flat pixels may reach
+#: |target| / |band|, hundreds or thousands, which this bound leaves to training.
+MAX_BLEND = 1e6
 _F32_MAX = float(np.finfo(np.float32).max)
 
 

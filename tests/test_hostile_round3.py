@@ -341,7 +341,7 @@ BAD_GROUPS = {
                               "multiscale_blend"),
     "multiscale blend 1e300": ("multiscale_blend", _at((2, 1, 1), 1e300, np.float64),
                                "multiscale_blend"),
-    "multiscale blend 1e4": ("multiscale_blend", _at((0, 0, 0), 1e4), "multiscale_blend"),
+    "multiscale blend 1e7": ("multiscale_blend", _at((0, 0, 0), 1e7), "multiscale_blend"),
     "multiscale_sigmas 1e-300": ("multiscale_sigmas", lambda a: np.array([1e-300, 3.0]),
                                  "multiscale_sigmas"),
     "multiscale_sigmas 1e12": ("multiscale_sigmas", lambda a: np.array([1.0, 1e12]),
