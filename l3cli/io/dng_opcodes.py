@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import InputError
+from l3cli.startup import stop_if_interrupted
 
 __all__ = ["GAIN_MAP", "GAIN_RANGE", "MAX_GAIN_MAPS", "OPCODE_LIST2", "OPCODE_LIST3", "GainMap",
            "parse_opcode_list", "check_gain_map", "encode_gain_maps", "read_gain_maps",
@@ -147,6 +148,8 @@ def parse_opcode_list(data: bytes, where: str = "opcode list") -> list[GainMap]:
         raise InputError(f"{where}: opcode list claims {count} opcodes, its {len(data)} bytes "
                          f"hold at most {(len(data) - 4) // 16}")
     for i in range(count):
+        if i % 4096 == 4095:  # a list of millions of tiny opcodes: a signal still ends it
+            stop_if_interrupted()
         if pos + 16 > len(data):
             raise InputError(f"{where}: opcode list ends inside opcode {i + 1} of {count}")
         op, version, flags, n = struct.unpack_from(">I4sII", data, pos)
