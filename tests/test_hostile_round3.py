@@ -182,6 +182,23 @@ def test_gain_maps_within_range_still_apply(work: Path) -> None:
     np.testing.assert_allclose(raw.mosaic, want, rtol=0, atol=1e-6)
 
 
+def test_gain_map_plane_loop_is_bounded_by_the_image() -> None:
+    """apply_gain_maps alone (the checks skipped): Planes = 0xFFFFFFFF applies the map to
+    the image's one plane (or three), as Planes = 1 (or 3) does; a loop per claimed
+    plane would not end for hours."""
+    from l3cli.shading import apply_gain_maps
+
+    m = np.full((40, 48), 0.25, np.float32)
+    want = apply_gain_maps(m.copy(), [_gain_map()])
+    got = apply_gain_maps(m.copy(), [_gain_map(planes=0xFFFFFFFF)])
+    np.testing.assert_array_equal(got, want)
+    colour = np.indices((40, 48)).sum(axis=0) % 3  # three planes
+    want = apply_gain_maps(m.copy(), [_gain_map(planes=3)], planes=colour)
+    got = apply_gain_maps(m.copy(), [_gain_map(planes=0xFFFFFFFF)], planes=colour)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_allclose(got, 0.375)
+
+
 def test_opcode_count_beyond_the_bytes_is_refused() -> None:
     from l3cli.io.dng_opcodes import parse_opcode_list
 
