@@ -61,9 +61,12 @@ SHADING_RULE = "radial-poly-r2-v1"
 #: Polynomial orders tried (powers of r^2 beyond the constant): the one that predicts
 #: held-out images best is kept (:func:`fit_field`).
 ORDERS = (2, 3)
-#: The gains a stored field may give anywhere on a sensor: those a DNG ``GainMap`` may
-#: hold (the DNG SDK's 1/4096 .. 4096, :data:`l3cli.io.dng_opcodes.GAIN_RANGE`). A lens
-#: darkens its corners by a few stops at most; beyond this a gain only amplifies noise.
+#: The gains a lens-shading correction may give anywhere on a sensor, a stored field's
+#: and a DNG ``GainMap``'s alike (:mod:`l3cli.io.dng_opcodes`): the DNG SDK's range for
+#: gain-map entries (``kProfileGainTableMap_MinGainValue``/``MaxGainValue`` in
+#: ``dng_sdk_limits.h``, 1/4096 .. 4096). A lens darkens its corners by a few stops at
+#: most (cameras' maps hold gains of about 1 to 8); beyond this range a gain only
+#: amplifies noise, or, applied twice, overflows float32.
 GAIN_RANGE = (1.0 / 4096.0, 4096.0)
 #: Terms of a field's polynomial at most (powers r^0 .. r^14; the fit uses up to 4).
 MAX_TERMS = 8

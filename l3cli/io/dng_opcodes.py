@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import InputError
+from l3cli.shading import GAIN_RANGE  # the gains a map may hold (one home: lens shading)
 from l3cli.startup import stop_if_interrupted
 
 __all__ = ["GAIN_MAP", "GAIN_RANGE", "MAX_GAIN_MAPS", "OPCODE_LIST2", "OPCODE_LIST3", "GainMap",
@@ -59,11 +60,6 @@ GAIN_MAP = 9
 OPCODE_LIST2, OPCODE_LIST3 = 51009, 51022
 _CFA = 32803
 _HEAD = struct.Struct(">10I4dI")  # the GainMap parameters before the gains
-#: The gains a map may hold: the DNG SDK's range for gain-map entries
-#: (``kProfileGainTableMap_MinGainValue``/``MaxGainValue`` in ``dng_sdk_limits.h``,
-#: 1/4096 .. 4096). Cameras' lens-shading maps hold gains of about 1 to 8; beyond
-#: this range a gain only amplifies noise (or, twice applied, overflows float32).
-GAIN_RANGE = (1.0 / 4096.0, 4096.0)
 #: GainMaps per opcode list at most: a camera writes one per CFA position or colour
 #: plane (4 for a Bayer phone's OpcodeList2); each map's work is the whole image's.
 MAX_GAIN_MAPS = 64
