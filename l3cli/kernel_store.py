@@ -25,7 +25,8 @@ runs, in order of preference:
 Stored code is numba's own object code for that function, the very code its
 cache holds, so results are bit for bit those of the numba dispatcher. Any
 failure to load (a missing file, another numba, a truncated file) falls
-back to numba; a failure to store is logged at debug level only.
+back to numba (a FIFO or any other non-regular file in its place too: opened
+non-blocking, never waited on); a failure to store is logged at debug level only.
 
 Where: ``$NUMBA_CACHE_DIR/l3cli-kernels`` when set, else the package's
 ``__pycache__/kernels`` when writable, else ``$XDG_CACHE_HOME/l3cli/kernels``
@@ -45,6 +46,7 @@ import importlib.util
 import json
 import logging
 import os
+import stat
 import sys
 import tempfile
 import threading
@@ -220,7 +222,7 @@ def load(name: str, sources: Sequence[str | os.PathLike], types_: str) -> Callab
         for folder in store_dirs():
             path = _file(folder, name, digest, types_)
             try:
-                data = path.read_bytes()
+                data = _read_regular(path)
             except OSError:
                 continue
             fn = _link(path, data, f"{name} {digest} {types_}")
@@ -230,6 +232,17 @@ def load(name: str, sources: Sequence[str | os.PathLike], types_: str) -> Callab
     except Exception as exc:  # noqa: BLE001 - numba is the fallback
         log.debug("stored kernel %s not loaded: %s", name, exc)
     return None
+
+
+def _read_regular(path: Path) -> bytes:
+    """The bytes of a stored file, opened without blocking: a FIFO, a device or a folder
+    in its place is refused at once (``ValueError``: as a damaged file, numba is the
+    fallback), never waited on."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    with open(fd, "rb") as fh:  # closes fd
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ValueError(f"{path}: not a regular file")
+        return fh.read()
 
 
 def _link(path: Path, data: bytes, key: str) -> Callable:

@@ -73,6 +73,19 @@ OLD_RULE = "gauss-bands-v1"
 TRUNCATE = 3.0
 #: The codings the stage blends in: ``"none"`` (the table's values) or ``"srgb"``.
 TRANSFERS = ("none", "srgb")
+#: Low-pass standard deviations a stored stage may hold, pixels: below 0.25 a Gaussian is
+#: one tap (its neighbours' weight < 4e-4), above 64 its support (3 sigma a side) is far
+#: beyond any noise grain and its cost grows with it (l3 trains 1, 3, 9).
+SIGMA_RANGE = (0.25, 64.0)
+#: Scales (low-passes) at most: each is a pass over the image.
+MAX_SCALES = 16
+#: The largest absolute sum of one class's blend weights onto one output channel: the
+#: stage's output is then within (1 + 2 MAX_BLEND) times the render's range (to the
+#: power 2.4 in the sRGB coding), finite in float32 for any render of a sane raw. A
+#: fitted blend is near 0 .. 1 per band; a class of a few flat pixels may reach
+#: |target| / |band|, hundreds or thousands, which this bound leaves to training.
+MAX_BLEND = 1e6
+_F32_MAX = float(np.finfo(np.float32).max)
 #: Bits of a float32 dropped to number a bucket of the coding's table: 512 per octave.
 CODE_SHIFT = 14
 #: The coding's table reaches this value; beyond it the formula is evaluated.
@@ -251,15 +264,23 @@ class Multiscale:
             raise TableError(f"inconsistent multiscale stage: {problem}")
 
     def _problem(self) -> str | None:
+        """What makes the stage unusable (naming its table key), or None: a stage that
+        passes renders finite values from a finite render, at a cost bounded by the image."""
         s, lc, ec, a = self.sigmas, self.level_cuts, self.energy_cuts, self.blend
         if s.size < 1 or not np.all(np.isfinite(s)) or np.any(s <= 0) or np.any(np.diff(s) <= 0):
             return f"sigmas {s.tolist()} must be positive and increasing"
+        lo, hi = SIGMA_RANGE
+        if s.size > MAX_SCALES or s[0] < lo or s[-1] > hi:
+            return (f"multiscale_sigmas {s.tolist()[:4]}{' ...' if s.size > 4 else ''}: "
+                    f"at most {MAX_SCALES} low-passes of {lo:g} .. {hi:g} pixels")
         n_levels = lc.size + 1
         if ec.ndim != 2 or ec.shape[0] != n_levels:
             return f"energy_cuts have shape {ec.shape}, expected ({n_levels}, n_energy - 1)"
         for name, cuts in (("level_cuts", lc[None, :]), ("energy_cuts", ec)):
             if not np.all(np.isfinite(cuts)) or np.any(np.diff(cuts, axis=1) <= 0):
                 return f"{name} must be finite and increasing"
+            if cuts.size and float(np.abs(cuts).max()) > _F32_MAX:
+                return f"multiscale_{name} beyond float32's range (the classes compare in float32)"
         n_classes = n_levels * (ec.shape[1] + 1)
         if a.ndim != 3 or a.shape[0] != n_classes or a.shape[2] < 1 \
                 or a.shape[1] != s.size * a.shape[2]:
@@ -267,6 +288,10 @@ class Multiscale:
                     f"{s.size} * C, C)")
         if not np.all(np.isfinite(a)):
             return "blend holds NaN or Inf"
+        worst = float(np.abs(a).sum(axis=1, dtype=np.float64).max()) if a.size else 0.0
+        if worst > MAX_BLEND:
+            return (f"multiscale_blend weights sum to {worst:.3g} in absolute value for one "
+                    f"class and output, more than {MAX_BLEND:g} (the output would overflow)")
         if self.counts.shape != (n_classes,) or np.any(self.counts < 0):
             return f"counts have shape {self.counts.shape} or negative values"
         if self.transfer not in TRANSFERS:
@@ -338,6 +363,10 @@ class Multiscale:
         for k in keys[1:5]:
             if arrs[k].dtype.kind != "f":
                 raise TableError(f"key {k!r} has dtype {arrs[k].dtype}, expected floating point")
+        blend = np.asarray(arrs["multiscale_blend"], dtype=np.float64)
+        finite = np.abs(blend[np.isfinite(blend)])  # NaN and Inf: refused by the stage
+        if finite.size and float(finite.max()) > _F32_MAX:
+            raise TableError("multiscale_blend holds values beyond float32's range")
         if arrs["multiscale_counts"].dtype.kind not in "iu":
             raise TableError("key 'multiscale_counts' must hold integers")
         transfer = arrs["multiscale_transfer"]

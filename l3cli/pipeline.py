@@ -296,7 +296,8 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
         buffers.release(mosaic)
     del mosaic, decoded
     out = write_image(out_path, img, space=table.output_space,
-                      attributes={"l3:table": str(table_name)}, metadata=shot, **options)
+                      attributes={"l3:table": str(table_name)}, metadata=shot,
+                      source=raw_path, **options)
     buffers.release(img)
     return out, (t1 - t0, t2 - t1, time.perf_counter() - t2)
 

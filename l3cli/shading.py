@@ -61,6 +61,17 @@ SHADING_RULE = "radial-poly-r2-v1"
 #: Polynomial orders tried (powers of r^2 beyond the constant): the one that predicts
 #: held-out images best is kept (:func:`fit_field`).
 ORDERS = (2, 3)
+#: The gains a lens-shading correction may give anywhere on a sensor, a stored field's
+#: and a DNG ``GainMap``'s alike (:mod:`l3cli.io.dng_opcodes`): the DNG SDK's range for
+#: gain-map entries (``kProfileGainTableMap_MinGainValue``/``MaxGainValue`` in
+#: ``dng_sdk_limits.h``, 1/4096 .. 4096). A lens darkens its corners by a few stops at
+#: most (cameras' maps hold gains of about 1 to 8); beyond this range a gain only
+#: amplifies noise, or, applied twice, overflows float32.
+GAIN_RANGE = (1.0 / 4096.0, 4096.0)
+#: Terms of a field's polynomial at most (powers r^0 .. r^14; the fit uses up to 4).
+MAX_TERMS = 8
+#: Sensor side in pixels at most (``shading_size``).
+MAX_SIZE = 1 << 20
 
 
 def normalised_coords(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -99,19 +110,54 @@ class GainField:
             raise TableError(f"bad shading gain field: {problem}")
 
     def _problem(self) -> str | None:
+        """What makes the field unusable (naming its table key), or None: a field that
+        passes gives finite gains within :data:`GAIN_RANGE` on every pixel of any raw."""
         if self.centre.shape != (2,) or self.coeffs.ndim != 2 or self.coeffs.shape[1] < 1:
             return f"centre {self.centre.shape} / coeffs {self.coeffs.shape} have the wrong shape"
+        if self.coeffs.shape[1] > MAX_TERMS:
+            return (f"shading_coeffs has {self.coeffs.shape[1]} terms per position, at most "
+                    f"{MAX_TERMS}")
         if not (np.all(np.isfinite(self.centre)) and np.all(np.isfinite(self.coeffs))):
             return "centre or coefficients hold NaN or Inf"
         if np.any(np.abs(self.centre) > 1.0):
             return f"centre {self.centre.tolist()} lies outside the sensor"
-        if min(self.size) < 1:
-            return f"size {self.size} is empty"
-        r_max = 1.0 + float(np.hypot(*self.centre))  # the farthest corner of any raw
-        g = self.gains(np.linspace(0.0, r_max ** 2, 257))
-        if not np.all(g > 0):
-            return "gains are not positive over the sensor"
+        if min(self.size) < 1 or max(self.size) > MAX_SIZE:
+            return f"shading_size {self.size} is not a sensor size (1 .. {MAX_SIZE} pixels a side)"
+        lo, hi = self.extremes()
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            return "shading_coeffs: gains overflow over the sensor"
+        if not lo > 0:
+            return f"shading_coeffs: gains are not positive over the sensor (down to {lo:.3g})"
+        if not (lo >= GAIN_RANGE[0] and hi <= GAIN_RANGE[1]):
+            return (f"shading_coeffs: gains from {lo:.3g} to {hi:.3g} over the sensor, outside "
+                    f"the {GAIN_RANGE[0]:g} .. {GAIN_RANGE[1]:g} a gain field may give")
         return None
+
+    def extremes(self) -> tuple[float, float]:
+        """The smallest and largest gain of any position over any raw's sensor (``r^2``
+        from 0 to ``(1 + |centre|)^2``, the farthest corner): each polynomial at the
+        ends, on a grid and at its derivative's real roots (its extremes, exactly).
+        NaN when a gain overflows."""
+        from numpy.polynomial import polynomial as P
+
+        t_max = (1.0 + float(np.hypot(*self.centre))) ** 2
+        ts = [np.linspace(0.0, t_max, 257)]
+        with np.errstate(all="ignore"):
+            for c in self.coeffs:
+                d = P.polyder(c)
+                if d.size < 2 or not np.any(d[1:]):
+                    continue
+                try:
+                    roots = P.polyroots(d)
+                except (np.linalg.LinAlgError, ValueError):
+                    continue
+                roots = roots[np.isfinite(roots)]
+                real = roots.real[np.abs(roots.imag) <= 1e-9 * (1.0 + np.abs(roots.real))]
+                ts.append(real[(real > 0) & (real < t_max)])
+            g = self.gains(np.concatenate(ts))
+        if not np.all(np.isfinite(g)):
+            return float("nan"), float("nan")
+        return float(g.min()), float(g.max())
 
     def gains(self, r2: np.ndarray) -> np.ndarray:
         """Gains (n_positions, *r2.shape) at squared radii ``r2``."""
@@ -151,6 +197,11 @@ class GainField:
         size = arrs["shading_size"]
         if size.shape != (2,):
             raise TableError(f"shading_size has shape {size.shape}, expected (2,)")
+        fsize = size.astype(np.float64)
+        if not (np.all(np.isfinite(fsize)) and np.all(fsize == np.round(fsize))
+                and np.all(fsize >= 1) and np.all(fsize <= MAX_SIZE)):
+            raise TableError(f"shading_size {size.tolist()} is not a sensor size (whole "
+                             f"numbers, 1 .. {MAX_SIZE} pixels a side)")
         return cls(arrs["shading_centre"], coeffs, (int(size[0]), int(size[1])))
 
     def key(self) -> bytes:
@@ -389,8 +440,10 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
     -------
     field, record
         The field (None when it does not predict held-out images better than
-        no field, or the samples are too few), and a JSON record of the fit
-        (``heldout_rms`` with and without the field, ``reason`` when none).
+        no field, the samples are too few, or the fitted field is not usable over
+        the whole sensor: ``unusable`` in the record), and a JSON record of the fit
+        (``heldout_rms`` with and without the field, ``reason`` when none). A fit
+        never raises for its data: an unusable field is dropped.
     """
     samples = [s for s in samples if s.raw.shape[0] >= 8 * (max(orders) + 3)]
     record: dict[str, Any] = {"rule": SHADING_RULE, "images": len(samples)}
@@ -425,7 +478,11 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
     if poly.min() <= min_gain * poly.max():
         record["reason"] = "the fitted gains are not positive over the sensor"
         return None, record
-    field = GainField(centre, per_pos / poly.min(), size)
+    try:  # usable over the whole sensor of any raw, as a table that loads must be
+        field = GainField(centre, per_pos / poly.min(), size)
+    except TableError as exc:
+        record.update(reason=f"the fitted field is not usable ({exc})", unusable=True)
+        return None, record
     record.update(centre=centre.tolist(), coeffs=field.coeffs.tolist(),
                   size=list(size), blocks=int(n_blocks))
     return field, record
@@ -446,8 +503,13 @@ def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any],
     pixels of its ``plane .. plane + planes - 1`` with map plane
     ``min(plane, map_planes - 1)``.
     """
+    from l3cli.startup import stop_if_interrupted
+
     h, w = mosaic.shape
+    # the image's planes bound the loop over a map's planes, not the map's field
+    n_planes = 1 if planes is None else int(np.max(planes, initial=-1)) + 1
     for gm in maps:
+        stop_if_interrupted()
         top, left = max(gm.top, 0), max(gm.left, 0)
         bottom, right = min(gm.bottom, h), min(gm.right, w)
         if bottom <= top or right <= left:
@@ -462,9 +524,8 @@ def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any],
         av = _interp_matrix((rows + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
         ah = _interp_matrix((cols + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
         which = None if planes is None else np.asarray(planes)[area]
-        for plane in range(gm.plane, gm.plane + gm.planes):
-            if which is None and plane != 0:  # a one-plane mosaic: plane 0 only
-                continue
+        for plane in range(gm.plane, min(gm.plane + gm.planes, n_planes)):
+            stop_if_interrupted()
             sel = None if which is None else which == plane
             if sel is not None and not sel.any():
                 continue
@@ -495,7 +556,8 @@ def _interp_weights(pos: np.ndarray, origin: float, spacing: float, points: int
     """Lower grid index and fraction of ``pos`` on a map axis (clamped at its ends)."""
     if points < 2:
         return np.zeros(pos.size), np.zeros(pos.size, dtype=np.int64)
-    f = (pos - origin) / spacing
+    # clamped before the integer cast: an extreme origin or spacing stays on the grid
+    f = np.clip((pos - origin) / spacing, -1.0, float(points))
     idx = np.floor(f).astype(np.int64)
     frac = f - idx
     low = idx < 0

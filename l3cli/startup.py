@@ -54,7 +54,7 @@ from typing import Any, NoReturn
 
 __all__ = ["Interrupted", "arm_exit_now", "exit_now", "extension_module", "handle_signals",
            "interrupt_status", "lean_cache", "pause_gc", "preload_scipy_blas", "resume_gc",
-           "signals_deferred", "single_threaded_blas", "test_point"]
+           "signals_deferred", "single_threaded_blas", "stop_if_interrupted", "test_point"]
 
 log = logging.getLogger(__name__)
 
@@ -216,6 +216,18 @@ def test_point(name: str) -> None:
 def signal_received() -> int | None:
     """The first signal :func:`handle_signals` caught in this process, or None."""
     return _first_signal[1] if _first_signal else None
+
+
+def stop_if_interrupted() -> None:
+    """In a worker thread, raise :class:`Interrupted` once a signal has come.
+
+    The handler raises in the main thread only; a long loop that runs in a
+    worker (a decode, a render job) calls this between its steps, so the
+    thread ends promptly and the main thread's clean-up does not wait for the
+    rest of its work. In the main thread (already unwinding) it does nothing.
+    """
+    if _first_signal and threading.current_thread() is not threading.main_thread():
+        raise Interrupted(_first_signal[1])
 
 
 def interrupt_status(exc: BaseException | None = None) -> int:

@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -341,19 +342,26 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         raise TableError(f"{path}: no such table file")
     if path.is_dir():
         raise TableError(f"{path}: is a folder, expected a table .npz")
-    try:
-        with open(path, "rb") as fh:
+    try:  # non-blocking: a FIFO in a table's place is refused, never waited on
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        with open(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise TableError(f"{path}: is not a regular file (a FIFO or device); "
+                                 "expected a table .npz")
             magic = fh.read(4)
     except OSError as exc:
         raise TableError(f"{path}: cannot read table ({exc.strerror})") from exc
     if magic[:2] != b"PK":
         raise TableError(f"{path}: not an NPZ table (not a zip archive)")
+    from l3cli.io.npz import check_members, read_members
+
+    check_members(path, TableError)  # no header may claim more values than the file holds
     try:
         with np.load(path, allow_pickle=False) as npz:
             keys = set(npz.files)
             if "format" not in keys:
                 raise TableError(f"{path}: not an l3 table (no 'format' key)")
-            arrs = {k: npz[k] for k in npz.files}
+            arrs = read_members(npz, path, TableError)
     except TableError:
         raise
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:

@@ -3,7 +3,7 @@
 :func:`make_dng` writes a CFA mosaic as a DNG: uncompressed (8 or 16 bits, or 10/12/14
 bits packed most significant bit first), in strips or tiles, little- or big-endian, or
 lossless-JPEG tiles (compression 7, SOF3, by imagecodecs' libjpeg-turbo), with an optional
-active area and linearisation table. LibRaw (rawpy) is the judge of what they hold.
+active area, linearisation table and opcode lists (GainMaps). LibRaw (rawpy) is the judge of what they hold.
 """
 
 from __future__ import annotations
@@ -44,8 +44,15 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
              active_area: tuple[int, int, int, int] | None = None,
              linearization: np.ndarray | None = None, lossless_jpeg: bool = False, predictor: int = 1,
              components: int = 1,
-             neutral=(0.5, 1.0, 0.7)) -> Path:
-    """Write ``dn`` (uint16, H x W, values < 2**bits) as a DNG of the layout asked for."""
+             neutral=(0.5, 1.0, 0.7), opcode_lists: dict[int, bytes] | None = None,
+             lossy_jpeg: bool = False) -> Path:
+    """Write ``dn`` (uint16, H x W, values < 2**bits) as a DNG of the layout asked for.
+
+    ``opcode_lists``: ``{2: bytes, 3: bytes}``, the OpcodeList2/3 tags' values
+    (``l3cli.io.dng_opcodes.encode_gain_maps``, or any bytes). ``lossy_jpeg``: tiles
+    of 12-bit lossy JPEG (SOF1, by imagecodecs), each JPEG row two sensor rows as
+    Blackmagic cameras write them (``tile`` required).
+    """
     import tifffile
 
     path = Path(path)
@@ -65,6 +72,8 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
     ]
     if active_area is not None:
         tags.append((50829, "I", 4, tuple(active_area), True))
+    for n, data in (opcode_lists or {}).items():
+        tags.append(({1: 51008, 2: 51009, 3: 51022}[n], "B", len(data), bytes(data), True))
     if linearization is not None:
         lin = np.asarray(linearization, np.uint16)
         tags.append((50712, "H", lin.size, tuple(int(v) for v in lin), True))
@@ -74,6 +83,21 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
         kw["tile"] = tile
     if rowsperstrip is not None:
         kw["rowsperstrip"] = rowsperstrip
+    if lossy_jpeg:
+        import imagecodecs
+
+        th, tw = tile
+        padded = np.zeros((-(-h // th) * th, -(-w // tw) * tw), np.uint16)
+        padded[:h, :w] = dn
+        tiles = [imagecodecs.jpeg8_encode(
+            np.ascontiguousarray(padded[y:y + th, x:x + tw]).reshape(th // 2, 2 * tw),
+            bitspersample=12, level=95)
+            for y in range(0, padded.shape[0], th) for x in range(0, padded.shape[1], tw)]
+        with tifffile.TiffWriter(path, byteorder=byteorder) as tw_:
+            kw.pop("byteorder")
+            tw_.write(iter(tiles), shape=(h, w), dtype=np.uint16, compression=7,
+                      bitspersample=12, **kw)
+        return path
     if lossless_jpeg and components == 2:  # as cameras write: each row as 2 interleaved halves
         import imagecodecs
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 
-from l3cli.cli.options import output_opt, silenced
+from l3cli.cli.options import InputPath, output_opt, silenced
 
 
 @click.command(short_help="Write a table as an ONNX graph that renders as `l3 render` does.")
-@click.argument("table_path", metavar="TABLE.npz", type=click.Path(dir_okay=False))
+@click.argument("table_path", metavar="TABLE.npz", type=InputPath(dir_okay=False))
 @output_opt
 @click.option("--display", "display", is_flag=True,
               help="The graph ends in the display encoding (sRGB integers for 3-channel "
@@ -24,10 +24,13 @@ def export(table_path: str, output: str, display: bool, bits: str | None) -> Non
     (docs/export.md). A table feature the graph cannot express is refused by
     name. `l3 inspect PIPELINE.onnx` shows the model's metadata.
     """
+    from l3cli.cli.paths import check_outputs
     from l3cli.export import export_table
 
     if bits is not None and not display:
         raise click.UsageError("--bits applies to display output only; add --display")
+    # before any work, as every writing command: the output may not be (or alias) the table
+    check_outputs([(output, "-o")], [table_path])
     path = export_table(table_path, output, output="display" if display else "linear",
                         bits=int(bits or 8))
     if not silenced():

@@ -54,12 +54,13 @@ from typing import Any
 import numpy as np
 
 from l3cli import buffers
+from l3cli.errors import InputError
 from l3cli.io import fd2
 from l3cli.io.dng_direct import quiet_probe
 from l3cli.io.dng_lossy_tables import BASIS, SQRT1_2, ZIGZAG, fast_ac, huffman_table
 from l3cli.kernel_store import Stored
 
-__all__ = ["LossyTiles", "decode", "libraw_metadata", "probe", "read"]
+__all__ = ["LossyTiles", "check_whole", "decode", "libraw_metadata", "probe", "read"]
 
 log = logging.getLogger(__name__)
 
@@ -259,6 +260,30 @@ def libraw_metadata(data: bytes | memoryview, tiles: LossyTiles):
     return rp
 
 
+def check_whole(path: str | os.PathLike, tiles: LossyTiles | None = None) -> None:
+    """Refuse a lossy-JPEG DNG whose tiles lie past the end of the file (a file cut
+    short, even right after its tags): LibRaw decodes what is there and leaves the rest
+    black, so the file's size is the judge. Any other file passes (``tiles``: its
+    :func:`probe`, made here when not given).
+
+    Raises
+    ------
+    InputError
+        "Unexpected end of file" (LibRaw's words), with the bytes needed and present.
+    """
+    tiles = probe(path) if tiles is None else tiles
+    if tiles is None or not tiles.offsets:
+        return
+    need = max(o + c for o, c in zip(tiles.offsets, tiles.counts, strict=False))
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return  # the reader's own open reports it
+    if need > size:
+        raise InputError(f"{path}: cannot unpack raw data (Unexpected end of file: the lossy "
+                         f"JPEG tiles need {need} bytes, the file has {size})")
+
+
 def _matches_this_libraw() -> bool:
     """Whether this decoder's values are the installed LibRaw's (checked by the tests).
 
@@ -287,10 +312,11 @@ def read(path: str | os.PathLike, *, compile: bool = True
     stored (:mod:`l3cli.kernel_store`): no numba import.
     """
     path = Path(path)
-    if not _matches_this_libraw():
-        return None
     tiles = probe(path)  # the tags only: most DNGs are not lossy
-    if tiles is None or not (compile or _decode_tile.stored()):
+    if tiles is None:
+        return None
+    check_whole(path, tiles)  # a damaged file, whoever would decode it
+    if not _matches_this_libraw() or not (compile or _decode_tile.stored()):
         return None
     try:
         data = path.read_bytes()

@@ -25,22 +25,32 @@ calls on every DNG. OpcodeList3's maps act on colour planes after
 demosaicing; l3 applies them to the mosaic's pixels of each plane's colour
 (the maps are smooth, so this is what the camera does up to the demosaic's
 blur of the gain). Other opcodes are left out (logged).
+
+A map is checked against the image it acts on before any pixel is touched
+(:func:`check_gain_map`): its planes among the image's planes, its area
+inside the image, its pitches within its area, its grid no finer than the
+pixels, its gains finite and within the DNG SDK's range for gains
+(:data:`GAIN_RANGE`); a list holds at most :data:`MAX_GAIN_MAPS` maps. So the
+work of applying them is bounded by the image, never by a field of the file.
 """
 
 from __future__ import annotations
 
 import logging
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from l3cli.errors import InputError
+from l3cli.shading import GAIN_RANGE  # the gains a map may hold (one home: lens shading)
+from l3cli.startup import stop_if_interrupted
 
-__all__ = ["GAIN_MAP", "OPCODE_LIST2", "OPCODE_LIST3", "GainMap", "parse_opcode_list",
-           "encode_gain_maps", "read_gain_maps", "apply_dng_opcodes"]
+__all__ = ["GAIN_MAP", "GAIN_RANGE", "MAX_GAIN_MAPS", "OPCODE_LIST2", "OPCODE_LIST3", "GainMap",
+           "parse_opcode_list", "check_gain_map", "encode_gain_maps", "read_gain_maps",
+           "apply_dng_opcodes"]
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +60,9 @@ GAIN_MAP = 9
 OPCODE_LIST2, OPCODE_LIST3 = 51009, 51022
 _CFA = 32803
 _HEAD = struct.Struct(">10I4dI")  # the GainMap parameters before the gains
+#: GainMaps per opcode list at most: a camera writes one per CFA position or colour
+#: plane (4 for a Bayer phone's OpcodeList2); each map's work is the whole image's.
+MAX_GAIN_MAPS = 64
 
 
 @dataclass(eq=False)
@@ -74,6 +87,8 @@ class GainMap:
     origin_v: float
     origin_h: float
     gains: np.ndarray
+    #: Where the map was read (``FILE: OpcodeListN, opcode K``), for messages.
+    where: str = field(default="GainMap opcode", repr=False)
 
     @property
     def map_planes(self) -> int:
@@ -104,8 +119,13 @@ def _gain_map(data: bytes, where: str) -> GainMap:
     gains = gains.astype(np.float32).reshape(pv, ph, n_planes)
     if not np.all(np.isfinite(gains)):
         raise InputError(f"{where}: GainMap opcode holds NaN or Inf gains")
+    lo, hi = GAIN_RANGE
+    if not (float(gains.min()) >= lo and float(gains.max()) <= hi):
+        raise InputError(f"{where}: GainMap opcode holds gains from {float(gains.min()):g} to "
+                         f"{float(gains.max()):g}, outside the {lo:g} .. {hi:g} a gain map "
+                         "may hold")
     return GainMap(top, left, bottom, right, plane, planes, row_pitch, col_pitch, pv, ph,
-                   sv, sh, ov, oh, gains)
+                   sv, sh, ov, oh, gains, where)
 
 
 def parse_opcode_list(data: bytes, where: str = "opcode list") -> list[GainMap]:
@@ -120,7 +140,12 @@ def parse_opcode_list(data: bytes, where: str = "opcode list") -> list[GainMap]:
     if len(data) < 4:
         raise InputError(f"{where}: opcode list of {len(data)} bytes has no count")
     (count,), pos, maps = struct.unpack_from(">I", data), 4, []
+    if count > (len(data) - 4) // 16:  # every opcode has a 16-byte header
+        raise InputError(f"{where}: opcode list claims {count} opcodes, its {len(data)} bytes "
+                         f"hold at most {(len(data) - 4) // 16}")
     for i in range(count):
+        if i % 4096 == 4095:  # a list of millions of tiny opcodes: a signal still ends it
+            stop_if_interrupted()
         if pos + 16 > len(data):
             raise InputError(f"{where}: opcode list ends inside opcode {i + 1} of {count}")
         op, version, flags, n = struct.unpack_from(">I4sII", data, pos)
@@ -129,12 +154,47 @@ def parse_opcode_list(data: bytes, where: str = "opcode list") -> list[GainMap]:
             raise InputError(f"{where}: opcode {i + 1} of {count} (ID {op}) claims {n} bytes, "
                              f"{len(data) - pos} remain")
         if op == GAIN_MAP:
+            if len(maps) == MAX_GAIN_MAPS:
+                raise InputError(f"{where}: more than {MAX_GAIN_MAPS} GainMap opcodes (a "
+                                 "camera writes one per CFA position or colour plane)")
             maps.append(_gain_map(data[pos:pos + n], f"{where}, opcode {i + 1}"))
         else:
             log.info("%s: opcode %d (ID %d, flags %d) is not applied by l3", where, i + 1, op,
                      flags)
         pos += n
     return maps
+
+
+def check_gain_map(gm: GainMap, shape: tuple[int, int], n_planes: int) -> None:
+    """Refuse a map that does not fit the image it acts on (``shape``: the normalised
+    mosaic's (H, W); ``n_planes``: 1 for OpcodeList2's one-plane image, the colours for
+    OpcodeList3's).
+
+    Raises
+    ------
+    InputError
+        Naming the file, the opcode and the field: planes beyond the image's, an area
+        outside the image, a pitch beyond the area, more map points than pixels along an
+        axis, more map planes than the image has.
+    """
+    h, w = int(shape[0]), int(shape[1])
+    where = gm.where
+    if gm.plane >= n_planes or gm.planes > n_planes - gm.plane:
+        raise InputError(f"{where}: GainMap acts on planes {gm.plane} .. "
+                         f"{gm.plane + gm.planes - 1}, the image has {n_planes} "
+                         f"plane{'s' if n_planes > 1 else ''} (0 .. {n_planes - 1})")
+    if gm.bottom > h or gm.right > w:
+        raise InputError(f"{where}: GainMap area (top {gm.top}, left {gm.left}, bottom "
+                         f"{gm.bottom}, right {gm.right}) lies outside the {w}x{h} image")
+    if gm.row_pitch > gm.bottom - gm.top or gm.col_pitch > gm.right - gm.left:
+        raise InputError(f"{where}: GainMap pitch {gm.row_pitch}x{gm.col_pitch} is larger "
+                         f"than its {gm.bottom - gm.top}x{gm.right - gm.left} area")
+    if gm.points_v > max(h, 2) or gm.points_h > max(w, 2):
+        raise InputError(f"{where}: GainMap of {gm.points_v}x{gm.points_h} points is finer "
+                         f"than the {w}x{h} image's pixels")
+    if gm.map_planes > n_planes:
+        raise InputError(f"{where}: GainMap holds {gm.map_planes} map planes, the image has "
+                         f"{n_planes}")
 
 
 def encode_gain_maps(maps: list[GainMap]) -> bytes:
@@ -192,9 +252,12 @@ def apply_dng_opcodes(raw: Any) -> Any:
     list2, list3 = read_gain_maps(raw.path)
     if not (list2 or list3):
         return raw
+    chans = [c for c in ("R", "G", "B") if c in raw.cfa.channels]
+    for maps, n_planes in ((list2, 1), (list3, len(chans))):
+        for gm in maps:
+            check_gain_map(gm, raw.mosaic.shape, n_planes)
     apply_gain_maps(raw.mosaic, list2)
     if list3:
-        chans = [c for c in ("R", "G", "B") if c in raw.cfa.channels]
         cmap = np.asarray(raw.cfa.channel_map(*raw.mosaic.shape))
         colour = np.array([chans.index(c) if c in chans else -1 for c in raw.cfa.channels])[cmap]
         apply_gain_maps(raw.mosaic, list3, planes=colour)

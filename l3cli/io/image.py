@@ -127,6 +127,7 @@ def write_image(
     compression: str | None = None,
     metadata: dict[str, Any] | None = None,
     allow_nonfinite: bool = False,
+    source: str | os.PathLike | None = None,
 ) -> Path:
     """Write an image atomically; the format follows the suffix.
 
@@ -163,7 +164,12 @@ def write_image(
     allow_nonfinite
         Write the values to an EXR as they are, NaN and infinity included (a
         test's deliberately bad input). By default NaN, ±inf and (with
-        ``half``) values beyond half-float range are an :class:`OutputError`.
+        ``half``) values beyond half-float range are an :class:`OutputError`;
+        float pixels bound for TIFF/PNG/JPEG are checked alike before they are
+        encoded (a NaN would become some integer: never an image).
+    source
+        The input the image was made from (a raw), named in the message when
+        the image holds NaN or infinity.
     """
     path = Path(path)
     fmt = format_of(path)
@@ -180,11 +186,13 @@ def write_image(
         space = check_space(space)
     _check_compression(path, fmt, compression)
     if fmt == "exr":
-        _check_finite(path, img, half, allow_nonfinite)
+        _check_finite(path, img, half, allow_nonfinite, source)
         data = img
         typedesc = "half" if half else "float"
     else:
         from l3cli.io.encode import display_encode
+
+        _check_finite(path, img, False, False, source)  # the last line of defence
 
         data = display_encode(img, space, _bits_of(fmt, bits))
         typedesc = "uint16" if data.dtype == np.uint16 else "uint8"
@@ -197,14 +205,17 @@ def write_image(
 HALF_LIMIT = 65520.0
 
 
-def _check_finite(path: Path, img: np.ndarray, half: bool, allow_nonfinite: bool = False) -> None:
-    """Refuse float pixels an EXR would store as NaN or infinity (two reductions,
-    no copy): NaN or ±inf, and with ``half`` values beyond half-float range."""
+def _check_finite(path: Path, img: np.ndarray, half: bool, allow_nonfinite: bool = False,
+                  source: str | os.PathLike | None = None) -> None:
+    """Refuse float pixels that would be stored or encoded from NaN or infinity (two
+    reductions, no copy): NaN or ±inf, and with ``half`` values beyond half-float range."""
     if img.size == 0 or allow_nonfinite:
         return
     lo, hi = float(img.min()), float(img.max())
     if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise OutputError(f"{path}: the image holds NaN or infinite values; nothing written")
+        made = f" (rendered from {source})" if source is not None else ""
+        raise OutputError(f"{path}: the image{made} holds NaN or infinite values; "
+                          "nothing written")
     if half and max(-lo, hi) >= HALF_LIMIT:
         raise OutputError(f"{path}: values up to {max(-lo, hi):.6g} overflow half floats "
                           "(largest 65504) and would be written as infinity; write full "

@@ -351,17 +351,19 @@ def _read_rawpy(path: Path, libraw_only: bool = False, libraw: bool = False) -> 
     rp = None
     failure: Exception | None = None
     fast = None
-    if path.suffix.lower() == ".dng" and not libraw:
+    if path.suffix.lower() == ".dng":
         from l3cli import kernel_store
-        from l3cli.io import dng_direct  # uncompressed and lossless JPEG: numpy, imagecodecs
 
-        fast = dng_direct.read(path)
-        if fast is None and not libraw_only:
-            from l3cli.io import dng_lossy
+        # uncompressed and lossless JPEG: numpy, imagecodecs; lossy JPEG: numba
+        from l3cli.io import dng_direct, dng_lossy
 
+        fast = None if libraw else dng_direct.read(path)
+        if fast is None and not (libraw or libraw_only):
             # its compiled decoder: stored code loads in milliseconds; numba only where it is
             # loaded anyway (render, train), not for a quick look (l3 info: ~0.3 s to import)
             fast = dng_lossy.read(path, compile=kernel_store.in_use())
+        elif fast is None:
+            dng_lossy.check_whole(path)  # lossy tiles past the end: damaged, whatever LibRaw says
     with fd2.captured(str(path)) as said:
         try:
             if fast is not None:

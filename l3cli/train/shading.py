@@ -81,7 +81,10 @@ def fit_pairs_shading(pairs: Sequence[Pair], opts, tone_model=None
         return None, {"reason": "raws of different sizes or resized renders"}
     field, record = fit_field(samples, cfa, size)
     if field is None:
-        log.info("shading: %s; training without a gain field", record.get("reason"))
+        # a fit that was made but is not usable is dropped with a note; "no better than
+        # none" and "too few blocks" are the ordinary outcomes (info)
+        level = logging.WARNING if record.get("unusable") else logging.INFO
+        log.log(level, "shading: %s; training without a gain field", record.get("reason"))
     else:
         g = field.gains(np.array([0.0, 1.0]))
         log.info("shading: gain field kept (held-out block residual %.4g vs %.4g without); "

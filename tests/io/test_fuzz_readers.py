@@ -525,3 +525,137 @@ def test_fuzz_other_numeric_options(which, picks):
         for x in (v if isinstance(v, (tuple, list)) else [v]):
             if isinstance(x, float):
                 assert math.isfinite(x), (k, x, args)
+
+
+# ----------------------------------------------------------------------------- optional groups
+def _group_table_arrays() -> dict[str, np.ndarray]:
+    """A table with both optional groups: a lens-shading gain field and a multi-scale
+    stage (both valid)."""
+    from l3cli.classify import ClassDefinition
+    from l3cli.multiscale import Multiscale
+    from l3cli.shading import GainField
+    from l3cli.table import TransformTable
+
+    d = ClassDefinition.build("RGGB", patch=3, level_cuts=[0.05, 0.2], contrast_cuts=0.3)
+    nc, q = d.n_classes, d.n_coeffs
+    k = np.zeros((nc, q, 3), np.float32)
+    k[:, q // 2, :] = 1.0  # the centre pixel
+    stage = Multiscale.identity(3, sigmas=(1.0, 3.0), level_cuts=[0.3],
+                                energy_cuts=np.array([[0.01], [0.02]]))
+    field = GainField(np.array([0.05, -0.1]), np.array([[1.0, 0.3, 0.05]] * 4), (24, 28))
+    t = TransformTable(definition=d, kernels=k, counts=np.full(nc, 10),
+                       lambdas=np.full((nc, 3), 1e-3), empty=np.zeros(nc, bool),
+                       source_class=np.arange(nc), provenance={"seed": 1},
+                       multiscale=stage, shading=field)
+    return t.to_arrays()
+
+
+_GTABLE = _group_table_arrays()
+_GROUP_KEYS = sorted(k for k, v in _GTABLE.items()
+                     if k.startswith(("shading_", "multiscale_")) and v.dtype.kind in "fiu")
+
+
+@given(edits=st.lists(st.tuples(st.sampled_from(_GROUP_KEYS), st.integers(0, 10**6),
+                                _field_values, st.booleans(),
+                                st.sampled_from([None, "f4", "f8", "i8", "u8"])),
+                      min_size=1, max_size=3))
+def test_fuzz_table_groups(tmp_path_factory, edits):
+    """Any numeric field of the optional groups (``shading_*``, ``multiscale_*``) set to
+    any value, one element or all, in any numeric dtype: the table is refused with an
+    L3Error, or it renders finite values (shading corrected, multi-scale stage applied)."""
+    from l3cli.cfa import CFA
+    from l3cli.io.raw import RawImage
+    from l3cli.render import render_raw
+    from l3cli.table import load_table
+
+    _count("table groups")
+    arrays = {k: v.copy() for k, v in _GTABLE.items()}
+    for key, index, value, whole, dtype in edits:
+        with np.errstate(all="ignore"):
+            a = arrays[key] if dtype is None else arrays[key].astype(dtype)
+            v = np.array(value).astype(a.dtype)  # ints wrap, NaN becomes some integer
+            if whole or a.ndim == 0:
+                a = np.full(a.shape, v, dtype=a.dtype)
+            elif a.size:
+                a.flat[index % a.size] = v
+        arrays[key] = a
+    path = tmp_path_factory.mktemp("tabg") / "t.npz"
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+    t = _either_result_or_l3error(load_table, path)
+    if t is not None:
+        cfa = CFA.from_spec("RGGB")
+        raw = RawImage(mosaic=_MOSAIC.copy(), cfa=cfa, black_level=np.zeros(4), white_level=1.0)
+        out = render_raw(t, raw)
+        assert np.all(np.isfinite(out)), edits
+
+
+# ----------------------------------------------------------------------------- DNG opcodes
+_U32 = st.one_of(st.integers(0, 12), st.sampled_from([20, 23, 24, 25, 28, 29, 255, 65535,
+                                                       2**31 - 1, 2**31, 2**32 - 1]),
+                 st.integers(0, 2**32 - 1))
+_F64 = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                 st.sampled_from([0.0, -0.0, 1e-300, 0.25, 0.5, 1.0, 1e300, -1.0]))
+_GAINS = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32),
+                   st.sampled_from([0.0, 1.0, 1.5, 2.0, 4096.0, 4097.0, 3e38, -1.0, 1e-30]))
+
+
+@st.composite
+def _opcode_lists(draw):
+    """An opcode list's bytes: GainMaps with sane or hostile fields, other opcodes, a
+    count that may lie, a tail that may be cut."""
+    import struct
+
+    from l3cli.io.dng_opcodes import _HEAD
+
+    ops = []
+    for _ in range(draw(st.integers(0, 4))):
+        if draw(st.integers(0, 5)) == 0:  # another opcode (skipped by l3)
+            body = draw(st.binary(max_size=24))
+            ops.append(struct.pack(">I4sII", draw(st.integers(1, 14)), bytes((1, 3, 0, 0)),
+                                   draw(st.integers(0, 3)), len(body)) + body)
+            continue
+        sane = draw(st.booleans())
+        f = {"top": draw(st.integers(0, 1)) if sane else draw(_U32),
+             "left": draw(st.integers(0, 1)) if sane else draw(_U32),
+             "bottom": 24 if sane else draw(_U32), "right": 28 if sane else draw(_U32),
+             "plane": draw(st.integers(0, 2)) if sane else draw(_U32),
+             "planes": draw(st.integers(1, 3)) if sane else draw(_U32),
+             "row_pitch": draw(st.integers(1, 2)) if sane else draw(_U32),
+             "col_pitch": draw(st.integers(1, 2)) if sane else draw(_U32),
+             "pv": draw(st.integers(1, 4)) if sane else draw(st.one_of(st.integers(0, 40), _U32)),
+             "ph": draw(st.integers(1, 4)) if sane else draw(st.one_of(st.integers(0, 40), _U32)),
+             "sv": 0.5 if sane else draw(_F64), "sh": 0.5 if sane else draw(_F64),
+             "ov": 0.0 if sane else draw(_F64), "oh": 0.0 if sane else draw(_F64),
+             "mp": draw(st.integers(1, 3)) if sane else draw(st.one_of(st.integers(0, 4), _U32))}
+        n = f["pv"] * f["ph"] * f["mp"]
+        n_gains = n if n <= 4096 and draw(st.integers(0, 6)) else draw(st.integers(0, 64))
+        gains = np.array(draw(st.lists(_GAINS, min_size=n_gains, max_size=n_gains))
+                         if n_gains <= 64 else np.full(n_gains, draw(_GAINS)), ">f4")
+        body = _HEAD.pack(*f.values()) + gains.tobytes()
+        ops.append(struct.pack(">I4sII", 9, bytes((1, 3, 0, 0)), 0, len(body)) + body)
+    count = len(ops) if draw(st.integers(0, 5)) else draw(_U32)
+    data = struct.pack(">I", count) + b"".join(ops)
+    cut = draw(st.one_of(st.none(), st.integers(0, max(0, len(data) - 1))))
+    return data if cut is None else data[:cut]
+
+
+_DN = np.random.default_rng(9).integers(64, 4000, (24, 28)).astype(np.uint16)
+
+
+@given(list2=st.one_of(st.none(), _opcode_lists()), list3=st.one_of(st.none(), _opcode_lists()))
+def test_fuzz_dng_opcodes(tmp_path_factory, list2, list3):
+    """A DNG with any OpcodeList2/3 (GainMaps whose fields are any uint32, doubles and
+    gains any value, lists cut short or whose count lies): read as a finite mosaic with
+    the maps applied, or an L3Error; the work is bounded by the image (no loop of a
+    file's field: a run of this test would not end otherwise)."""
+    from l3cli.io.raw import read_raw
+    from tests.dngmake import make_dng
+
+    _count("dng opcodes")
+    lists = {n: d for n, d in ((2, list2), (3, list3)) if d is not None}
+    path = make_dng(tmp_path_factory.mktemp("op") / "o.dng", _DN, bits=16, black=64,
+                    white=4095, opcode_lists=lists)
+    raw = _either_result_or_l3error(read_raw, path)
+    if raw is not None:
+        assert raw.mosaic.shape == _DN.shape and np.all(np.isfinite(raw.mosaic)), lists
