@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import ConfigError
+from l3cli.features import table_features
 from l3cli.figures import group_name
 from l3cli.table import TransformTable
 
@@ -234,6 +235,7 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "samples": int(table.counts.sum()),
         "lambda": lam,
         "smoothing": table.provenance.get("smoothing"),
+        "features": [f.name for f in table_features(table)],  # l3cli.features: one list
         "white_balance": table.white_balance is not None,
         "tone_curve": None if table.tone_lut is None else int(table.tone_lut[0].shape[0]),
         "shading": None if table.shading is None else {
@@ -292,6 +294,7 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
            f"CFA {s['cfa']['spec']} (period {s['cfa']['period'][0]}x{s['cfa']['period'][1]}, "
            f"channels {' '.join(s['cfa']['channels'])}), patch {s['patch']}x{s['patch']} "
            f"({lay['coefficients']} coefficients per output)",
+           f"features: {', '.join(s.get('features') or []) or 'none beyond the classes'}",
            f"classes: {lay['classes']} = {len(lay['groups'])} position groups x "
            f"{lay['saturation_patterns']} saturation patterns x {lay['levels']} levels x "
            f"{lay['contrast_bins']} contrast bins"

@@ -33,7 +33,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # kernel sets; the metrics; a camera's description (its TOML, validated)
     ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
                "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel",
-               "shading", "camera", "illumination", "model")),
+               "shading", "camera", "illumination", "model", "features")),
     # inputs: training pairs, registration, previews, simulation
     ("inputs", ("pairs", "align", "preview", "simulate", "rawinfo")),
     # workflows: train, render, evaluate, smooth, baseline, inspect, export

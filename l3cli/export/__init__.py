@@ -168,26 +168,11 @@ def model_metadata(table: TransformTable, *, table_name: str, table_sha256: str,
 
 
 def _features(table: TransformTable) -> list[str]:
+    from l3cli.features import table_features
+
     d = table.definition
-    out = [f"levels {d.n_levels}", f"contrast bins {d.n_contrast}", "saturation"]
-    if table.shading is not None:
-        out.append(f"lens shading (gain field learned on {table.shading.size[1]}x"
-                   f"{table.shading.size[0]} raws)")
-    if d.orientation_bins:
-        out.append(f"orientation bins {d.orientation_bins}")
-    if d.context_block:
-        out.append(f"context bins ({d.context_rule}, block {d.context_block}, {d.n_context})")
-    if d.highlight_bins:
-        out.append("highlight bins")
-    if table.conditions is not None:
-        out.append(f"condition bins ({table.conditions.by}, {table.conditions.values.size})")
-    if table.white_balance is not None:
-        out.append("as-shot white balance + adaptation")
-    if table.tone_lut is not None:
-        out.append("tone curve")
-    if table.multiscale is not None:
-        out.append(f"multiscale stage ({table.multiscale.n_classes} classes)")
-    return out
+    return [f"levels {d.n_levels}", f"contrast bins {d.n_contrast}", "saturation",
+            *(f.describe(table) for f in table_features(table))]
 
 
 def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
