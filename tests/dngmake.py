@@ -13,6 +13,25 @@ from pathlib import Path
 import numpy as np
 
 
+def phone_gain_maps(h: int, w: int, *, points: tuple[int, int] = (13, 17), strength: float = 1.2,
+                    seed: int = 7) -> list:
+    """Four GainMaps, one per Bayer position (``Top``/``Left`` 0 or 1, pitch 2, the whole
+    image), as phones and action cameras write their lens shading: a radial lift of
+    ``strength`` times r² toward the corners, a little different per position."""
+    from l3cli.io.dng_opcodes import GainMap
+
+    rng = np.random.default_rng(seed)
+    pv, ph = points
+    maps = []
+    for top, left in [(0, 0), (0, 1), (1, 0), (1, 1)]:
+        v = np.linspace(0, 1, pv)[:, None] - 0.5
+        u = np.linspace(0, 1, ph)[None, :] - 0.5
+        g = 1 + (strength + 0.3 * rng.random()) * (v ** 2 + u ** 2)
+        maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, pv, ph, 1 / (pv - 1), 1 / (ph - 1),
+                            0.0, 0.0, g[:, :, None].astype(np.float32)))
+    return maps
+
+
 def pack_bits(dn: np.ndarray, bits: int) -> np.ndarray:
     """Rows of ``bits``-bit samples packed most significant bit first, each row padded
     to whole bytes (TIFF's and LibRaw's ``getbits`` order): uint8 (rows, row bytes)."""
@@ -44,8 +63,13 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
              active_area: tuple[int, int, int, int] | None = None,
              linearization: np.ndarray | None = None, lossless_jpeg: bool = False, predictor: int = 1,
              components: int = 1,
-             neutral=(0.5, 1.0, 0.7)) -> Path:
-    """Write ``dn`` (uint16, H x W, values < 2**bits) as a DNG of the layout asked for."""
+             neutral=(0.5, 1.0, 0.7), opcode_list2: bytes | None = None,
+             opcode_list3: bytes | None = None) -> Path:
+    """Write ``dn`` (uint16, H x W, values < 2**bits) as a DNG of the layout asked for.
+
+    ``opcode_list2`` / ``opcode_list3``: the bytes of an OpcodeList2 / OpcodeList3 tag
+    (:func:`l3cli.io.dng_opcodes.encode_gain_maps`), written as the cameras do (UNDEFINED).
+    """
     import tifffile
 
     path = Path(path)
@@ -65,6 +89,9 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
     ]
     if active_area is not None:
         tags.append((50829, "I", 4, tuple(active_area), True))
+    for code, data in ((51009, opcode_list2), (51022, opcode_list3)):
+        if data is not None:
+            tags.append((code, "B", len(data), bytes(data), True))
     if linearization is not None:
         lin = np.asarray(linearization, np.uint16)
         tags.append((50712, "H", lin.size, tuple(int(v) for v in lin), True))

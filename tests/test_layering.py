@@ -31,7 +31,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # the L3 model: classes, the tile kernel, render rows, the table, tone
     # curve, white balance, condition bins, kernel sets; the metrics
     ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
-               "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel")),
+               "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel",
+               "gainmaps")),
     # inputs: training pairs, registration, previews, cameras and simulation
     ("inputs", ("pairs", "align", "preview", "camera", "simulate", "rawinfo")),
     # workflows: train, render, evaluate, smooth, baseline, inspect, export

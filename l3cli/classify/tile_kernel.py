@@ -57,6 +57,58 @@ def slp_vectorize():
 
 
 @functools.cache
+def _band_gains(PW: int):
+    """The raw's gains on one copied band row, in place (:mod:`l3cli.gainmaps`).
+
+    ``dst[xx]`` holds the mosaic's pixel ``(yy, xi[x0 + xx])`` (CFA row phase ``py``); it is
+    multiplied, in this order and with these rules, by each DNG map layer's
+    gain (a linear interpolation between two values of the map's grid
+    interpolated for row ``yy``; the product clipped at 1), the learned
+    field's (its polynomial in ``r²``, float64 as :func:`l3cli.shading.gain_map`;
+    never above ``max(v, 1)`` when every field gain is at least 1, else a
+    pixel at or above ``sat`` is not lowered) and the white balance's (a pixel at
+    or above ``sat`` is not lowered). The products are float32, as the
+    passes over the mosaic make them.
+    """
+
+    @nb.njit(nogil=True, error_model="numpy")
+    def band_gains(dst, twp, yy, py, xi, x0, g_mode, g_act, g_rows, g_col, g_frac, f_a, f_b,
+                   f_c, f_one, w_g, sat):
+        n_layers = g_act.shape[0] if g_mode & 1 else 0
+        nk = f_c.shape[2]
+        fa = f_a[yy] if g_mode & 2 else 0.0
+        one = np.float32(1.0)
+        for xx in range(twp):
+            xs = xi[x0 + xx]
+            px = xs % PW
+            v = dst[xx]
+            for ly in range(n_layers):
+                if g_act[ly, py, px] != 0:
+                    j = g_col[ly, py, xs]
+                    f = g_frac[ly, py, xs]
+                    g = np.float32(g_rows[ly, yy, px, j] * (1.0 - f)
+                                   + g_rows[ly, yy, px, j + 1] * f)
+                    v = min(v * g, one)
+            if g_mode & 2:
+                r2 = fa + f_b[xs]
+                acc = f_c[py, px, nk - 1]
+                for kk in range(nk - 2, -1, -1):
+                    acc = acc * r2 + f_c[py, px, kk]
+                g = np.float32(acc)
+                if f_one:
+                    v = min(v * g, max(v, one))
+                elif v < sat or g >= one:
+                    v = v * g
+            if g_mode & 4:
+                g = w_g[py, px]
+                if g > one or (g < one and not v >= sat):
+                    v = v * g
+            dst[xx] = v
+
+    return band_gains
+
+
+@functools.cache
 def tile_kernel(S: int, PW: int):
     """The classifier (and renderer) compiled for patch size ``S``.
 
@@ -78,6 +130,7 @@ def tile_kernel(S: int, PW: int):
     r = S // 2
     TR = TILE_ROWS
     PAD = max(tap_lanes(S) - S, 0)
+    band_gains = _band_gains(PW)
 
     # no numba cache: the machine code is stored by l3cli.kernel_store, whose key covers
     # the callees' sources too (numba's cache would not need the object code kept)
@@ -89,7 +142,8 @@ def tile_kernel(S: int, PW: int):
                xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
                mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
                cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
-               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, t_lo, t_hi):
+               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, g_mode, g_act, g_rows,
+               g_col, g_frac, f_a, f_b, f_c, f_one, w_g, t_lo, t_hi):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -147,6 +201,10 @@ def tile_kernel(S: int, PW: int):
                 else:
                     for xx in range(twp):
                         dst[xx] = src[xi[x0 + xx]]
+                if g_mode != 0:  # the raw's gains (l3cli.gainmaps), on the band's copy
+                    yy = yi[y0 + i0 + k]
+                    band_gains(dst, twp, yy, yy % ph, xi, x0, g_mode, g_act, g_rows, g_col,
+                               g_frac, f_a, f_b, f_c, f_one, w_g, sat_thr)
                 for xx in range(twp, twp + PAD):
                     dst[xx] = np.float32(0.0)
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
