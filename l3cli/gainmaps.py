@@ -170,10 +170,10 @@ def _check_shape(dng: Any, shape: tuple[int, ...], name: Any) -> None:
 
 
 # ----------------------------------------------------------- the kernel's form
-_NO_I32_3 = np.zeros((0, 1, 1), np.int32)
 #: The tile kernel's gain arguments when there are none (the order of
 #: :meth:`MosaicGains.kernel_args`).
-NO_GAINS = (0, _NO_I32_3, np.zeros((0, 1, 1, 2), _F64), _NO_I32_3,
+NO_GAINS = (0, np.zeros((0, 1, 1), np.int64), np.zeros((0, 1, 1), _F64),
+            np.zeros((0, 1, 1), np.float32), np.zeros((0, 1, 1), _F64),
             np.zeros((0, 1, 1), _F64), np.zeros(1, _F64), np.zeros(1, _F64),
             np.zeros((1, 1, 1), _F64), False, np.ones((1, 1), np.float32))
 
@@ -237,19 +237,24 @@ class MosaicGains:
         return mosaic
 
     def kernel_args(self) -> tuple:
-        """The tile kernel's gain arguments: ``(mode, act, rows, col, frac, a, b, coeffs,
-        floor_one, wb)`` (:data:`NO_GAINS` for none).
+        """The tile kernel's gain arguments: ``(mode, idx, frac, cap, rows, diffs, a, b,
+        coeffs, floor_one, wb)`` (:data:`NO_GAINS` for none), laid out so that the
+        kernel reads each column's values contiguously along a band row.
 
-        ``mode``: bits :data:`DNG`, :data:`FIELD`, :data:`WB`. ``act`` int32
-        (layers, ph, pw): the layer has a map at the CFA position; ``rows``
-        float64 (layers, H, pw, points): a layer's grid interpolated along
-        the map's rows, per image row and column phase; ``col`` int32 and
-        ``frac`` float64 (layers, ph, W): each column's grid cell and
-        fraction on its map. ``a`` (H,) and ``b`` (W,) float64: squared
-        offsets from the field's centre; ``coeffs`` float64 (ph, pw, k): the
-        field's polynomial per CFA position of the mosaic; ``floor_one``: every
-        field gain on the mosaic is at least 1 (its clipping rule). ``wb``
-        float32 (ph, pw). Built once per instance.
+        ``mode``: bits :data:`DNG`, :data:`FIELD`, :data:`WB`. DNG map layers:
+        ``rows`` float64 (layers, H, M): per image row, the grid of the map at
+        each column phase interpolated along the map's rows (entry
+        ``j * pw + px``: grid column ``j``, column phase ``px``; the last entry
+        1), ``diffs`` the differences to the next grid column (the last 0);
+        ``idx`` int64, ``frac`` float64 and ``cap`` float32 (layers, ph, W):
+        per row phase and column, the entry of ``rows`` and the fraction to the
+        next grid column (the gain is ``rows[idx] + frac * diffs[idx]``), and
+        the clip (1; infinity where the layer has no map). The field: ``a``
+        (H,) and ``b`` (W,) float64 squared offsets from its centre, ``coeffs``
+        float64 (ph, k, W) its polynomial per row phase and column,
+        ``floor_one`` every field gain on the mosaic is at least 1 (its clipping
+        rule). ``wb`` float32 (ph, W): the white-balance gain per row phase and
+        column. Built once per instance.
         """
         args = self.__dict__.get("_args")
         if args is None:
@@ -262,19 +267,21 @@ class MosaicGains:
 
 def _kernel_args(g: MosaicGains) -> tuple:
     mode = 0
-    act, rows, col, frac = NO_GAINS[1:5]
-    a, b, coeffs, floor_one = NO_GAINS[5:9]
-    wb = NO_GAINS[9]
+    idx, frac, cap, rows, diffs, a, b, coeffs, floor_one, wb = NO_GAINS[1:]
+    ph, pw = g.cfa.period
+    w = g.shape[1]
     if g.dng is not None:
         mode |= DNG
-        act, rows, col, frac = _build_layers(g.dng, g.cfa, g.shape)
+        idx, frac, cap, rows, diffs = _build_layers(g.dng, g.cfa, g.shape)
     if g.field is not None:
         mode |= FIELD
         a, b, coeffs, floor_one = _field_args(g)
     if g.wb is not None:
         mode |= WB
-        wb = np.ascontiguousarray(g.wb, dtype=np.float32)
-    return (mode, act, rows, col, frac, a, b, coeffs, bool(floor_one), wb)
+        wb = np.empty((ph, w), np.float32)
+        for py in range(ph):
+            wb[py] = np.resize(np.asarray(g.wb, np.float32)[py], w)  # column phase x % pw
+    return (mode, idx, frac, cap, rows, diffs, a, b, coeffs, bool(floor_one), wb)
 
 
 def _pieces(dng: Any, cfa: Any) -> list[tuple[Any, dict[tuple[int, int], int]]] | None:
@@ -322,22 +329,25 @@ def _build_layers(dng: Any, cfa: Any, shape: tuple[int, int]) -> tuple:
         for p in at:
             last[p] = k
     n_layers = 1 + max(layer_of, default=-1)
-    n_pts = max(max(gm.points_h, 2) for gm, _ in pieces)
-    act = np.zeros((n_layers, ph, pw), np.int32)
-    rows = np.ones((n_layers, h, pw, n_pts), _F64)
-    col = np.zeros((n_layers, ph, w), np.int32)
+    m = max(max(gm.points_h, 2) for gm, _ in pieces) * pw + 1  # + the no-map entry
+    idx = np.full((n_layers, ph, w), m - 1, np.int64)
     frac = np.zeros((n_layers, ph, w), _F64)
+    cap = np.full((n_layers, ph, w), np.inf, np.float32)
+    rows = np.ones((n_layers, h, m), _F64)
+    diffs = np.zeros((n_layers, h, m), _F64)
     ys, xs = np.arange(h), np.arange(w)
     for (gm, at), k in zip(pieces, layer_of, strict=True):
         cf, ci = _interp_weights((xs + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
         av = _interp_matrix((ys + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
         for (py, px), plane in at.items():
-            act[k, py, px] = 1
-            r = av[py::ph] @ _grid(gm, plane)  # (rows of the phase, points)
-            rows[k, py::ph, px, :r.shape[1]] = r
-            col[k, py, px::pw] = ci[px::pw]
+            r = av[py::ph] @ _grid(gm, plane)  # (rows of the phase, grid columns)
+            n = r.shape[1]
+            rows[k, py::ph, px:n * pw:pw] = r
+            diffs[k, py::ph, px:(n - 1) * pw:pw] = r[:, 1:] - r[:, :-1]
+            idx[k, py, px::pw] = ci[px::pw] * pw + px
             frac[k, py, px::pw] = cf[px::pw]
-    return act, rows, col, frac
+            cap[k, py, px::pw] = 1.0
+    return idx, frac, cap, rows, diffs
 
 
 @functools.lru_cache(maxsize=8)
@@ -363,10 +373,12 @@ def _field_args(g: MosaicGains) -> tuple:
     b = np.ascontiguousarray((u[x0:x0 + w] - cx) ** 2)
     # the field's positions are the full raw's (l3cli.shading.gain_map): position of
     # the mosaic's (y, x) is that of (y0 + y, x0 + x)
-    coeffs = np.empty((ph, pw, field.coeffs.shape[1]), _F64)
+    k = field.coeffs.shape[1]
+    coeffs = np.empty((ph, k, w), _F64)
     for py in range(ph):
         for px in range(pw):
-            coeffs[py, px] = field.coeffs[((y0 + py) % ph) * pw + (x0 + px) % pw]
+            pos = ((y0 + py) % ph) * pw + (x0 + px) % pw
+            coeffs[py, :, px::pw] = field.coeffs[pos][:, None]
     floor_one = _field_floor(field.key(), (field,), full, (ph, pw), (y0, x0, h, w))
     return a, b, coeffs, floor_one
 
