@@ -658,15 +658,21 @@ def one_file_table(tables: dict[str, Path], dng: str, tmp: Path, repeat: int) ->
 
 
 def _gainmap_tables(tmp: Path, given: dict[str, Path], size: tuple[int, int]) -> dict:
-    """The plain 5x5 table, it with a lens-shading field, and ``given`` tables, as files."""
+    """The plain 5x5 table, it with a lens-shading field, a table of the default's
+    features (patch 7, white-balance adaptation, tone curve; untrained kernels), and
+    ``given`` tables, as files."""
     import dataclasses
 
     from l3cli.table import save_table
 
     base = feature_tables()[PLAIN]
+    default = dataclasses.replace(_relayout(base, patch=7), white_balance=_wb_record(),
+                                  tone_lut=_curve())
     out = {PLAIN: save_table(tmp / "plain.npz", base),
            "plain 5x5 + lens shading": save_table(tmp / "shading.npz", dataclasses.replace(
-               base, shading=shading_field(size)))}
+               base, shading=shading_field(size))),
+           "patch 7 + white balance + tone curve (the default's features)": save_table(
+               tmp / "default-like.npz", default)}
     return out | given
 
 

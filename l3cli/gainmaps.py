@@ -353,10 +353,35 @@ def _build_layers(dng: Any, cfa: Any, shape: tuple[int, int]) -> tuple:
 @functools.lru_cache(maxsize=8)
 def _field_floor(key: bytes, field_ref: tuple, full: tuple[int, int], period: tuple[int, int],
                  box: tuple[int, int, int, int]) -> bool:
-    from l3cli.shading import gain_map
+    """Every float32 gain of the field on the mosaic's window ``box`` of its full raw is at
+    least 1 (:func:`l3cli.shading.correct_mosaic`'s test, on the values
+    :func:`l3cli.shading.gain_map` computes), found in bands of rows without the map."""
+    from l3cli.shading import normalised_coords
 
+    field = field_ref[0]
     y0, x0, hh, ww = box
-    return bool(float(gain_map(field_ref[0], full, period)[y0:y0 + hh, x0:x0 + ww].min()) >= 1.0)
+    ph, pw = period
+    v, u = normalised_coords(*full)
+    cy, cx = field.centre
+    for py in range(ph):
+        for px in range(pw):
+            # the positions are the full raw's: rows y0 + y with (y0 + y) % ph == py
+            rows = np.arange((py - y0) % ph, hh, ph) + y0
+            cols = np.arange((px - x0) % pw, ww, pw) + x0
+            if rows.size == 0 or cols.size == 0:
+                continue
+            a, b = (v[rows] - cy) ** 2, (u[cols] - cx) ** 2
+            c = field.coeffs[py * pw + px]
+            step = max(1, (1 << 20) // cols.size)
+            for r0 in range(0, rows.size, step):
+                r2 = a[r0:r0 + step, None] + b[None, :]
+                g = np.zeros_like(r2)
+                for k in range(c.size - 1, -1, -1):  # Horner, as GainField.gains
+                    g *= r2
+                    g += c[k]
+                if float(g.astype(np.float32).min()) < 1.0:
+                    return False
+    return True
 
 
 def _field_args(g: MosaicGains) -> tuple:

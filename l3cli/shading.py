@@ -172,8 +172,12 @@ def _cached_map(key: bytes, field_ref: Any, shape: tuple[int, int],
     for y in range(ph):
         for x in range(pw):
             r2 = (v[y::ph, None] - cy) ** 2 + (u[None, x::pw] - cx) ** 2
-            p = y * pw + x
-            out[y::ph, x::pw] = field.gains(r2)[p]
+            c = field.coeffs[y * pw + x]
+            g = np.zeros_like(r2)
+            for k in range(c.size - 1, -1, -1):  # Horner, as gains() (this position only)
+                g *= r2
+                g += c[k]
+            out[y::ph, x::pw] = g
     out.flags.writeable = False
     return out
 

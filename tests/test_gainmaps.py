@@ -274,3 +274,21 @@ def test_shading_pass_in_place_clips_as_a_copy():
     inplace = correct_mosaic(m, field, CFA.from_spec("RGGB"), SAT, out=m)
     assert inplace is m
     np.testing.assert_array_equal(inplace, copy)
+
+
+@pytest.mark.parametrize("field", ["gains >= 1", "gains < 1 near the centre"])
+def test_field_on_a_crop_is_placed_on_its_full_raw(tmp_path, field):
+    """A cropped raw (``metadata`` crop and full size, odd offsets: the CFA phase moves)
+    takes the field of its window of the full raw: the folded render equals the
+    reference computed on the full raw, then cropped."""
+    plain = read_raw(_dng(tmp_path, "plain.dng"))
+    want = _ref_field(plain.mosaic.astype(np.float64), FIELDS[field])[5:5 + 30, 3:3 + 40]
+    crop = plain.crop(5, 3, 30, 40)
+    t = _table(field=FIELDS[field])
+    t = dataclasses.replace(t, definition=ClassDefinition.build(
+        crop.cfa, patch=5, level_cuts=[0.02, 0.08, 0.3], contrast_cuts=0.2,
+        saturation_threshold=SAT))
+    ks = prepare_kernels(t, crop)
+    assert ks.folded
+    got = render_mosaic(ks, ks.prepare_mosaic(np.ascontiguousarray(crop.mosaic)))[:, :, 0]
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
