@@ -4,6 +4,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_product.py [--dng PATH] [--copies 8] [--repeat 3]
         [--features-repeat 3] [--cache DIR] [--retrain] [--raws-only]
+    .venv/bin/python benchmarks/bench_product.py --gainmaps-only [--table NAME=PATH ...]
 
 Tables (trained once and kept in ``--cache``, keyed by their inputs and l3's version):
 
@@ -17,16 +18,23 @@ Tables (trained once and kept in ``--cache``, keyed by their inputs and l3's ver
   adaptation, tone curve, patch 7. Needs ``--dng`` (default the shared data set's);
   skipped with a note without it.
 
-Four tables are printed:
+Five tables are printed:
 
 1. **Per-feature cost** relative to the plain 5x5 table: tables of the plain layout
    with one feature each (white-balance adaptation, tone curve, both, patch 7 and 9,
-   ``--by iso`` bins, orientation, context, highlight bins) and the trained ones.
+   ``--by iso`` bins, orientation, context, highlight bins, a learned lens-shading
+   field, a multi-scale stage) and the trained ones.
    *Kernel alone*: one process, the render stage of one 9-MP raw (the per-raw kernel
    set, the gains on the mosaic, the fused render + 8-bit display encoding), best of
    ``--features-repeat`` interleaved rounds. *Whole process*: ``l3 render`` of the
    ``--copies`` lossy DNGs to JPEG, best of ``--features-repeat``.
-2. **Against LibRaw**: the trained tables → JPEG q95 4:4:4 and 16-bit TIFF, the
+2. **GainMap DNGs** (:func:`gainmap_table`): ``--copies`` 12-MP uncompressed DNGs with
+   four GainMap opcodes (a phone's or action camera's lens shading) against the same
+   pixels without opcodes, kernel alone (the gains folded into the kernel, and as passes
+   over the mosaic as before) and whole process, with LibRaw AHD's time on them and the
+   ratio. ``--gainmaps-only`` prints this table alone (the plain 5x5 table, it with a
+   lens-shading field, and tables given with ``--table NAME=PATH``).
+3. **Against LibRaw**: the trained tables → JPEG q95 4:4:4 and 16-bit TIFF, the
    ``--copies`` lossy DNGs (9 MP) and as many uncompressed 12-MP DNGs (the
    Blackmagic mosaic, tiled to 4000x3000 and written by ``l3cli.io.raw.write_raw``
    with its as-shot white, as ``l3 simulate`` writes DNGs), whole processes against
@@ -37,11 +45,13 @@ Four tables are printed:
    same 12-MP mosaic (:func:`raw_kinds`): lossless-JPEG DNG, 12-bit packed DNG, and
    headerless ``.raw`` dumps (whose peer reads the uncompressed DNG: LibRaw cannot
    read a headerless file). Before it, the **per-file read** of each kind in this
-   process (:func:`decode_table`): l3's ``read_raw`` against LibRaw's decode.
-3. **One 9-MP DNG → JPEG**, whole process, each trained table.
+   process (:func:`decode_table`): l3's ``read_raw`` against LibRaw's decode. The
+   GainMap DNGs are one of the kinds.
+4. **One 9-MP DNG → JPEG**, whole process, each trained table.
 
 Without the shared DNG a synthetic 9-MP DNG (with an as-shot white) stands in for the
-per-feature table and tables 2 and 3 are skipped.
+per-feature table and tables 2 to 4 are skipped (``--gainmaps-only`` uses a synthetic
+12-MP mosaic then).
 """
 
 from __future__ import annotations
@@ -173,8 +183,27 @@ def _relayout(base, **features):
                                source_class=np.arange(nc))
 
 
-def feature_tables() -> dict:
-    """The plain 5x5 table and tables of its layout with one feature each."""
+def shading_field(size: tuple[int, int]):
+    """A learned lens-shading field of the kind ``l3 train`` keeps (corners lifted ~1.6x,
+    a little off centre, per Bayer position), for raws of ``size``."""
+    from l3cli.shading import GainField
+
+    coeffs = [[1.0, 0.45, 0.15], [1.0, 0.4, 0.12], [1.0, 0.4, 0.12], [1.0, 0.55, 0.2]]
+    return GainField([0.03, -0.02], coeffs, size)
+
+
+def multiscale_stage():
+    """A multi-scale stage of the default sigmas (1, 3, 9), 3 levels x 2 energies, sRGB
+    coded, identity blend (its cost does not depend on the values)."""
+    from l3cli.multiscale import Multiscale
+
+    return Multiscale.identity(3, (1.0, 3.0, 9.0), [0.05, 0.3],
+                               np.array([[0.001, 0.01]] * 3), transfer="srgb")
+
+
+def feature_tables(size: tuple[int, int] = (2176, 4128)) -> dict:
+    """The plain 5x5 table and tables of its layout with one feature each (``size``: the
+    raws' (height, width), where the lens-shading field was learned)."""
     import dataclasses
 
     from l3cli.conditions import Conditioned
@@ -197,7 +226,11 @@ def feature_tables() -> dict:
               "+ context (64 px, 3 bins)": _relayout(
                   base, context_block=64, context_cuts=np.array([0.8, 1.25]),
                   context_rule="ratio"),
-              "+ highlight bins 2": _relayout(base, highlight_bins=2)}
+              "+ highlight bins 2": _relayout(base, highlight_bins=2),
+              "+ lens shading (gain field)": dataclasses.replace(base,
+                                                                 shading=shading_field(size)),
+              "+ multi-scale stage (3 scales)": dataclasses.replace(
+                  base, multiscale=multiscale_stage())}
     return tables
 
 
@@ -321,6 +354,115 @@ def decode_table(kinds: dict[str, tuple[list[str], list[str]]], repeat: int) -> 
     return lines
 
 
+def gainmap_dngs(folder: Path, copies: int, dng: Path | None = None, w: int = 4000,
+                 h: int = 3000) -> tuple[list[str], list[str]]:
+    """``copies`` 12-MP uncompressed DNGs with 4 GainMap opcodes in OpcodeList2 (one per
+    Bayer position, 13 x 17 points: a phone's or action camera's lens shading; written by
+    ``tests/dngmake.py``), and as many of the same pixels without opcodes. The pixels: the
+    DNG's mosaic tiled to ``w`` x ``h`` (:func:`uncompressed_dng`), or the synthetic one."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from dngmake import make_dng, phone_gain_maps
+
+    from l3cli.io.dng_opcodes import encode_gain_maps
+
+    folder.mkdir(parents=True, exist_ok=True)
+    if dng is not None and dng.exists():
+        import rawpy
+
+        unc = uncompressed_dng(dng, folder / "unc.dng", w, h)
+        with rawpy.imread(str(unc)) as raw:
+            m = raw.raw_image_visible.copy()
+            black = int(round(float(np.mean(raw.black_level_per_channel))))
+            white = int(raw.white_level)
+            wb = np.asarray(raw.camera_whitebalance[:3], np.float64)
+            spec = "".join("RGBG"[c] for c in raw.raw_pattern.ravel())
+        unc.unlink()
+        neutral = tuple(wb[1] / wb)
+    else:
+        from bench_render import synthetic_mosaic
+
+        m = np.round(synthetic_mosaic(h, w) * 3900 + 64).astype(np.uint16)
+        black, white, spec, neutral = 64, 4095, "RGGB", (0.5, 1.0, 0.7)
+    pattern = tuple("RGB".index(c) for c in spec)
+    ops = encode_gain_maps(phone_gain_maps(h, w, points=(13, 17)))
+    out: tuple[list[str], list[str]] = ([], [])
+    for i, (name, data) in enumerate((("gm", ops), ("plain", None))):
+        d = _fresh(folder / name)
+        first = make_dng(d / f"{name}01.dng", m, pattern=pattern, bits=16, black=black,
+                         white=white, neutral=neutral, opcode_list2=data)
+        out[i].append(str(first))
+        out[i].extend(str(shutil.copyfile(first, d / f"{name}{k + 1:02d}.dng"))
+                      for k in range(1, copies))
+    return out
+
+
+def gainmap_table(tables: dict[str, Path], gm_files: list[str], plain_files: list[str],
+                  tmp: Path, repeat: int) -> list[str]:
+    """GainMap DNGs against the same pixels without opcodes, per table: the render stage of
+    one file in this process (the gains folded into the kernel; as passes over the mosaic,
+    as l3 did before; the file without opcodes), and whole processes (``l3 render`` of the
+    files → JPEG, and LibRaw AHD + OpenImageIO of the GainMap DNGs), interleaved, best of
+    ``repeat``."""
+    from l3cli.io.raw import read_raw
+    from l3cli.table import load_table
+
+    me = [sys.executable, str(HERE / "bench_files.py")]
+    loaded = {name: load_table(p) for name, p in tables.items()}
+    gm, plain = read_raw(gm_files[0]), read_raw(plain_files[0])
+    src = {"gm": (gm.mosaic.copy(), gm.gain_maps), "plain": (plain.mosaic.copy(), None)}
+    raws = {"gm": gm, "plain": plain}
+
+    def stage(name: str, kind: str, fold: bool) -> float:
+        r = raws[kind]
+        np.copyto(r.mosaic, src[kind][0])  # the decode's mosaic, fresh (not timed)
+        r.gain_maps = src[kind][1]
+        t0 = time.perf_counter()
+        render_stage(loaded[name], r, fold=fold)
+        return time.perf_counter() - t0
+
+    runs = [(name, kind, fold) for name in loaded
+            for kind, fold in (("gm", True), ("gm", False), ("plain", True))]
+    kern = {r: np.inf for r in runs}
+    for r in runs:
+        stage(*r)  # kernels loaded, tables built
+    for _ in range(repeat):
+        for r in runs:
+            kern[r] = min(kern[r], stage(*r))
+    whole = {(name, kind): np.inf for name in tables for kind in ("gm", "plain")}
+    ahd = np.inf
+    for _ in range(repeat):
+        for name, table in tables.items():
+            for kind, files in (("gm", gm_files), ("plain", plain_files)):
+                out = _fresh(tmp / "out")
+                dt, _, _ = _run([*_l3_cmd(), "-q", "render", str(table), *files, "-o",
+                                 str(out), "--format", "jpg"])
+                whole[(name, kind)] = min(whole[(name, kind)], dt)
+        out = _fresh(tmp / "out")
+        ahd = min(ahd, _run([*me, "--peer", "AHD", "jpg", str(out), *gm_files])[0])
+    mp = gm.mosaic.size / 1e6
+    lines = [f"GainMap DNGs: {len(gm_files)} x {mp:.0f}-MP uncompressed DNGs with 4 GainMap "
+             "opcodes (OpcodeList2, one map of 13 x 17 points per Bayer position, as phones "
+             "and action cameras write them; `tests/dngmake.py`) against the same pixels "
+             f"without opcodes. Kernel alone: the render stage of one file (kernel set, "
+             f"the gains, fused render + 8-bit encoding), one process, best of {repeat} "
+             "interleaved rounds: the gains folded into the kernel's band copy, and as "
+             "passes over the mosaic (l3 before). Whole process: `l3 render` → JPEG q95, "
+             f"and LibRaw AHD + OpenImageIO of the GainMap DNGs, best of {repeat} "
+             "interleaved.", "",
+             "| table | kernel: GainMap folded | kernel: as passes | kernel: no opcodes "
+             "| folded vs no opcodes | whole: GainMap DNGs | whole: no opcodes "
+             "| GainMap vs no opcodes | LibRaw AHD | l3 vs AHD |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for name in tables:
+        kf, kp, k0 = (kern[(name, "gm", True)], kern[(name, "gm", False)],
+                      kern[(name, "plain", True)])
+        wg, w0 = whole[(name, "gm")], whole[(name, "plain")]
+        lines.append(f"| {name} | {kf:.3f} s | {kp:.3f} s | {k0:.3f} s | {kf / k0:.2f}x "
+                     f"| {wg:.2f} s | {w0:.2f} s | {wg / w0:.2f}x | {ahd:.2f} s "
+                     f"| **{ahd / wg:.2f}x** |")
+    return lines
+
+
 # ------------------------------------------------------------------ timings
 def kernel_times(tables: dict, raw_path: Path, repeat: int,
                  rounds: list[dict[str, float]] | None = None) -> dict[str, float]:
@@ -328,7 +470,6 @@ def kernel_times(tables: dict, raw_path: Path, repeat: int,
     round's times appended to ``rounds`` when given)."""
     from l3cli import buffers
     from l3cli.io.raw import read_raw
-    from l3cli.kernelset import prepare_kernels, render_display
 
     raw = read_raw(raw_path)
     raws = {name: _phase(raw, t.cfa) for name, t in tables.items()}
@@ -339,9 +480,7 @@ def kernel_times(tables: dict, raw_path: Path, repeat: int,
         r, t = raws[name], tables[name]
         np.copyto(r.mosaic, srcs[name])  # the decode's mosaic, fresh (not timed)
         t0 = time.perf_counter()
-        ks = prepare_kernels(t, r)
-        m = ks.prepare_mosaic(r.mosaic, inplace=True)
-        buffers.release(render_display(ks, m, 8))
+        render_stage(t, r)
         return time.perf_counter() - t0
 
     with buffers.recycling():
@@ -353,6 +492,35 @@ def kernel_times(tables: dict, raw_path: Path, repeat: int,
             if rounds is not None:
                 rounds.append(times)
     return best
+
+
+def render_stage(table, raw, *, fold: bool = True) -> None:
+    """What ``l3 render`` does to a decoded raw before the write (pipeline.render_one): the
+    kernel set, the mosaic it takes, the fused render + 8-bit encoding (a multi-scale table:
+    the float render, the stage, the encoding). ``fold`` False applies the raw's gains (DNG
+    maps, lens shading, white balance) as passes over the mosaic first, as l3 did before
+    they were folded into the kernel."""
+    import dataclasses
+
+    from l3cli import buffers
+    from l3cli.gainmaps import apply_dng_gains
+    from l3cli.kernelset import prepare_kernels, render_display, render_mosaic
+
+    if not fold:
+        apply_dng_gains(raw)  # as read_raw did
+    ks = prepare_kernels(table, raw)
+    if not fold and ks.gains is not None:
+        ks = dataclasses.replace(ks, gains=dataclasses.replace(ks.gains, foldable=False))
+    m = ks.prepare_mosaic(raw.mosaic, inplace=True)
+    if table.multiscale is None:
+        buffers.release(render_display(ks, m, 8))
+        return
+    from l3cli import multiscale
+    from l3cli.io.encode import display_encode
+
+    img = multiscale.apply(table, render_mosaic(ks, m))
+    display_encode(img, table.output_space, 8)
+    buffers.release(img)
 
 
 def _phase(raw, cfa):
@@ -489,6 +657,38 @@ def one_file_table(tables: dict[str, Path], dng: str, tmp: Path, repeat: int) ->
     return lines
 
 
+def _gainmap_tables(tmp: Path, given: dict[str, Path], size: tuple[int, int]) -> dict:
+    """The plain 5x5 table, it with a lens-shading field, a table of the default's
+    features (patch 7, white-balance adaptation, tone curve; untrained kernels), and
+    ``given`` tables, as files."""
+    import dataclasses
+
+    from l3cli.table import save_table
+
+    base = feature_tables()[PLAIN]
+    default = dataclasses.replace(_relayout(base, patch=7), white_balance=_wb_record(),
+                                  tone_lut=_curve())
+    out = {PLAIN: save_table(tmp / "plain.npz", base),
+           "plain 5x5 + lens shading": save_table(tmp / "shading.npz", dataclasses.replace(
+               base, shading=shading_field(size))),
+           "patch 7 + white balance + tone curve (the default's features)": save_table(
+               tmp / "default-like.npz", default)}
+    return out | given
+
+
+def _gainmaps_only(a: argparse.Namespace) -> None:
+    print(f"load average before: {os.getloadavg()[0]:.1f} ({os.cpu_count()} cores)", flush=True)
+    given = dict((kv.split("=", 1)[0], Path(kv.split("=", 1)[1])) for kv in a.table)
+    tmp = Path(tempfile.mkdtemp(prefix="l3bench-gainmap-"))
+    try:
+        gm, plain = gainmap_dngs(tmp / "gainmap", a.copies, Path(a.dng))
+        tables = _gainmap_tables(tmp, given, (3000, 4000))
+        print("\n".join(gainmap_table(tables, gm, plain, tmp, a.repeat)), flush=True)
+        print(f"load average after: {os.getloadavg()[0]:.1f}", flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dng", default=str(DEFAULT_DNG))
@@ -500,10 +700,18 @@ def main() -> None:
     ap.add_argument("--raws-only", action="store_true",
                     help="only the raw-kind tables (per-file read, and against LibRaw): no "
                          "per-feature or one-file table")
+    ap.add_argument("--gainmaps-only", action="store_true",
+                    help="only the GainMap DNG table (the plain 5x5 table, its lens-shading "
+                         "variant and the trained tables given with --table)")
+    ap.add_argument("--table", action="append", default=[],
+                    help="NAME=PATH: a table for the GainMap DNG table instead of training one")
     ap.add_argument("--kernel-child", nargs=3, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.kernel_child:
         _kernel_child(a.kernel_child[0], a.kernel_child[1], int(a.kernel_child[2]))
+        return
+    if a.gainmaps_only:
+        _gainmaps_only(a)
         return
     print(f"load average before: {os.getloadavg()[0]:.1f} ({os.cpu_count()} cores)", flush=True)
     cache = Path(a.cache)
@@ -520,7 +728,9 @@ def main() -> None:
         lossy = []
         for i in range(a.copies):
             lossy.append(str(shutil.copyfile(base, src / f"frame{i + 1:02d}.dng")))
-        tables = feature_tables() | trained
+        from l3cli.io.raw import read_raw
+
+        tables = feature_tables(read_raw(base).mosaic.shape) | trained
         if not a.raws_only:
             print("\n".join(feature_table(tables, lossy, Path(lossy[0]), tmp,
                                           a.features_repeat)), flush=True)
@@ -539,6 +749,13 @@ def main() -> None:
         kinds: dict = {f"{a.copies} x 9-MP lossy DNG": lossy,
                        f"{a.copies} x 12-MP uncompressed DNG": unc}
         kinds |= raw_kinds(first, tmp / "kinds", a.copies)
+        if not a.raws_only:
+            gm, gm_plain = gainmap_dngs(tmp / "gainmap", a.copies, dng)
+            print("", flush=True)
+            print("\n".join(gainmap_table(
+                _gainmap_tables(tmp, {k: v for k, v in peers.items() if k != PLAIN},
+                                (3000, 4000)), gm, gm_plain, tmp, a.repeat)), flush=True)
+            kinds[f"{a.copies} x 12-MP uncompressed DNG, 4 GainMaps"] = gm
         print("", flush=True)
         decode_table({k: v if isinstance(v, tuple) else (v, v) for k, v in kinds.items()},
                      max(a.repeat, 5))

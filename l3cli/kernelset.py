@@ -3,12 +3,18 @@
 Everything a table does to a raw that is linear and the same for every pixel
 of the raw is settled here, once per raw, before the tile kernel runs:
 
-1. **mosaic gains** (:meth:`KernelSet.prepare_mosaic`): a white-balancing
-   table's as-shot gains multiply the mosaic per CFA position *before*
-   classification (the levels and the saturation classes see the gained
-   values), exactly as :func:`l3cli.whitebalance.apply_gains` does, but in
-   place on the decoded mosaic. Other per-raw gains of the mosaic (lens
-   shading) belong in the same step.
+1. **mosaic gains** (:class:`l3cli.gainmaps.MosaicGains`): a DNG's GainMap
+   opcodes, the table's learned lens shading and a white-balancing table's
+   as-shot gains multiply the mosaic *before* classification (the levels and
+   the saturation classes see the gained values). They are not passes over
+   the mosaic: the tile kernel evaluates them per pixel as it copies each
+   tile's band (:func:`l3cli.classify.run_tiles`' ``gains``), with the rules
+   and the float32 products of :func:`l3cli.gainmaps.apply_maps`,
+   :func:`l3cli.shading.correct_mosaic` and
+   :func:`l3cli.whitebalance.apply_gains`. Only where the kernel cannot
+   (a context guide, whose block means read the corrected mosaic, or a DNG
+   map of an unusual layout) does :meth:`KernelSet.prepare_mosaic` multiply
+   the mosaic first.
 2. **kernels**: the condition bins of a ``--by`` table interpolated for the
    raw (:func:`l3cli.conditions.kernels_for`), and the white balance's 3x3
    adaptation folded into them when nothing non-linear comes after the
@@ -22,7 +28,8 @@ of the raw is settled here, once per raw, before the tile kernel runs:
    space (``srgb`` and ``lab`` tables) is applied to float bands with
    :func:`l3cli.whitebalance.adapt_image`.
 
-Per pixel, a white-balancing table therefore costs what a plain table costs:
+Per pixel, a white-balancing or shading table, or a DNG with GainMaps,
+therefore costs what a plain table costs:
 the tile kernel (:func:`l3cli.classify.run_tiles`) with the tone curve and
 the display encoding fused. :func:`render_mosaic` (float) and
 :func:`render_display` (8/16-bit display integers) run a :class:`KernelSet`;
@@ -48,6 +55,7 @@ from l3cli.table import TransformTable
 
 if TYPE_CHECKING:
     from l3cli.classify import ClassDefinition
+    from l3cli.gainmaps import MosaicGains
     from l3cli.io.raw import RawImage
 
 __all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "check_fits", "linear_adaptation",
@@ -146,11 +154,14 @@ class KernelSet:
         ``output_space``, applied to float bands by
         :func:`l3cli.whitebalance.adapt_image` after the curve; or None.
     mosaic_gains
-        float32 (ph, pw): per CFA position, the gain the mosaic is multiplied
-        by before classification (:meth:`prepare_mosaic`); or None.
+        float32 (ph, pw): per CFA position, the white-balance gain the mosaic
+        is multiplied by before classification; or None.
     saturation
         The table's saturation threshold: a pixel at or above it stays at or
         above it after a gain below one.
+    gains
+        Every gain of the raw's mosaic before classification (DNG maps, lens
+        shading, ``mosaic_gains``): :class:`l3cli.gainmaps.MosaicGains`, or None.
     """
 
     definition: ClassDefinition
@@ -162,6 +173,7 @@ class KernelSet:
     adapt: tuple[np.ndarray, str] | None = None
     mosaic_gains: np.ndarray | None = None
     saturation: float = 1.0
+    gains: MosaicGains | None = None
 
     @classmethod
     def plain(cls, table: TransformTable, kernels: np.ndarray | None = None) -> KernelSet:
@@ -175,30 +187,55 @@ class KernelSet:
         """True when every step after the kernels runs inside the tile kernel's pass."""
         return self.adapt is None
 
-    def prepare_mosaic(self, mosaic: np.ndarray, *, inplace: bool = False) -> np.ndarray:
-        """The mosaic the kernels classify and render: ``mosaic`` with the per-raw gains.
+    @property
+    def folded(self) -> bool:
+        """True when the tile kernel applies the raw's gains (:attr:`gains`) itself."""
+        return self.gains is not None and self.gains.foldable
 
-        Exactly :func:`l3cli.whitebalance.apply_gains`: each pixel times its CFA
-        position's gain in float32, except that a pixel at or above the
-        saturation threshold is never lowered (a gain below one does not
-        hide clipping from the saturation classes).
+    def prepare_mosaic(self, mosaic: np.ndarray, *, inplace: bool = False) -> np.ndarray:
+        """The mosaic :func:`render_mosaic` and :func:`render_display` take for this raw.
+
+        With folded gains (:attr:`folded`, the usual case) that is ``mosaic``
+        itself: the tile kernel multiplies each band as it copies it. Else the
+        gains multiply the mosaic here (:meth:`corrected_mosaic`).
 
         Parameters
         ----------
         mosaic
-            float32 (H, W), the raw's CFA phase.
+            float32 (H, W), the raw's CFA phase, as read (no gains applied).
         inplace
             Multiply ``mosaic`` itself (a decoded mosaic the caller owns);
-            else a copy is made when there are gains.
+            else a copy is made when there are gains to apply here.
         """
-        if self.mosaic_gains is None:
+        if self.gains is None:
             return mosaic
-        from l3cli.whitebalance import multiply_gains
+        if self.gains.foldable:
+            self._check_shape(mosaic)
+            return mosaic
+        return self.corrected_mosaic(mosaic, inplace=inplace)
 
+    def corrected_mosaic(self, mosaic: np.ndarray, *, inplace: bool = False) -> np.ndarray:
+        """``mosaic`` times the raw's gains, as passes over it
+        (:meth:`l3cli.gainmaps.MosaicGains.apply`): the mosaic the classes see."""
+        if self.gains is None:
+            return mosaic
         m = check_mosaic(mosaic, self.definition.cfa, self.definition.patch)
         if not (inplace and m is mosaic):
             m = m.copy()
-        return multiply_gains(m, self.mosaic_gains, self.saturation)
+        return self.gains.apply(m)
+
+    def _check_shape(self, mosaic: np.ndarray) -> None:
+        if self.gains is not None and tuple(mosaic.shape) != tuple(self.gains.shape):
+            raise ValueError(f"the kernel set's gains are for a {self.gains.shape[1]}x"
+                             f"{self.gains.shape[0]} mosaic, not {mosaic.shape[1]}x"
+                             f"{mosaic.shape[0]}")
+
+    def kernel_gains(self, mosaic: np.ndarray) -> tuple | None:
+        """The tile kernel's ``gains`` argument for ``mosaic`` (None: not folded)."""
+        if not self.folded:
+            return None
+        self._check_shape(mosaic)
+        return self.gains.kernel_args()  # type: ignore[union-attr]
 
 
 def prepare_kernels(table: TransformTable, raw: RawImage | None = None, *,
@@ -225,6 +262,20 @@ def prepare_kernels(table: TransformTable, raw: RawImage | None = None, *,
         the table expects a white balance and the raw has none (nor is one
         given); the raw's CFA is not R, G, B.
     """
+    ks = _prepare(table, raw, white_balance, table_name)
+    if raw is None:
+        return ks
+    from l3cli.gainmaps import mosaic_gains
+
+    gains = mosaic_gains(raw, field=getattr(table, "shading", None), wb=ks.mosaic_gains,
+                         saturation=float(table.definition.saturation_threshold),
+                         fold=not table.definition.context_block)
+    return ks if gains is None else dataclasses.replace(ks, gains=gains)
+
+
+def _prepare(table: TransformTable, raw: RawImage | None, white_balance: np.ndarray | None,
+             table_name: str) -> KernelSet:
+    """:func:`prepare_kernels` but for the mosaic's gains other than the white balance's."""
     if table.white_balance is None and white_balance is not None:
         raise InputError(f"{table_name}: the table was trained without white balance; "
                          "--white-balance does not apply to it")
@@ -343,7 +394,7 @@ def render_mosaic(table: TransformTable | KernelSet, mosaic: np.ndarray, *,
     ks, mosaic, (y0, y1), out = _render_args(table, mosaic, rows, out, np.float32)
     d, w = ks.definition, mosaic.shape[1]
     run_tiles(mosaic, d, MODE_RENDER, rows=(y0, y1), kernels=ks.kernels,
-              n_out=ks.n_out, out=out, curve=ks.curve)
+              n_out=ks.n_out, out=out, curve=ks.curve, gains=ks.kernel_gains(mosaic))
     if ks.post is not None or ks.adapt is not None:
         step = max(1, DISPLAY_BAND_PIXELS // max(w, 1))
         for b0 in range(0, y1 - y0, step):
@@ -419,7 +470,8 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
                 codes = None  # curve-then-encode (measured): only the one-comparison loop
         with lock:
             run_tiles(mosaic, d, MODE_DISPLAY, rows=(y0, y1), kernels=ks.kernels,
-                      n_out=ks.n_out, out=out, curve=ks.curve, display=params, codes=codes)
+                      n_out=ks.n_out, out=out, curve=ks.curve, display=params, codes=codes,
+                      gains=ks.kernel_gains(mosaic))
         return out
     # lab (colour-science's conversion) or a non-linear adaptation: float bands of
     # ~1 M pixels, each finished and encoded after its render
@@ -430,7 +482,7 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
         part = band[: b1 - b0]
         with lock:
             run_tiles(mosaic, d, MODE_RENDER, rows=(b0, b1), kernels=ks.kernels,
-                      n_out=ks.n_out, out=part, curve=ks.curve)
+                      n_out=ks.n_out, out=part, curve=ks.curve, gains=ks.kernel_gains(mosaic))
         _post_rows(ks, part)  # an adaptation (a post matrix is never here: it is fused)
         if params is None:  # lab
             out[b0 - y0:b1 - y0] = display_encode(part, ks.output_space, bits)
@@ -446,8 +498,9 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
     """Render a :class:`l3cli.io.raw.RawImage` to float (checks that the table fits).
 
     The raw's kernel set (:func:`prepare_kernels`: condition bins, white
-    balance) renders its prepared mosaic (a copy: ``raw`` is not changed);
-    a table's multi-scale stage (:func:`l3cli.multiscale.apply`) follows.
+    balance, lens shading, the raw's DNG gain maps) renders its prepared
+    mosaic (``raw`` is not changed); a table's multi-scale stage
+    (:func:`l3cli.multiscale.apply`) follows.
 
     Returns
     -------
@@ -462,8 +515,6 @@ def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table
     """
     check_fits(table, raw, table_name=table_name)
     ks = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
-    from l3cli import multiscale, shading
-
-    raw = shading.corrected(table, raw)  # lens shading first (l3cli.shading)
+    from l3cli import multiscale
 
     return multiscale.apply(table, render_mosaic(ks, ks.prepare_mosaic(raw.mosaic)))

@@ -249,13 +249,14 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     and by :func:`l3cli.render.render_file` (dask tasks, library callers).
     Every table takes the same path: the raw's kernel set
     (:func:`l3cli.kernelset.prepare_kernels`: condition bins, white-balance
-    gains and adaptation) is prepared once, the decoded mosaic is prepared in
-    place (:meth:`~l3cli.kernelset.KernelSet.prepare_mosaic`), and the fused
-    tile kernel renders it, straight to integers for display outputs.
+    gains and adaptation, lens shading, the DNG's gain maps) is prepared once,
+    and the fused tile kernel renders the decoded mosaic with the gains applied
+    to each band as it is copied (:meth:`~l3cli.kernelset.KernelSet.prepare_mosaic`
+    is then the mosaic itself), straight to integers for display outputs.
     ``turn`` is held around the render stage (the pipeline's
     :meth:`RenderTurns.turn`).
     """
-    from l3cli import multiscale, shading
+    from l3cli import multiscale
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
@@ -268,8 +269,9 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
         raw = read_raw(raw_path)
     check_fits(table, raw, table_name=table_name)
     shot = exif_attributes(raw.metadata.get("shot", {}))
+    # the raw's gains (its DNG gain maps, the table's lens shading, white balance) are
+    # applied by the tile kernel as it copies each band (l3cli.gainmaps), not here
     kernels = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
-    raw = shading.corrected(table, raw, inplace=True)  # lens shading first (l3cli.shading)
     mosaic = kernels.prepare_mosaic(raw.mosaic, inplace=True)  # the decode is ours
     t1 = time.perf_counter()
     with turn if turn is not None else contextlib.nullcontext():

@@ -29,13 +29,15 @@ Learning (:func:`fit_field`, glue in :mod:`l3cli.train.shading`)
     linear), the centre by Nelder-Mead around the image centre. The field is
     kept only where it predicts held-out images' blocks better than no field
     (leave one image out), so unshaded cameras train as before.
-Application (:func:`corrected`)
-    Before classification, in training and rendering alike: the per-pixel
-    gain map is computed once per raw size (cached) and multiplied in place.
-DNG ``GainMap`` opcodes (:func:`apply_gain_maps`)
-    The camera's own correction, read from a DNG's OpcodeList2/3 by
-    :mod:`l3cli.io.dng_opcodes` and applied as the DNG SDK does, to the
-    normalised mosaic as it is read.
+Application (:func:`corrected`, :func:`correct_mosaic`)
+    Before classification. Training multiplies the mosaic by the per-pixel
+    gain map (computed once per raw size, cached); a render evaluates the
+    same gains per pixel inside the tile kernel, with the raw's DNG gain maps
+    and white balance (:mod:`l3cli.gainmaps`).
+DNG ``GainMap`` opcodes
+    The camera's own correction, parsed from a DNG's OpcodeList2/3 by
+    :mod:`l3cli.io.dng_opcodes` and applied as the DNG SDK does by
+    :mod:`l3cli.gainmaps`.
 """
 
 from __future__ import annotations
@@ -49,10 +51,11 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import TableError
+from l3cli.io.dng_opcodes import GAIN_RANGE  # the range a gain may take (the DNG SDK's)
 from l3cli.tablekeys import optional_group
 
 __all__ = ["SHADING_RULE", "GainField", "normalised_coords", "gain_map", "corrected",
-           "corrected_raw", "correct_mosaic", "block_samples", "BlockSamples", "fit_field", "apply_gain_maps"]
+           "corrected_raw", "correct_mosaic", "block_samples", "BlockSamples", "fit_field"]
 
 log = logging.getLogger(__name__)
 
@@ -61,13 +64,6 @@ SHADING_RULE = "radial-poly-r2-v1"
 #: Polynomial orders tried (powers of r^2 beyond the constant): the one that predicts
 #: held-out images best is kept (:func:`fit_field`).
 ORDERS = (2, 3)
-#: The gains a lens-shading correction may give anywhere on a sensor, a stored field's
-#: and a DNG ``GainMap``'s alike (:mod:`l3cli.io.dng_opcodes`): the DNG SDK's range for
-#: gain-map entries (``kProfileGainTableMap_MinGainValue``/``MaxGainValue`` in
-#: ``dng_sdk_limits.h``, 1/4096 .. 4096). A lens darkens its corners by a few stops at
-#: most (cameras' maps hold gains of about 1 to 8); beyond this range a gain only
-#: amplifies noise, or, applied twice, overflows float32.
-GAIN_RANGE = (1.0 / 4096.0, 4096.0)
 #: Terms of a field's polynomial at most (powers r^0 .. r^14; the fit uses up to 4).
 MAX_TERMS = 8
 #: Sensor side in pixels at most (``shading_size``).
@@ -221,8 +217,12 @@ def _cached_map(key: bytes, field_ref: Any, shape: tuple[int, int],
     for y in range(ph):
         for x in range(pw):
             r2 = (v[y::ph, None] - cy) ** 2 + (u[None, x::pw] - cx) ** 2
-            p = y * pw + x
-            out[y::ph, x::pw] = field.gains(r2)[p]
+            c = field.coeffs[y * pw + x]
+            g = np.zeros_like(r2)
+            for k in range(c.size - 1, -1, -1):  # Horner, as gains() (this position only)
+                g *= r2
+                g += c[k]
+            out[y::ph, x::pw] = g
     out.flags.writeable = False
     return out
 
@@ -268,11 +268,9 @@ def correct_mosaic(mosaic: np.ndarray, field: GainField, cfa: Any, saturation: f
     if out is None:
         out = np.array(mosaic, dtype=np.float32, copy=True)
     if float(g.min()) >= 1.0:  # the usual case: every pixel brightened, up to white
-        # min(x g, max(x, 1)): pixels at or above white stay as they are; the mask is
-        # taken before the product, which may overwrite ``mosaic`` (``out`` is it in place)
-        low = mosaic < np.float32(1.0)
-        np.multiply(mosaic, g, out=out, where=low)
-        np.minimum(out, np.float32(1.0), out=out, where=low)
+        cap = np.maximum(mosaic, np.float32(1.0))  # before ``out`` (maybe ``mosaic``) changes
+        np.multiply(mosaic, g, out=out)
+        np.minimum(out, cap, out=out)
     else:  # a gain below one does not hide clipping from the saturation classes
         np.multiply(mosaic, g, out=out, where=(mosaic < saturation) | (g >= 1.0))
     return out
@@ -486,82 +484,3 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
     record.update(centre=centre.tolist(), coeffs=field.coeffs.tolist(),
                   size=list(size), blocks=int(n_blocks))
     return field, record
-
-
-# ------------------------------------------------------------------ DNG GainMap
-def apply_gain_maps(mosaic: np.ndarray, maps: Sequence[Any],
-                    planes: np.ndarray | None = None) -> np.ndarray:
-    """Apply DNG ``GainMap`` opcodes to a normalised mosaic in place, as the DNG SDK does.
-
-    Each map (:class:`l3cli.io.dng_opcodes.GainMap`) scales the pixels of its
-    area (``top``/``left``/``bottom``/``right``, every ``row_pitch``-th row and
-    ``col_pitch``-th column from the area's corner) by its gain, bilinearly
-    interpolated on the map's grid at the pixel centre's position relative to
-    the whole image (``(row + 0.5) / height``; clamped at the map's edges), and
-    clips the result at 1 (the white level). ``planes`` (int (H, W), or None
-    for a one-plane mosaic) gives each pixel's plane: a map acts on the
-    pixels of its ``plane .. plane + planes - 1`` with map plane
-    ``min(plane, map_planes - 1)``.
-    """
-    from l3cli.startup import stop_if_interrupted
-
-    h, w = mosaic.shape
-    # the image's planes bound the loop over a map's planes, not the map's field
-    n_planes = 1 if planes is None else int(np.max(planes, initial=-1)) + 1
-    for gm in maps:
-        stop_if_interrupted()
-        top, left = max(gm.top, 0), max(gm.left, 0)
-        bottom, right = min(gm.bottom, h), min(gm.right, w)
-        if bottom <= top or right <= left:
-            continue
-        area = (slice(top, bottom, gm.row_pitch), slice(left, right, gm.col_pitch))
-        view = mosaic[area]  # the map's pixels, written in place
-        rows = np.arange(top, bottom, gm.row_pitch)
-        cols = np.arange(left, right, gm.col_pitch)
-        # the bilinear interpolation is separable: gains = Av @ grid @ Ahᵀ, each row of
-        # Av and Ah holding a pixel's two weights on its axis (one matrix product per
-        # plane rather than four gathers of the grid per pixel)
-        av = _interp_matrix((rows + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
-        ah = _interp_matrix((cols + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
-        which = None if planes is None else np.asarray(planes)[area]
-        for plane in range(gm.plane, min(gm.plane + gm.planes, n_planes)):
-            stop_if_interrupted()
-            sel = None if which is None else which == plane
-            if sel is not None and not sel.any():
-                continue
-            grid = gm.gains[:, :, min(plane, gm.gains.shape[2] - 1)].astype(np.float64)
-            # a map of one point on an axis is constant along it
-            grid = np.pad(grid, ((0, grid.shape[0] == 1), (0, grid.shape[1] == 1)),
-                          mode="edge")
-            g = ((av @ grid) @ ah.T).astype(np.float32)
-            np.multiply(view, g, out=g)
-            np.minimum(g, np.float32(1.0), out=g)
-            np.copyto(view, g, where=True if sel is None else sel)
-    return mosaic
-
-
-def _interp_matrix(pos: np.ndarray, origin: float, spacing: float, points: int) -> np.ndarray:
-    """float64 (len(pos), max(points, 2)): each position's two bilinear weights on a map
-    axis (:func:`_interp_weights`), as the rows of a matrix."""
-    frac, idx = _interp_weights(pos, origin, spacing, points)
-    m = np.zeros((pos.size, max(points, 2)), dtype=np.float64)
-    k = np.arange(pos.size)
-    m[k, idx] = 1.0 - frac
-    m[k, idx + 1] += frac
-    return m
-
-
-def _interp_weights(pos: np.ndarray, origin: float, spacing: float, points: int
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Lower grid index and fraction of ``pos`` on a map axis (clamped at its ends)."""
-    if points < 2:
-        return np.zeros(pos.size), np.zeros(pos.size, dtype=np.int64)
-    # clamped before the integer cast: an extreme origin or spacing stays on the grid
-    f = np.clip((pos - origin) / spacing, -1.0, float(points))
-    idx = np.floor(f).astype(np.int64)
-    frac = f - idx
-    low = idx < 0
-    idx[low], frac[low] = 0, 0.0
-    high = idx >= points - 1
-    idx[high], frac[high] = points - 2, 1.0
-    return frac, idx

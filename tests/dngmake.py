@@ -13,6 +13,25 @@ from pathlib import Path
 import numpy as np
 
 
+def phone_gain_maps(h: int, w: int, *, points: tuple[int, int] = (13, 17), strength: float = 1.2,
+                    seed: int = 7) -> list:
+    """Four GainMaps, one per Bayer position (``Top``/``Left`` 0 or 1, pitch 2, the whole
+    image), as phones and action cameras write their lens shading: a radial lift of
+    ``strength`` times r² toward the corners, a little different per position."""
+    from l3cli.io.dng_opcodes import GainMap
+
+    rng = np.random.default_rng(seed)
+    pv, ph = points
+    maps = []
+    for top, left in [(0, 0), (0, 1), (1, 0), (1, 1)]:
+        v = np.linspace(0, 1, pv)[:, None] - 0.5
+        u = np.linspace(0, 1, ph)[None, :] - 0.5
+        g = 1 + (strength + 0.3 * rng.random()) * (v ** 2 + u ** 2)
+        maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, pv, ph, 1 / (pv - 1), 1 / (ph - 1),
+                            0.0, 0.0, g[:, :, None].astype(np.float32)))
+    return maps
+
+
 def pack_bits(dn: np.ndarray, bits: int) -> np.ndarray:
     """Rows of ``bits``-bit samples packed most significant bit first, each row padded
     to whole bytes (TIFF's and LibRaw's ``getbits`` order): uint8 (rows, row bytes)."""
@@ -45,13 +64,15 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
              linearization: np.ndarray | None = None, lossless_jpeg: bool = False, predictor: int = 1,
              components: int = 1,
              neutral=(0.5, 1.0, 0.7), opcode_lists: dict[int, bytes] | None = None,
-             lossy_jpeg: bool = False) -> Path:
+             lossy_jpeg: bool = False, opcode_list2: bytes | None = None,
+             opcode_list3: bytes | None = None) -> Path:
     """Write ``dn`` (uint16, H x W, values < 2**bits) as a DNG of the layout asked for.
 
     ``opcode_lists``: ``{2: bytes, 3: bytes}``, the OpcodeList2/3 tags' values
-    (``l3cli.io.dng_opcodes.encode_gain_maps``, or any bytes). ``lossy_jpeg``: tiles
-    of 12-bit lossy JPEG (SOF1, by imagecodecs), each JPEG row two sensor rows as
-    Blackmagic cameras write them (``tile`` required).
+    (``l3cli.io.dng_opcodes.encode_gain_maps``, or any bytes); ``opcode_list2`` /
+    ``opcode_list3`` the same one tag at a time, written as the cameras do
+    (UNDEFINED). ``lossy_jpeg``: tiles of 12-bit lossy JPEG (SOF1, by imagecodecs),
+    each JPEG row two sensor rows as Blackmagic cameras write them (``tile`` required).
     """
     import tifffile
 
@@ -72,7 +93,11 @@ def make_dng(path: str | Path, dn: np.ndarray, *, pattern=(0, 1, 1, 2), bits: in
     ]
     if active_area is not None:
         tags.append((50829, "I", 4, tuple(active_area), True))
-    for n, data in (opcode_lists or {}).items():
+    lists = dict(opcode_lists or {})
+    for n, data in ((2, opcode_list2), (3, opcode_list3)):
+        if data is not None:
+            lists[n] = data
+    for n, data in lists.items():
         tags.append(({1: 51008, 2: 51009, 3: 51022}[n], "B", len(data), bytes(data), True))
     if linearization is not None:
         lin = np.asarray(linearization, np.uint16)

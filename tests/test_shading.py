@@ -280,6 +280,7 @@ def test_dng_gain_map_is_applied_as_by_hand(tmp_path):
     (bilinear interpolation at pixel centres, clamped, clipped at white), to 1e-6."""
     from scipy.interpolate import RegularGridInterpolator
 
+    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.dng_opcodes import encode_gain_maps
     from l3cli.io.raw import read_raw
     from l3cli.render import render_file, render_mosaic, render_raw
@@ -289,6 +290,8 @@ def test_dng_gain_map_is_applied_as_by_hand(tmp_path):
     maps = phone_gain_maps(h, w)
     plain = read_raw(write_dng_with_opcodes(tmp_path / "plain.dng", dn, None))
     shaded = read_raw(write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(maps)))
+    assert shaded.gain_maps is not None  # parsed by the file layer, applied by the model
+    apply_dng_gains(shaded)
     assert shaded.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
     by_hand = plain.mosaic.astype(np.float64)
     for m in maps:

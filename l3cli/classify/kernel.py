@@ -45,6 +45,7 @@ from l3cli.classify.layout import (
     kernel_tables,
 )
 from l3cli.classify.mosaic import band_rows, check_mosaic
+from l3cli.gainmaps import NO_GAINS
 
 __all__ = ["KERNEL_SOURCES", "MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER",
            "KernelTables", "kernel_tables", "check_mosaic", "band_rows", "run_tiles",
@@ -193,7 +194,7 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
               kernels: np.ndarray | None = None, n_out: int = 0,
               out: np.ndarray | None = None,
               curve: tuple[np.ndarray, ...] | None = None, display: Any = None,
-              codes: Any = None) -> None:
+              codes: Any = None, gains: tuple | None = None) -> None:
     """Run the tile kernel over output rows ``rows`` (default: all) of a mosaic.
 
     The one entry point to the classifier; :func:`classify`,
@@ -233,6 +234,10 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         ``MODE_DISPLAY`` only: the curve and the encoding as one lookup
         (:func:`l3cli.tonecode.code_table`, for this curve and encoder without
         a matrix), used instead of ``curve`` and ``display``'s tables.
+    gains
+        The raw's gains on the mosaic (:meth:`l3cli.gainmaps.MosaicGains.kernel_args`),
+        applied to each tile's band as it is copied: the kernel sees the mosaic
+        times its gains without a pass over it. None: the mosaic as it is.
     """
     S = definition.patch
     h, w = mosaic.shape
@@ -264,7 +269,8 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     n_tiles = -(-(y1 - y0) // TILE_ROWS) * -(-w // tc)
     args = (mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o, lev_o, con_o, sat_o,
             K, n_out, outf, *(curve if curve is not None else _NO_CURVE), *display, bits, out8,
-            out16, *(codes if codes is not None and mode == MODE_DISPLAY else _NO_CODES))
+            out16, *(codes if codes is not None and mode == MODE_DISPLAY else _NO_CODES),
+            *(gains if gains is not None else NO_GAINS))
     # resolved once (argument types, loaded code), not once per range
     _run_split(_kernel(S, pw).function(*args, 0, n_tiles), args, n_tiles)
 

@@ -36,7 +36,7 @@ from l3cli.render_rows import (  # noqa: E402
     tap_lanes,
 )
 
-__all__ = ["slp_vectorize", "tile_kernel"]
+__all__ = ["row_gains", "slp_vectorize", "tile_gains", "tile_kernel"]
 
 
 @contextlib.contextmanager
@@ -54,6 +54,88 @@ def slp_vectorize():
         yield
     finally:
         nb.config.SLP_VECTORIZE = old
+
+
+@nb.njit(nogil=True, error_model="numpy")
+def tile_gains(x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x):
+    """A tile's columns of the raw's per-column gain tables (:mod:`l3cli.gainmaps`),
+    contiguous for the band's columns ``xi[x0 + xx]`` (mirrored at the image's edges):
+    ``(idx, frac, cap)`` (layers, ph, twp), the field's ``b`` (twp,) and coefficients
+    (ph, k, twp), the white balance (ph, twp)."""
+    n_ly = g_idx.shape[0] if g_mode & 1 else 0
+    nk = f_cx.shape[1] if g_mode & 2 else 0
+    nw = ph if g_mode & 4 else 0
+    t_idx = np.empty((n_ly, ph, twp), dtype=np.uint64)
+    t_frac = np.empty((n_ly, ph, twp), dtype=np.float64)
+    t_cap = np.empty((n_ly, ph, twp), dtype=np.float32)
+    t_b = np.empty(twp if nk else 0, dtype=np.float64)
+    t_c = np.empty((ph if nk else 0, nk, twp), dtype=np.float64)
+    t_wb = np.empty((nw, twp), dtype=np.float32)
+    for xx in range(twp):
+        xs = xi[x0 + xx]
+        for ly in range(n_ly):
+            for qy in range(ph):
+                t_idx[ly, qy, xx] = np.uint64(g_idx[ly, qy, xs])
+                t_frac[ly, qy, xx] = g_frac[ly, qy, xs]
+                t_cap[ly, qy, xx] = g_cap[ly, qy, xs]
+        if nk:
+            t_b[xx] = f_b[xs]
+            for qy in range(ph):
+                for kk in range(nk):
+                    t_c[qy, kk, xx] = f_cx[qy, kk, xs]
+        for qy in range(nw):
+            t_wb[qy, xx] = w_x[qy, xs]
+    return t_idx, t_frac, t_cap, t_b, t_c, t_wb
+
+
+@nb.njit(nogil=True, error_model="numpy")
+def row_gains(dst, twp, yy, qy, g_mode, g_rows, g_diff, f_a, f_one, t_idx, t_frac, t_cap,
+              t_b, t_c, t_wb, sat, r2, acc):
+    """The raw's gains on one copied band row ``dst`` (image row ``yy``, row phase ``qy``),
+    in place, in this order and with these rules (:mod:`l3cli.gainmaps`): each DNG map
+    layer's gain (``rows[idx] + frac * diffs[idx]`` of the map's grid interpolated for
+    row ``yy``), the product clipped at ``cap`` (1 where the layer has a map); the
+    learned field's (its polynomial in ``r²`` in float64, the operations of
+    :func:`l3cli.shading.gain_map`), never above ``max(v, 1)`` when every field gain is
+    at least 1 (``f_one``), else a pixel at or above ``sat`` not lowered; the white
+    balance's, a pixel at or above ``sat`` not lowered. The products are float32, as the
+    passes over the mosaic make them. One simple loop per step: each vectorises."""
+    one = np.float32(1.0)
+    for ly in range(t_idx.shape[0]):
+        rr = g_rows[ly, yy]
+        dd = g_diff[ly, yy]
+        ti = t_idx[ly, qy]
+        tf = t_frac[ly, qy]
+        tp = t_cap[ly, qy]
+        for xx in range(twp):
+            j = ti[xx]
+            g = np.float32(rr[j] + tf[xx] * dd[j])
+            dst[xx] = min(dst[xx] * g, tp[xx])
+    if g_mode & 2:
+        a = f_a[yy]
+        tc = t_c[qy]
+        nk = tc.shape[0]
+        for xx in range(twp):
+            r2[xx] = a + t_b[xx]
+            acc[xx] = tc[nk - 1, xx]
+        for kk in range(nk - 2, -1, -1):
+            for xx in range(twp):
+                acc[xx] = acc[xx] * r2[xx] + tc[kk, xx]
+        if f_one:
+            for xx in range(twp):
+                v = dst[xx]
+                dst[xx] = min(v * np.float32(acc[xx]), max(v, one))
+        else:
+            for xx in range(twp):
+                v = dst[xx]
+                g = np.float32(acc[xx])
+                dst[xx] = v * g if (v < sat or g >= one) else v
+    if g_mode & 4:
+        tw = t_wb[qy]
+        for xx in range(twp):
+            v = dst[xx]
+            g = tw[xx]
+            dst[xx] = v * g if (g > one or (g < one and not v >= sat)) else v
 
 
 @functools.cache
@@ -89,7 +171,8 @@ def tile_kernel(S: int, PW: int):
                xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
                mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
                cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
-               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, t_lo, t_hi):
+               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, g_mode, g_idx, g_frac,
+               g_cap, g_rows, g_diff, f_a, f_b, f_cx, f_one, w_x, t_lo, t_hi):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -136,6 +219,11 @@ def tile_kernel(S: int, PW: int):
             # (+ zeros past the last patch: the render's vector loads of a patch row,
             # render_rows.affine_taps, read tap_lanes(S) values)
             pb = np.empty((nbr, twp + PAD), dtype=np.float32)
+            # the raw's gains (l3cli.gainmaps): the tile's columns of their tables
+            t_idx, t_frac, t_cap, t_b, t_c, t_wb = tile_gains(
+                x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x)
+            g_r2 = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
+            g_acc = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
             inner = x0 - r >= 0 and x0 - r + twp <= W
             c0 = np.uint64(x0 - r) if inner else np.uint64(0)
             for k in range(nbr):
@@ -147,6 +235,10 @@ def tile_kernel(S: int, PW: int):
                 else:
                     for xx in range(twp):
                         dst[xx] = src[xi[x0 + xx]]
+                if g_mode != 0:  # the raw's gains (l3cli.gainmaps), on the band's copy
+                    yy = yi[y0 + i0 + k]
+                    row_gains(dst, twp, yy, yy % ph, g_mode, g_rows, g_diff, f_a, f_one,
+                              t_idx, t_frac, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc)
                 for xx in range(twp, twp + PAD):
                     dst[xx] = np.float32(0.0)
             ring_s = np.empty((S, nch, tw), dtype=np.float32)

@@ -25,6 +25,7 @@ def info(raws: tuple[str, ...], as_json: bool, preview: str | None, planes: str 
     """
     from l3cli.cli.paths import check_outputs, plan_folder
     from l3cli.colourspace import srgb_encode
+    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
     from l3cli.rawinfo import quick_preview, raw_summary
@@ -36,7 +37,7 @@ def info(raws: tuple[str, ...], as_json: bool, preview: str | None, planes: str 
     distinct_inputs(raws, "a raw")
     summaries = []
     for path in raws:
-        raw = read_raw(path)
+        raw = apply_dng_gains(read_raw(path))  # the DNG's gain maps applied
         s = raw_summary(raw)
         summaries.append(s)
         if preview:

@@ -28,7 +28,7 @@ Graph inputs (names are part of the format, :data:`INPUTS`):
     mean the mosaic is the whole raw.
 
 DNG ``GainMap`` opcodes are the caller's, as black level is: the mosaic is
-fed with them applied (what :func:`l3cli.io.raw.read_raw` gives).
+fed with them applied (``l3cli.gainmaps.apply_dng_gains(read_raw(path))``).
 
 Output ``image``: float32 (N, C, H, W) in the table's output space, or with
 ``output="display"`` uint8/uint16 display values (sRGB for 3-channel tables).

@@ -19,9 +19,11 @@ The binary layout (DNG specification 1.4, chapter 7; big-endian):
   ``float32 MapGain[MapPointsV][MapPointsH][MapPlanes]``.
 
 :func:`read_gain_maps` reads them from the raw IFD of a DNG (tifffile reads
-the tags), :func:`l3cli.shading.apply_gain_maps` applies them as the DNG SDK
-does, and :func:`apply_dng_opcodes` is what :func:`l3cli.io.raw.read_raw`
-calls on every DNG. OpcodeList3's maps act on colour planes after
+the tags), and :func:`dng_gain_maps` is what :func:`l3cli.io.raw.read_raw`
+calls on every DNG: the parsed maps ride on the :class:`~l3cli.io.raw.RawImage`
+(``gain_maps``), not yet applied. This layer parses; the model applies them
+as the DNG SDK does (:mod:`l3cli.gainmaps`: to the mosaic, or folded into the
+render's tile kernel). OpcodeList3's maps act on colour planes after
 demosaicing; l3 applies them to the mosaic's pixels of each plane's colour
 (the maps are smooth, so this is what the camera does up to the demosaic's
 blur of the gain). Other opcodes are left out (logged).
@@ -45,14 +47,21 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import InputError
-from l3cli.shading import GAIN_RANGE  # the gains a map may hold (one home: lens shading)
 from l3cli.startup import stop_if_interrupted
 
 __all__ = ["GAIN_MAP", "GAIN_RANGE", "MAX_GAIN_MAPS", "OPCODE_LIST2", "OPCODE_LIST3", "GainMap",
            "parse_opcode_list", "check_gain_map", "encode_gain_maps", "read_gain_maps",
-           "apply_dng_opcodes"]
+           "DngGainMaps", "dng_gain_maps"]
 
 log = logging.getLogger(__name__)
+
+#: The gains a lens-shading correction may give anywhere on a sensor, a DNG ``GainMap``'s
+#: and a table's stored field alike (:mod:`l3cli.shading` takes it from here): the DNG
+#: SDK's range for gain-map entries (``kProfileGainTableMap_MinGainValue``/``MaxGainValue``
+#: in ``dng_sdk_limits.h``, 1/4096 .. 4096). A lens darkens its corners by a few stops at
+#: most (cameras' maps hold gains of about 1 to 8); beyond this range a gain only
+#: amplifies noise, or, applied twice, overflows float32.
+GAIN_RANGE = (1.0 / 4096.0, 4096.0)
 
 #: Opcode ID of GainMap.
 GAIN_MAP = 9
@@ -237,30 +246,39 @@ def read_gain_maps(path: str | Path) -> tuple[list[GainMap], list[GainMap]]:
         for data, n in zip(lists, (2, 3), strict=True))
 
 
-def apply_dng_opcodes(raw: Any) -> Any:
-    """Apply a DNG's GainMap opcodes to its normalised mosaic, in place (returns ``raw``).
+@dataclass(eq=False)
+class DngGainMaps:
+    """A DNG's GainMap opcodes, parsed, not yet applied to its mosaic.
 
-    OpcodeList2's maps act on the mosaic as on the DNG's one-plane stage-2
-    image; OpcodeList3's on the pixels of each map plane's colour (planes in
-    the CFA's R, G, B order). The maps applied are recorded in
-    ``raw.metadata["gain_maps"]``.
+    ``list2`` (OpcodeList2's maps) act on the mosaic as on the DNG's one-plane
+    stage-2 image; ``list3`` (OpcodeList3's) on the pixels of each map plane's
+    colour (planes in the CFA's R, G, B order). ``shape`` is the (height, width)
+    of the image the maps' positions are relative to (the mosaic as read).
     """
-    from l3cli.shading import apply_gain_maps
 
+    list2: list[GainMap]
+    list3: list[GainMap]
+    shape: tuple[int, int]
+
+    def counts(self) -> dict[str, int]:
+        """``{"OpcodeList2": n, "OpcodeList3": n}`` (``RawImage.metadata["gain_maps"]``)."""
+        return {"OpcodeList2": len(self.list2), "OpcodeList3": len(self.list3)}
+
+
+def dng_gain_maps(raw: Any) -> DngGainMaps | None:
+    """The GainMap opcodes of the DNG ``raw`` was read from (None: it has none).
+
+    The file layer parses; the maps are applied by the model
+    (:mod:`l3cli.gainmaps`): to the mosaic for callers that want it corrected
+    (training, ``l3 info``), inside the tile kernel's band copy for renders.
+    """
     if raw.path is None:
-        return raw
+        return None
     list2, list3 = read_gain_maps(raw.path)
     if not (list2 or list3):
-        return raw
+        return None
     chans = [c for c in ("R", "G", "B") if c in raw.cfa.channels]
     for maps, n_planes in ((list2, 1), (list3, len(chans))):
-        for gm in maps:
+        for gm in maps:  # checked against the image before any pixel is touched
             check_gain_map(gm, raw.mosaic.shape, n_planes)
-    apply_gain_maps(raw.mosaic, list2)
-    if list3:
-        cmap = np.asarray(raw.cfa.channel_map(*raw.mosaic.shape))
-        colour = np.array([chans.index(c) if c in chans else -1 for c in raw.cfa.channels])[cmap]
-        apply_gain_maps(raw.mosaic, list3, planes=colour)
-    raw.metadata["gain_maps"] = {"OpcodeList2": len(list2), "OpcodeList3": len(list3)}
-    log.debug("%s: applied %d + %d DNG GainMap opcodes", raw.path, len(list2), len(list3))
-    return raw
+    return DngGainMaps(list2, list3, (int(raw.mosaic.shape[0]), int(raw.mosaic.shape[1])))

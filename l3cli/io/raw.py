@@ -83,6 +83,13 @@ class RawImage:
         Source file, if any.
     metadata
         Source details (format, camera matrices, crop, ...), JSON-serialisable.
+    gain_maps
+        A DNG's GainMap opcodes (:class:`l3cli.io.dng_opcodes.DngGainMaps`)
+        *not yet applied* to ``mosaic``, or None. :func:`read_raw` parses them
+        and leaves the mosaic as stored; a caller that wants the corrected
+        mosaic applies them with :func:`l3cli.gainmaps.apply_dng_gains`
+        (training, ``l3 info``, the baseline do), and a render folds them into
+        the tile kernel (:func:`l3cli.kernelset.prepare_kernels`).
     """
 
     mosaic: np.ndarray
@@ -91,6 +98,7 @@ class RawImage:
     white_level: float
     path: Path | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    gain_maps: Any = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -112,7 +120,16 @@ class RawImage:
 
         ``metadata["crop"]`` is the window on the file's full raw (offsets add
         over crops of crops), ``metadata["full_size"]`` that raw's (height, width).
+
+        Raises
+        ------
+        ValueError
+            The raw's DNG gain maps are not applied yet (apply them first:
+            their positions are relative to the whole image).
         """
+        if self.gain_maps is not None:
+            raise ValueError(f"{self.path}: apply the DNG gain maps before cropping "
+                             "(l3cli.gainmaps.apply_dng_gains)")
         ph, pw = self.cfa.period
         bl = self.black_level.reshape(ph, pw)
         bl = np.roll(bl, (-y0, -x0), axis=(0, 1)).ravel()
@@ -442,12 +459,17 @@ def read_raw(path: str | os.PathLike, *, libraw_only: bool = False,
     Returns
     -------
     RawImage
-        Normalised float32 mosaic with its CFA and levels.
+        Normalised float32 mosaic with its CFA and levels. A DNG's GainMap
+        opcodes (its lens shading correction) are parsed into
+        ``raw.gain_maps`` and counted in ``raw.metadata["gain_maps"]``, not
+        applied: :func:`l3cli.gainmaps.apply_dng_gains` applies them for a
+        caller that wants the corrected mosaic.
 
     Raises
     ------
     InputError
-        Missing, truncated, or non-raw file; sidecar missing or not matching.
+        Missing, truncated, or non-raw file; sidecar missing or not matching;
+        a malformed GainMap opcode.
     ConfigError
         Invalid sidecar content.
     """
@@ -475,8 +497,10 @@ def _read_any(path: Path, libraw_only: bool, libraw: bool) -> RawImage:
             f"{sidecar_path(path).name})"
         )
     raw = _read_rawpy(path, libraw_only, libraw)
-    if suffix == ".dng":  # the camera's GainMap opcodes (lens shading), as the DNG SDK applies them
-        from l3cli.io.dng_opcodes import apply_dng_opcodes
+    if suffix == ".dng":  # the camera's GainMap opcodes (lens shading): parsed, applied by the model
+        from l3cli.io.dng_opcodes import dng_gain_maps
 
-        apply_dng_opcodes(raw)
+        raw.gain_maps = dng_gain_maps(raw)
+        if raw.gain_maps is not None:
+            raw.metadata["gain_maps"] = raw.gain_maps.counts()
     return raw

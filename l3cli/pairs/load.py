@@ -25,6 +25,7 @@ from l3cli.align import (
     scaled_pair,
 )
 from l3cli.errors import InputError
+from l3cli.gainmaps import apply_dng_gains
 from l3cli.io.raw import RawImage, read_raw
 from l3cli.pairs.find import (
     CLIP_HIGH,
@@ -165,7 +166,7 @@ def _load_simulated(pair: Pair, target_space: str | None) -> LoadedPair:
     from l3cli.colourspace import check_space, convert
     from l3cli.io.image import read_image
 
-    raw = read_raw(pair.raw)
+    raw = apply_dng_gains(read_raw(pair.raw))  # the DNG's gain maps applied
     img, file_space = read_image(pair.target)
     space = pair.space or file_space
     if img.shape[:2] != raw.mosaic.shape:
@@ -217,7 +218,7 @@ def _load_rendered(pair: Pair, *, target_space: str | None, margin: int, clip_lo
     """:func:`load_pair` for a render: registered on its raw, cropped and masked."""
     from l3cli.io.image import read_image
 
-    raw = read_raw(pair.raw)
+    raw = apply_dng_gains(read_raw(pair.raw))  # the DNG's gain maps applied
     img, space = read_image(pair.target)
     if img.shape[2] not in (3, 4):
         raise InputError(

@@ -89,12 +89,13 @@ def histogram_task(item: tuple) -> tuple[int, CFA, ContrastHistogram | None]:
     tuple
         ``(index, cfa, histogram or None)``; histograms add.
     """
+    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.raw import read_raw
     from l3cli.whitebalance import training_mosaic
 
     i, pair, opts, with_hist, *rest = item
     fitted = rest[0] if rest else NOTHING
-    raw = read_raw(pair.raw)
+    raw = apply_dng_gains(read_raw(pair.raw))  # the DNG's gain maps applied
     mosaic = training_mosaic(raw, opts, fitted)
     if not with_hist:
         return i, raw.cfa, None

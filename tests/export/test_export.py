@@ -274,7 +274,7 @@ def test_shading_table_matches_render(case):
 
 def test_gain_map_dng_is_fed_as_read(tmp_path):
     """A DNG with four GainMap opcodes (one per Bayer position, as phones write them): the
-    caller feeds the mosaic with the maps applied (what read_raw gives), and the model of
+    caller feeds the mosaic with the maps applied (``apply_dng_gains(read_raw(...))``), and the model of
     a shading table renders it as ``l3 render`` renders the file."""
     from l3cli.io.dng_opcodes import encode_gain_maps
     from l3cli.io.image import read_image
@@ -284,7 +284,9 @@ def test_gain_map_dng_is_fed_as_read(tmp_path):
     h, w = 40, 60
     dn = np.random.default_rng(3).integers(64, 4096, (h, w))
     path = write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(phone_gain_maps(h, w)))
-    raw = read_raw(path)
+    from l3cli.gainmaps import apply_dng_gains
+
+    raw = apply_dng_gains(read_raw(path))  # the caller applies the maps, as documented
     assert raw.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
     for shading in (None, _field((h, w))):
         t = _table(patch=5)

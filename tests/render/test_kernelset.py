@@ -195,12 +195,22 @@ def test_linear_adaptation_is_adapt_image():
     assert linear_adaptation(a, "lab", "xyz") is None
 
 
-def test_prepare_mosaic_is_apply_gains_and_copies_unless_told(tmp_path):
-    t = _table(_definition())
+def test_gains_are_apply_gains_folded_or_as_a_pass(tmp_path):
+    """The white balance is folded into the tile kernel (``prepare_mosaic`` hands the mosaic
+    on untouched); ``corrected_mosaic``, and ``prepare_mosaic`` where the kernel cannot fold
+    (a context guide reads the corrected mosaic), are exactly ``apply_gains``, on a copy
+    unless told."""
     _, raw = _raw(tmp_path, neutral=(1.4, 1.0, 0.6))  # gains below and above one
-    ks = prepare_kernels(t, raw)
-    before = raw.mosaic.copy()
     want = apply_gains(raw.mosaic, raw.cfa, 1 / np.array([1.4, 1.0, 0.6]), 0.95)
+    before = raw.mosaic.copy()
+    ks = prepare_kernels(_table(_definition()), raw)
+    assert ks.folded
+    assert ks.prepare_mosaic(raw.mosaic) is raw.mosaic
+    np.testing.assert_array_equal(ks.corrected_mosaic(raw.mosaic), want)
+    np.testing.assert_array_equal(raw.mosaic, before)  # not changed
+    ctx = _table(_definition(context_block=16, context_cuts=np.array([0.1, 0.3])))
+    ks = prepare_kernels(ctx, raw)
+    assert not ks.folded
     got = ks.prepare_mosaic(raw.mosaic)
     np.testing.assert_array_equal(raw.mosaic, before)  # not changed
     np.testing.assert_array_equal(got, want)
