@@ -13,14 +13,8 @@ import pytest
 from l3cli.cfa import CFA
 from l3cli.errors import TableError
 from l3cli.io.raw import RawImage, write_raw
-from l3cli.shading import (
-    BlockSamples,
-    GainField,
-    corrected,
-    fit_field,
-    gain_map,
-    normalised_coords,
-)
+from l3cli.shading import GainField, corrected, gain_map, normalised_coords
+from l3cli.shading_fit import BlockSamples, fit_field
 from l3cli.table import SHADING_VERSION, TABLE_VERSION, load_table, save_table
 from tests.test_table import make_table
 
