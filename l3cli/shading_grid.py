@@ -45,6 +45,10 @@ SMOOTHNESS = 1e-3
 #: Alternations of matrices and control values at most, and the relative fall of the
 #: residual below which they stop.
 MAX_ALTERNATIONS, TOLERANCE = 200, 1e-7
+#: Robust rounds: the blocks reweighted by Huber's rule (residuals beyond HUBER robust
+#: standard deviations count linearly) so that blocks the block model cannot follow
+#: (clipped colours, edges the pipeline treats non-linearly) do not bend the field.
+ROBUST_ROUNDS, HUBER = 2, 2.0
 
 
 def frame_extent(height: int, width: int) -> tuple[float, float]:
@@ -232,33 +236,42 @@ def fit_spline(samples: Sequence[Any], size: tuple[int, int], intervals: tuple[i
     n_ch = samples[0].raw.shape[1]
     k = (ny + 3) * (nx + 3)
     bases = [spline_basis(s, size, ny, nx) for s in samples]
-    wts = [_weights(s) for s in samples]
-    prods, rhs = [], []
-    for s, b, w in zip(samples, bases, wts, strict=True):
-        w2 = w * w
-        prods.append(np.stack([np.stack([(b * (w2 * s.raw[:, c] * s.raw[:, d])[:, None]).T @ b
-                                         for d in range(n_ch)]) for c in range(n_ch)]))
-        rhs.append(np.einsum("nk,nc,no->cok", b, s.raw * w2[:, None], s.target))
+    base_w = [_weights(s) for s in samples]
+    wts = list(base_w)
     pen = np.kron(np.eye(n_ch), _penalty(ny, nx))
     a = np.ones((n_ch, k))
-    prev = sse = np.inf
-    for _ in range(MAX_ALTERNATIONS):
-        gains = [b @ a.T for b in bases]
-        mats = [_matrix(s.raw * g, s.target, w)
-                for s, g, w in zip(samples, gains, wts, strict=True)]
-        sse = sum(float(np.sum((((s.raw * g) @ m - s.target) * w[:, None]) ** 2))
-                  for s, g, w, m in zip(samples, gains, wts, mats, strict=True))
-        if np.isfinite(prev) and prev - sse <= TOLERANCE * prev:
-            break
-        prev = sse
-        ata = np.zeros((n_ch, k, n_ch, k))
-        atb = np.zeros((n_ch, k))
-        for p, r, m in zip(prods, rhs, mats, strict=True):
-            mm = m @ m.T  # (n_ch, n_ch): sum over outputs of M[c, o] M[c', o]
-            ata += (mm[:, :, None, None] * p).transpose(0, 2, 1, 3)
-            atb += np.einsum("co,cok->ck", m, r)
-        ata = ata.reshape(n_ch * k, n_ch * k)
-        ata += SMOOTHNESS * float(np.mean(np.diag(ata))) * pen
-        a = np.linalg.solve(ata, atb.ravel()).reshape(n_ch, k)
-        a /= np.concatenate([b @ a.T for b in bases]).mean(axis=0)[:, None]
+    sse = np.inf
+    for rnd in range(ROBUST_ROUNDS + 1):
+        prods, rhs = [], []
+        for s, b, w in zip(samples, bases, wts, strict=True):
+            w2 = w * w
+            prods.append(np.stack([np.stack([(b * (w2 * s.raw[:, c] * s.raw[:, d])[:, None]).T
+                                             @ b for d in range(n_ch)]) for c in range(n_ch)]))
+            rhs.append(np.einsum("nk,nc,no->cok", b, s.raw * w2[:, None], s.target))
+        prev = np.inf
+        for _ in range(MAX_ALTERNATIONS):
+            gains = [b @ a.T for b in bases]
+            mats = [_matrix(s.raw * g, s.target, w)
+                    for s, g, w in zip(samples, gains, wts, strict=True)]
+            sse = sum(float(np.sum((((s.raw * g) @ m - s.target) * w[:, None]) ** 2))
+                      for s, g, w, m in zip(samples, gains, wts, mats, strict=True))
+            if np.isfinite(prev) and prev - sse <= TOLERANCE * prev:
+                break
+            prev = sse
+            ata = np.zeros((n_ch, k, n_ch, k))
+            atb = np.zeros((n_ch, k))
+            for p, r, m in zip(prods, rhs, mats, strict=True):
+                mm = m @ m.T  # (n_ch, n_ch): sum over outputs of M[c, o] M[c', o]
+                ata += (mm[:, :, None, None] * p).transpose(0, 2, 1, 3)
+                atb += np.einsum("co,cok->ck", m, r)
+            ata = ata.reshape(n_ch * k, n_ch * k)
+            ata += SMOOTHNESS * float(np.mean(np.diag(ata))) * pen
+            a = np.linalg.solve(ata, atb.ravel()).reshape(n_ch, k)
+            a /= np.concatenate([b @ a.T for b in bases]).mean(axis=0)[:, None]
+        if rnd < ROBUST_ROUNDS:  # Huber weights of the blocks from their residuals
+            res = [np.sqrt(np.sum((((s.raw * g) @ m - s.target) * w[:, None]) ** 2, axis=1))
+                   for s, g, w, m in zip(samples, gains, base_w, mats, strict=True)]
+            scale = HUBER * 1.4826 * float(np.median(np.concatenate(res)))
+            wts = [w * np.sqrt(np.minimum(1.0, scale / np.maximum(r, 1e-300)))
+                   for w, r in zip(base_w, res, strict=True)]
     return a.reshape(n_ch, ny + 3, nx + 3), float(sse)

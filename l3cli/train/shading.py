@@ -87,12 +87,9 @@ def fit_pairs_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, di
     if field is None:
         log.info("shading: %s; training without a gain field", record.get("reason"))
     else:
-        g = field.gains(np.array([0.0, 1.0]))
-        log.info("shading: gain field kept (held-out block residual %.4g vs %.4g without); "
-                 "gain at r=1 / centre per CFA position %s",
-                 record.get("heldout_rms", record.get("rms")),
-                 record.get("none_heldout_rms", record.get("none_rms")),
-                 np.round(g[:, 1] / g[:, 0], 3).tolist())
+        log.info("shading: gain field kept (%s; held-out block residual %.4g vs %.4g "
+                 "without): %s", record.get("model"), record.get("heldout_rms"),
+                 record.get("none_heldout_rms"), field.summary())
     return field, record
 
 

@@ -125,7 +125,8 @@ def render(mosaic: np.ndarray, cfa) -> np.ndarray:
 
     gain = np.array([WB_GAINS["RGB".index(c)] for c in cfa.channels])[cfa.channel_map(
         *mosaic.shape)]
-    rgb = demosaicing_CFA_Bayer_Malvar2004(np.clip(mosaic, 0, 1) * gain, cfa.spec)
+    rgb = demosaicing_CFA_Bayer_Malvar2004(np.clip(mosaic, 0, 1) * gain,
+                                         "".join("".join(r) for r in cfa.pattern))
     lin = np.clip(rgb @ MATRIX.T, 0.0, 1.0)
     enc = srgb_encode(lin)
     luma = enc @ np.array([0.2126, 0.7152, 0.0722])
