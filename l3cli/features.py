@@ -12,7 +12,7 @@ being carried everywhere fails that test.
 Examples
 --------
 >>> [f.name for f in FEATURES][:3]
-['lens shading', 'patch 9', 'orientation bins']
+['lens shading', 'lens shading grid', 'patch 9']
 """
 
 from __future__ import annotations
@@ -47,11 +47,17 @@ class TableFeature:
 
 
 def _shading(t: Any) -> str:
-    return f"lens shading (gain field learned on {t.shading.size[1]}x{t.shading.size[0]} raws)"
+    kind = "radial gain field" if hasattr(t.shading, "coeffs") else (
+        f"spline-grid gain field {t.shading.intervals[0]}x{t.shading.intervals[1]}")
+    return f"lens shading ({kind} learned on {t.shading.size[1]}x{t.shading.size[0]} raws)"
 
 
 FEATURES: tuple[TableFeature, ...] = (
-    TableFeature("lens shading", "--shading", lambda t: t.shading is not None, _shading),
+    TableFeature("lens shading", "--shading",
+                 lambda t: t.shading is not None and hasattr(t.shading, "coeffs"), _shading),
+    TableFeature("lens shading grid", "--shading",
+                 lambda t: t.shading is not None and not hasattr(t.shading, "coeffs"),
+                 _shading),
     TableFeature("patch 9", "--patch 9", lambda t: t.definition.patch >= 9,
                  lambda t: f"patch {t.definition.patch}"),
     TableFeature("orientation bins", "--orientation-bins",

@@ -33,7 +33,7 @@ evaluates per pixel as it copies a tile's band from the mosaic
 The fold covers maps whose pitch divides the CFA period and whose area is the
 whole image (every phone and action camera writes these); any other map, and
 tables with a context guide (its block means are taken from the corrected
-mosaic), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
+mosaic), and spline-grid fields (:mod:`l3cli.shading_grid`), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
 with the same result.
 """
 
@@ -295,9 +295,12 @@ def _pieces(dng: Any, cfa: Any) -> list[tuple[Any, dict[tuple[int, int], int]]] 
     ph, pw = cfa.period
     colour = colour_planes(cfa, (ph, pw))
     h, w = dng.shape
+    from l3cli.startup import stop_if_interrupted
+
     out = []
     for maps, by_colour in ((dng.list2, False), (dng.list3, True)):
         for gm in maps:
+            stop_if_interrupted()  # a render thread ends on a signal here too
             if (ph % gm.row_pitch or pw % gm.col_pitch or gm.top >= gm.row_pitch
                     or gm.left >= gm.col_pitch or gm.bottom < h or gm.right < w):
                 return None
@@ -441,6 +444,8 @@ def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
                         "%dx%d raws; applying it in coordinates relative to the frame",
                         raw.path or "raw", full[1], full[0], field.size[1], field.size[0])
     foldable = fold and (dng is None or foldable_maps(dng, raw.cfa))
+    if field is not None and not hasattr(field, "coeffs"):
+        foldable = False  # a spline-grid field (l3cli.shading_grid): applied as a pass
     return MosaicGains(shape, raw.cfa, dng, field, full, origin,
                        None if wb is None else np.asarray(wb, np.float32), float(saturation),
                        foldable, raw.path or "raw")

@@ -238,10 +238,7 @@ def table_summary(table: TransformTable, *, name: str = "table") -> dict[str, An
         "features": [f.name for f in table_features(table)],  # l3cli.features: one list
         "white_balance": table.white_balance is not None,
         "tone_curve": None if table.tone_lut is None else int(table.tone_lut[0].shape[0]),
-        "shading": None if table.shading is None else {
-            "centre": table.shading.centre.tolist(), "size": list(table.shading.size),
-            "gain_at_r1": (table.shading.gains(np.array([1.0]))[:, 0]
-                           / table.shading.gains(np.array([0.0]))[:, 0]).round(4).tolist()},
+        "shading": None if table.shading is None else table.shading.summary(),
         "multiscale": None if table.multiscale is None else {
             "sigmas": table.multiscale.sigmas.tolist(), "classes": table.multiscale.n_classes,
             "levels": int(table.multiscale.level_cuts.size + 1),
@@ -323,10 +320,17 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
                    f"coding {ms['transfer']}")
     if s.get("shading"):
         sh = s["shading"]
-        out.append(f"input: lens shading corrected first (gain field learned on "
-                   f"{sh['size'][1]}x{sh['size'][0]} raws, centre {sh['centre'][0]:+.3f}, "
-                   f"{sh['centre'][1]:+.3f}; gain at r=1 / centre per CFA position "
-                   f"{', '.join(f'{g:.3f}' for g in sh['gain_at_r1'])})")
+        if "intervals" in sh:  # a spline grid (l3cli.shading_grid)
+            out.append(f"input: lens shading corrected first (gain field learned on "
+                       f"{sh['size'][1]}x{sh['size'][0]} raws, spline grid of "
+                       f"{sh['intervals'][0]}x{sh['intervals'][1]} intervals; largest corner "
+                       f"gain / centre per CFA position "
+                       f"{', '.join(f'{g:.3f}' for g in sh['max_corner_gain'])})")
+        else:
+            out.append(f"input: lens shading corrected first (gain field learned on "
+                       f"{sh['size'][1]}x{sh['size'][0]} raws, centre {sh['centre'][0]:+.3f}, "
+                       f"{sh['centre'][1]:+.3f}; gain at r=1 / centre per CFA position "
+                       f"{', '.join(f'{g:.3f}' for g in sh['gain_at_r1'])})")
     if s.get("white_balance"):
         out.append("input: white-balanced by each raw's as-shot white balance, output adapted "
                    "to its white")

@@ -52,6 +52,10 @@ shading_rule       str          optional (version 2): ``"radial-poly-r2-v1"``, a
 shading_centre     float64      (2,) optical centre (cy, cx), normalised coordinates
 shading_coeffs     float64      (n_positions, k) gain = sum_j coeffs[p, j] r^(2j)
 shading_size       int64        (2,) height, width of the training raws
+shading_grid       float64      (n_positions, ny + 3, nx + 3) with ``shading_rule``
+                                ``"spline-grid-v1"`` (instead of centre and coeffs): the
+                                control values of a cubic B-spline surface per position
+                                (:mod:`l3cli.shading_grid`)
 ================== ============ ===============================================
 
 A table with a shading gain field is written as version 2 (so that an l3
@@ -202,9 +206,9 @@ class TransformTable:
             raise TableError(f"inconsistent table: the multiscale stage takes "
                              f"{self.multiscale.n_out} channels, the kernels give {self.n_out}")
         if (self.shading is not None
-                and self.shading.coeffs.shape[0] != self.definition.cfa.n_positions):
+                and self.shading.n_positions != self.definition.cfa.n_positions):
             raise TableError(f"inconsistent table: the shading gain field has "
-                             f"{self.shading.coeffs.shape[0]} CFA positions, the CFA "
+                             f"{self.shading.n_positions} CFA positions, the CFA "
                              f"{self.definition.cfa.n_positions}")
         if self.conditions is not None and self.conditions.kernels.shape[1:] != self.kernels.shape:
             raise TableError(f"inconsistent table: condition kernels have shape "
@@ -441,10 +445,10 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         tone = (arrs["tone_lut"], arrs["tone_range"])
         if any(a.dtype.kind != "f" for a in tone):
             raise TableError(f"{path}: tone_lut/tone_range must be floating point")
-    from l3cli.shading import GainField
+    from l3cli.shading import field_from_arrays
 
     try:
-        shading = GainField.from_arrays(arrs, definition.cfa.n_positions)
+        shading = field_from_arrays(arrs, definition.cfa.n_positions)
     except TableError as exc:
         raise TableError(f"{path}: {exc}") from exc
     from l3cli.multiscale import Multiscale

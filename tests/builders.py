@@ -266,3 +266,13 @@ def phone_gain_maps(h, w):
         maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, 5, 7, 0.25, 1 / 6, 0.0, 0.0,
                             g[:, :, None].astype(np.float32)))
     return maps
+
+
+def mosaic_raw(mosaic, spec="RGGB", path=None):
+    """A :class:`l3cli.io.raw.RawImage` of a normalised float mosaic (black 0, white 1)."""
+    from l3cli.cfa import CFA
+    from l3cli.io.raw import RawImage
+
+    cfa = CFA.from_spec(spec)
+    return RawImage(mosaic=mosaic.astype(np.float32), cfa=cfa,
+                    black_level=np.zeros(cfa.n_positions), white_level=1.0, path=path)

@@ -11,7 +11,8 @@ The reference is the in-process float render, :func:`l3cli.render.render_raw`:
 - EXR: within float32 rounding of it (the file path prepares the mosaic in place);
 - TIFF / PNG: within one code of its display encoding (the fused encoder);
 - JPEG: decodes to the raw's size, within JPEG's error of the PNG;
-- export: within 1e-5 (relative to the image's range) in ONNX Runtime;
+- export: within 1e-5 (relative to the image's range) in ONNX Runtime, or refused with
+  one line naming the feature (``EXPORT_REFUSED``);
 - inspect: exits 0 and names the feature.
 """
 
@@ -59,6 +60,16 @@ def _shading(t):
     return t
 
 
+def _shading_grid(t):
+    from l3cli.shading_grid import SplineField
+
+    yy = np.linspace(-1, 1, 6)[:, None]
+    xx = np.linspace(-1, 1, 6)[None, :]
+    grid = np.stack([1.0 + k * (yy ** 2 + 0.5 * xx ** 2) for k in (0.5, 0.3, 0.3, 0.6)])
+    t.shading = SplineField(grid, SHAPE)
+    return t
+
+
 def _conditions(t):
     from l3cli.conditions import Conditioned
 
@@ -103,6 +114,7 @@ def _multiscale(t):
 #: feature name (l3cli.features) -> a small table that holds it
 BUILDERS = {
     "lens shading": lambda: _shading(_table(_definition())),
+    "lens shading grid": lambda: _shading_grid(_table(_definition())),
     "patch 9": lambda: _table(_definition(9)),
     "orientation bins": lambda: _table(_definition(orientation_bins=4)),
     "context bins": lambda: _table(_definition(context_block=16,
@@ -114,12 +126,15 @@ BUILDERS = {
     "multiscale stage": lambda: _multiscale(_table(_definition())),
 }
 #: what ``l3 inspect`` prints for each
-INSPECT_WORDS = {"lens shading": "lens shading", "patch 9": "9x9",
+INSPECT_WORDS = {"lens shading": "lens shading", "lens shading grid": "lens shading",
+                 "patch 9": "9x9",
                  "orientation bins": "orientation", "context bins": "context",
                  "highlight bins": "highlight", "condition bins": "condition bins",
                  "white balance": "white balance", "tone curve": "tone curve",
                  "multiscale stage": "multiscale"}
 PATHS = ["exr", "tif", "png", "jpg", "export", "inspect"]
+#: features the export refuses, with one line naming them (the rest must export)
+EXPORT_REFUSED = {"lens shading grid": "lens shading spline grid"}
 
 
 def _raw_file(tmp_path):
@@ -169,6 +184,15 @@ def test_feature_travels(tmp_path, runner, name, path):
     assert np.isfinite(want).all()
     scale = max(1.0, float(np.abs(want).max()))
     if path == "export":
+        if name in EXPORT_REFUSED:
+            from l3cli.errors import ConfigError
+            from l3cli.export import build_model
+
+            pytest.importorskip("onnx")
+            with pytest.raises(ConfigError, match=EXPORT_REFUSED[name]) as exc:
+                build_model(table)
+            assert "\n" not in str(exc.value)
+            return
         _check_export(table, raw_path, want, scale)
         return
     out = render_file(table, raw_path, tmp_path / f"out.{path}")

@@ -34,7 +34,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
                "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel",
                "shading", "camera", "illumination", "model", "features",
-               "gainmaps")),
+               "gainmaps", "shading_grid", "shading_fit")),
     # inputs: training pairs, registration, previews, simulation
     ("inputs", ("pairs", "align", "preview", "simulate", "rawinfo")),
     # workflows: train, render, evaluate, smooth, baseline, inspect, export

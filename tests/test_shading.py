@@ -11,19 +11,14 @@ import pytest
 
 from l3cli.cfa import CFA
 from l3cli.errors import TableError
-from l3cli.io.raw import RawImage, write_raw
-from l3cli.shading import (
-    BlockSamples,
-    GainField,
-    corrected,
-    fit_field,
-    gain_map,
-    normalised_coords,
-)
+from l3cli.io.raw import write_raw
+from l3cli.shading import GainField, corrected, gain_map, normalised_coords
+from l3cli.shading_fit import BlockSamples, fit_field
 from l3cli.table import SHADING_VERSION, TABLE_VERSION, load_table, save_table
 from tests.builders import (
     MINIMAL,
     make_table,
+    mosaic_raw,
     phone_gain_maps,
     shaded_examples_script,
     uniform_scene,
@@ -39,12 +34,6 @@ def _field(n_pos=4, size=(24, 32)):
     coeffs[:, 1] = [0.3, 0.25, 0.2, 0.3][:n_pos]
     coeffs[:, 2] = 0.05
     return GainField(np.array([0.05, -0.1]), coeffs, size)
-
-
-def _raw(mosaic, spec="RGGB", path=None):
-    cfa = CFA.from_spec(spec)
-    return RawImage(mosaic=mosaic.astype(np.float32), cfa=cfa,
-                    black_level=np.zeros(cfa.n_positions), white_level=1.0, path=path)
 
 
 def test_gain_map_is_the_polynomial_per_position():
@@ -116,7 +105,7 @@ def test_corrected_keeps_clipping_and_is_applied_once():
     t.shading = f
     rng = np.random.default_rng(1)
     m = rng.uniform(0, 1.2, (24, 32)).astype(np.float32)
-    raw = _raw(m)
+    raw = mosaic_raw(m)
     out = corrected(t, raw)
     thr = t.definition.saturation_threshold
     g = gain_map(f, (24, 32), (2, 2))
@@ -129,12 +118,12 @@ def test_corrected_keeps_clipping_and_is_applied_once():
     g_up = gain_map(up, (24, 32), (2, 2))
     np.testing.assert_array_equal(corrected(t, raw).mosaic,
                                   np.minimum(m * g_up, np.maximum(m, 1)))  # white clips
-    np.testing.assert_array_equal(corrected(t, _raw(m.copy()), inplace=True).mosaic,
+    np.testing.assert_array_equal(corrected(t, mosaic_raw(m.copy()), inplace=True).mosaic,
                                   np.minimum(m * g_up, np.maximum(m, 1)))  # in place too
     t.shading = f
     np.testing.assert_array_equal(raw.mosaic, m)  # not in place: the input is kept
     assert corrected(t, out) is out  # a corrected raw is not corrected again
-    inplace = corrected(t, _raw(m.copy()), inplace=True)
+    inplace = corrected(t, mosaic_raw(m.copy()), inplace=True)
     np.testing.assert_array_equal(inplace.mosaic, out.mosaic)
     # a crop is corrected where it lies on its full raw
     crop = corrected(t, raw.crop(4, 6, 12, 20))
@@ -145,7 +134,7 @@ def test_other_raw_size_warns(caplog):
     t = make_table()
     t.shading = _field()
     with caplog.at_level(logging.WARNING, logger="l3cli.shading"):
-        corrected(t, _raw(np.full((20, 30), 0.3), path="x.dng"))
+        corrected(t, mosaic_raw(np.full((20, 30), 0.3), path="x.dng"))
     assert "x.dng: the raw is 30x20" in caplog.text and "32x24" in caplog.text
 
 

@@ -3,9 +3,12 @@
 ``l3 train`` learns the gain field from the pairs before anything else, so
 that every later step (level cut points, white adaptation, tone curve,
 statistics) sees the corrected mosaics (:func:`l3cli.whitebalance.training_mosaic`
-applies the fitted field, :class:`l3cli.train.options.Fitted`). The field is fitted in the renders' linear
-space (sRGB decoding), then once more in the space of the learned tone curve
-when there is one (:func:`refit_in_curve_space`): the second alternation.
+applies the fitted field, :class:`l3cli.train.options.Fitted`). The field is fitted
+in the renders' linear space (sRGB decoding), or in the space of the learned tone
+curve when there is one, curve and field refitted in turn until the field's
+held-out residual stops falling (:func:`learn_shading`). The field itself (its
+model chosen by held-out blocks: other images, or spatial folds of a single image)
+is :func:`l3cli.shading_fit.fit_field`'s.
 """
 
 from __future__ import annotations
@@ -17,14 +20,15 @@ import numpy as np
 
 from l3cli.colourspace import convert, srgb_encode
 from l3cli.pairs import Pair, load_pair
-from l3cli.shading import BlockSamples, GainField, block_samples, fit_field
+from l3cli.shading import GainField
+from l3cli.shading_fit import BlockSamples, block_samples, fit_field
 
 __all__ = ["pair_blocks", "fit_pairs_shading", "learn_shading"]
 
 log = logging.getLogger(__name__)
 
-#: Alternations of tone curve and gain field (:func:`learn_shading`).
-ALTERNATIONS = 2
+#: Alternations of tone curve and gain field at most (:func:`learn_shading`).
+ALTERNATIONS = 4
 
 
 def pair_blocks(pairs: Sequence[Pair], opts, tone_model=None
@@ -86,12 +90,9 @@ def fit_pairs_shading(pairs: Sequence[Pair], opts, tone_model=None
         level = logging.WARNING if record.get("unusable") else logging.INFO
         log.log(level, "shading: %s; training without a gain field", record.get("reason"))
     else:
-        g = field.gains(np.array([0.0, 1.0]))
-        log.info("shading: gain field kept (held-out block residual %.4g vs %.4g without); "
-                 "gain at r=1 / centre per CFA position %s",
-                 record.get("heldout_rms", record.get("rms")),
-                 record.get("none_heldout_rms", record.get("none_rms")),
-                 np.round(g[:, 1] / g[:, 0], 3).tolist())
+        log.info("shading: gain field kept (%s; held-out block residual %.4g vs %.4g "
+                 "without): %s", record.get("model"), record.get("heldout_rms"),
+                 record.get("none_heldout_rms"), field.summary())
     return field, record
 
 
@@ -99,22 +100,36 @@ def learn_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, dict]:
     """The gain field, learned jointly with the renders' tone curve (``opts.tone_curve``).
 
     The field is fitted in the linear space of the tone curve (the space the
-    kernels train in); the curve is fitted on the corrected mosaics. Two
-    alternations: curve on the raws as they are, field, curve on the corrected
-    raws, field again (without a tone curve: the field once, in the sRGB
-    decoding of the renders).
+    kernels train in); the curve is fitted on the corrected mosaics. Curve and
+    field are refitted in turn (curve on the raws as they are, field, curve on
+    the corrected raws, field, ...) until the field's held-out block residual
+    falls by less than 1 %, at most :data:`ALTERNATIONS` times (without a tone
+    curve: the field once, in the sRGB decoding of the renders). The record's
+    ``alternations`` lists each round's held-out residual.
     """
     from l3cli.train.curve import fit_pairs_curve
     from l3cli.train.options import Fitted
 
     work = Fitted()
     field, record = None, {}
+    rounds: list[float] = []
     for _ in range(ALTERNATIONS if opts.tone_curve else 1):
         if opts.tone_curve:
             work = Fitted(shading_field=work.shading_field,
                           tone_model=fit_pairs_curve(pairs, opts, work)[0])
-        field, record = fit_pairs_shading(pairs, opts, work.tone_model)
-        if field is None:
+        new_field, new_record = fit_pairs_shading(pairs, opts, work.tone_model)
+        if new_field is None:
+            if field is None:
+                field, record = None, new_record
             break
+        score = float(new_record.get("heldout_rms", np.inf))
+        if rounds and score > rounds[-1]:  # worse than the round before: keep that one
+            break
+        field, record = new_field, new_record
+        rounds.append(score)
         work = Fitted(shading_field=field, tone_model=work.tone_model)
+        if len(rounds) > 1 and score > 0.99 * rounds[-2]:
+            break
+    if rounds:
+        record["alternations"] = rounds
     return field, record

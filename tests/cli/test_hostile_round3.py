@@ -159,13 +159,14 @@ def test_gain_map_gains_beyond_the_sdk_range_are_refused(runner, work: Path,
 def test_gain_maps_within_range_still_apply(work: Path) -> None:
     """The checks leave a valid list alone: OpcodeList3's maps of gain 2 on R and B (a
     plane each) double those pixels below white (the DNG SDK's arithmetic, by hand)."""
+    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.raw import read_raw
 
     g = np.full(4, 2.0, ">f4")
     plain = read_raw(_dng_with_opcodes(work / "plain.dng"))
     dng = _dng_with_opcodes(work / "gm.dng",
                             list3=_raw_opcodes([{"plane": 0}, {"plane": 2}], gains=g))
-    raw = read_raw(dng)
+    raw = apply_dng_gains(read_raw(dng))  # read_raw parses, the model applies
     assert raw.metadata["gain_maps"] == {"OpcodeList2": 0, "OpcodeList3": 2}
     want = plain.mosaic.astype(np.float64).copy()
     for sl in ((slice(0, None, 2), slice(0, None, 2)), (slice(1, None, 2), slice(1, None, 2))):
@@ -177,7 +178,7 @@ def test_gain_map_plane_loop_is_bounded_by_the_image() -> None:
     """apply_gain_maps alone (the checks skipped): Planes = 0xFFFFFFFF applies the map to
     the image's one plane (or three), as Planes = 1 (or 3) does; a loop per claimed
     plane would not end for hours."""
-    from l3cli.shading import apply_gain_maps
+    from l3cli.gainmaps import apply_maps as apply_gain_maps
 
     m = np.full((40, 48), 0.25, np.float32)
     want = apply_gain_maps(m.copy(), [_gain_map()])
@@ -208,7 +209,7 @@ def test_too_many_gain_maps_are_refused() -> None:
 def test_extreme_map_spacing_stays_on_the_grid() -> None:
     """Spacing 1e-300 (positions far beyond the grid): the gain of the grid's edge, not an
     integer overflow's garbage."""
-    from l3cli.shading import apply_gain_maps
+    from l3cli.gainmaps import apply_maps as apply_gain_maps
 
     gains = np.array([1.5, 1.5, 1.25, 1.25], np.float32).reshape(2, 2, 1)
     m = np.full((40, 48), 0.25, np.float32)
@@ -230,7 +231,7 @@ def test_sigterm_ends_a_render_inside_a_long_opcode_loop(work: Path) -> None:
         "from l3cli.io.dng_opcodes import GainMap\n"
         "gm = GainMap(0, 0, 40, 48, 0, 1, 1, 1, 2, 2, 1.0, 1.0, 0.0, 0.0,\n"
         "             np.ones((2, 2, 1), np.float32))\n"
-        "class Maps:  # checked once (one map), then applied without end\n"
+        "class Maps(list):  # checked once (one map), then applied without end\n"
         "    checked = False\n"
         "    def __iter__(self):\n"
         "        if not self.checked:\n"
@@ -238,7 +239,7 @@ def test_sigterm_ends_a_render_inside_a_long_opcode_loop(work: Path) -> None:
         "            return iter([gm])\n"
         "        os.kill(os.getpid(), signal.SIGTERM)\n"
         "        return itertools.repeat(gm)\n"
-        "ops.read_gain_maps = lambda path: (Maps(), [])\n")
+        "ops.read_gain_maps = lambda path: (Maps([gm]), [])\n")
     res = _run(["render", str(work / "t.npz"), str(work / "good.dng"), "-o",
                 str(work / "o.png")], code=patch, timeout=120)
     assert res.returncode == 128 + signal.SIGTERM, res.stderr[-2000:]
@@ -415,21 +416,21 @@ def test_shading_extremes_find_a_dip_between_grid_points() -> None:
 def _unusable_fit(monkeypatch) -> None:
     """A fit that passes the fit's own checks on the training area but whose gains turn
     negative before the farthest corner of any raw (an r^4 term of -0.3, centre (0.4, 0)):
-    what small crops gave."""
-    import l3cli.shading as shading
+    what small crops gave. The radial model is chosen (every candidate scores alike)."""
+    import l3cli.shading_fit as shading_fit
 
-    def fit(samples, order):
-        a = np.zeros((samples[0].raw.shape[1], order))
+    def fit(model, samples, size):
+        a = np.zeros((samples[0].raw.shape[1], max(int(model[1]), 2)))
         a[:, 1] = -0.3
-        return a, np.array([0.4, 0.0]), 0.0
+        return None, (a, np.array([0.4, 0.0]))
 
-    monkeypatch.setattr(shading, "_scores", lambda samples, order, n: (0.5, 1.0))
-    monkeypatch.setattr(shading, "_fit_samples", fit)
+    monkeypatch.setattr(shading_fit, "_scores", lambda samples, model, size, n: (0.5, 1.0))
+    monkeypatch.setattr(shading_fit, "_fit_model", fit)
 
 
 def test_unusable_shading_fit_is_dropped(monkeypatch) -> None:
     from l3cli.cfa import CFA
-    from l3cli.shading import BlockSamples, fit_field
+    from l3cli.shading_fit import BlockSamples, fit_field
 
     _unusable_fit(monkeypatch)
     rng = np.random.default_rng(0)
