@@ -174,7 +174,9 @@ def handle_signals() -> None:
 #: Test-only (``tests/cli/test_signals.py``): the environment variable naming the point
 #: (:func:`test_point`) where a run stops until a signal arrives.
 TEST_PAUSE_ENV = "L3_TEST_PAUSE_AT"
-#: What :func:`test_point` writes to stderr when it stops (then the point's name).
+#: Test-only: the file descriptor :func:`test_point` writes its line to (default 2).
+TEST_PAUSE_FD_ENV = "L3_TEST_PAUSE_FD"
+#: What :func:`test_point` writes when it stops (then the point's name).
 TEST_PAUSE_MARK = "l3-test-paused-at: "
 #: Seconds a paused run waits for its signal before it goes on (a test that forgot it).
 TEST_PAUSE_LIMIT_S = 300.0
@@ -186,7 +188,8 @@ def test_point(name: str) -> None:
 
     Where the environment variable ``L3_TEST_PAUSE_AT`` (:data:`TEST_PAUSE_ENV`)
     names this point, the first thread to reach it writes
-    ``l3-test-paused-at: NAME`` to stderr and waits until :func:`handle_signals`
+    ``l3-test-paused-at: NAME`` to the file descriptor ``L3_TEST_PAUSE_FD`` (a pipe
+    of the test's; stderr by default) and waits until :func:`handle_signals`
     has caught a signal, so a test sends its signal at an exact moment of the
     run whatever the machine's speed or load (no polling for a moment that
     may pass). In the main thread the handler's :class:`Interrupted` ends the
@@ -207,7 +210,10 @@ def test_point(name: str) -> None:
         if name in _paused:
             return
         _paused.add(name)
-    os.write(2, f"{TEST_PAUSE_MARK}{name}\n".encode())
+    # to the test's own pipe when it gives one (stderr may be redirected for a moment
+    # while LibRaw's messages are captured in another thread)
+    fd = int(os.environ.get(TEST_PAUSE_FD_ENV) or 2)
+    os.write(fd, f"{TEST_PAUSE_MARK}{name}\n".encode())
     deadline = time.monotonic() + TEST_PAUSE_LIMIT_S
     while not _first_signal and not _deferred and time.monotonic() < deadline:
         time.sleep(0.005)  # the handler raises here (main thread), or the loop sees it

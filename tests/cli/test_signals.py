@@ -21,6 +21,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -73,38 +74,47 @@ def run_signalled(args: list[str], sig: str, point: str, *, cwd: Path, group: bo
     (status, stderr, mark).
 
     The run waits at its point until the signal comes, so the moment cannot pass
-    whatever the machine's speed or load: the test reads the run's stderr (a blocking
-    read) until the point's line. Fails the test if the command ends before it.
+    whatever the machine's speed or load: the test reads the point's line from a pipe
+    of its own (``L3_TEST_PAUSE_FD``; a blocking read, immune to the run redirecting
+    its stderr for a moment). Fails the test if the command ends before it.
     """
-    from l3cli.startup import TEST_PAUSE_ENV, TEST_PAUSE_MARK
+    from l3cli.startup import TEST_PAUSE_ENV, TEST_PAUSE_FD_ENV, TEST_PAUSE_MARK
 
     mark = uuid.uuid4().hex
+    read_end, write_end = os.pipe()  # the run says where it stopped on its own pipe
     env = {**os.environ, "L3_TEST_MARK": mark, "PYTHONWARNINGS": "ignore",
-           TEST_PAUSE_ENV: point}
-    p = subprocess.Popen([*L3, *args], cwd=cwd, env=env, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE, start_new_session=True)
+           TEST_PAUSE_ENV: point, TEST_PAUSE_FD_ENV: str(write_end)}
+    try:
+        p = subprocess.Popen([*L3, *args], cwd=cwd, env=env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, start_new_session=True,
+                             pass_fds=(write_end,))
+    finally:
+        os.close(write_end)  # the run holds the only write end: its end is an end of file
+    # stderr drained as the run writes it (a full pipe would stop the run before its point)
+    chunks: list[bytes] = []
+    drain = threading.Thread(target=lambda: chunks.append(p.stderr.read()), daemon=True)
+    drain.start()
     signum = getattr(signal, sig)
     want = f"{TEST_PAUSE_MARK}{point}".encode()
-    seen = b""
     try:
-        for line in p.stderr:  # blocks until the run writes a line or ends
-            seen += line
-            if line.strip() == want:
-                break
-        else:
-            p.wait()
+        with os.fdopen(read_end, "rb") as said:
+            line = said.readline()  # blocks until the run stops at its point, or ends
+        if line.strip() != want:
+            p.wait(timeout=timeout)
+            drain.join(timeout)
             pytest.fail(f"l3 {args} ended ({p.returncode}) before reaching {point!r}: "
-                        f"{seen.decode(errors='replace')[-500:]}")
+                        f"{b''.join(chunks).decode(errors='replace')[-500:]}")
         if group:
             os.killpg(p.pid, signum)
         else:
             p.send_signal(signum)
-        _, err = p.communicate(timeout=timeout)
+        p.wait(timeout=timeout)
+        drain.join(timeout)
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
             p.wait()
-    return p.returncode, (seen + (err or b"")).decode(errors="replace"), mark
+    return p.returncode, b"".join(chunks).decode(errors="replace"), mark
 
 
 def check_ended_cleanly(status: int, err: str, mark: str, sig: str, folder: Path) -> None:
