@@ -34,8 +34,11 @@ test-fast: $(STAMP) bytecode
 # SIMD path above numpy's baseline); with numba compiling for a generic x86-64 (or
 # the architecture's generic) target. Each must pass (tests/README.md).
 test-portable: $(STAMP) bytecode
+	@echo "== 1/3: as is"
 	$(PY) -m pytest -n 2 -q
+	@echo "== 2/3: NPY_DISABLE_CPU_FEATURES=\"$$($(PY) scripts/npy_simd_off.py)\""
 	NPY_DISABLE_CPU_FEATURES="$$($(PY) scripts/npy_simd_off.py)" $(PY) -m pytest -n 2 -q
+	@echo "== 3/3: NUMBA_CPU_NAME=generic"
 	NUMBA_CPU_NAME=generic $(PY) -m pytest -n 2 -q
 
 # Property-based fuzzing of the file readers and output planning with a large
