@@ -109,6 +109,10 @@ def test_code_not_loaded_for_a_month_is_pruned_when_code_is_stored(tmp_path, mon
 def test_no_writable_folder_still_runs(tmp_path, monkeypatch, caplog):
     """Nowhere to store (a path under a file: not writable even for root): the function
     runs from numba, and one warning says that every run will compile."""
+    import logging
+
+    # the logger's own level: an earlier `l3 -q` in this process may have raised the root's
+    caplog.set_level(logging.WARNING, logger="l3cli.kernel_store")
     monkeypatch.setitem(kernel_store._runtime, "warned", False)
     blocker = tmp_path / "a-file"
     blocker.write_text("")
