@@ -47,16 +47,16 @@ class TableFeature:
 
 
 def _shading(t: Any) -> str:
-    kind = "radial gain field" if hasattr(t.shading, "coeffs") else (
+    kind = "radial gain field" if t.shading.radial else (
         f"spline-grid gain field {t.shading.intervals[0]}x{t.shading.intervals[1]}")
     return f"lens shading ({kind} learned on {t.shading.size[1]}x{t.shading.size[0]} raws)"
 
 
 FEATURES: tuple[TableFeature, ...] = (
     TableFeature("lens shading", "--shading",
-                 lambda t: t.shading is not None and hasattr(t.shading, "coeffs"), _shading),
+                 lambda t: t.shading is not None and t.shading.radial, _shading),
     TableFeature("lens shading grid", "--shading",
-                 lambda t: t.shading is not None and not hasattr(t.shading, "coeffs"),
+                 lambda t: t.shading is not None and not t.shading.radial,
                  _shading),
     TableFeature("patch 9", "--patch 9", lambda t: t.definition.patch >= 9,
                  lambda t: f"patch {t.definition.patch}"),

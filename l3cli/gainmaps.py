@@ -444,7 +444,7 @@ def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
                         "%dx%d raws; applying it in coordinates relative to the frame",
                         raw.path or "raw", full[1], full[0], field.size[1], field.size[0])
     foldable = fold and (dng is None or foldable_maps(dng, raw.cfa))
-    if field is not None and not hasattr(field, "coeffs"):
+    if field is not None and not field.radial:
         foldable = False  # a spline-grid field (l3cli.shading_grid): applied as a pass
     return MosaicGains(shape, raw.cfa, dng, field, full, origin,
                        None if wb is None else np.asarray(wb, np.float32), float(saturation),

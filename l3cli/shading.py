@@ -88,6 +88,10 @@ class GainField:
         ``(height, width)`` of the training raws.
     """
 
+    #: Which kind of field (``SplineField.radial`` is False): the tile kernel folds a
+    #: radial field into its band copy and the export evaluates it in the graph.
+    radial = True
+
     centre: np.ndarray
     coeffs: np.ndarray
     size: tuple[int, int]

@@ -117,6 +117,9 @@ class SplineField:
         ``(height, width)`` of the training raws (the frame the grid spans).
     """
 
+    #: Not a radial field (:attr:`l3cli.shading.GainField.radial`): rendered by a pass.
+    radial = False
+
     grid: np.ndarray
     size: tuple[int, int]
 

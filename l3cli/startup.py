@@ -181,6 +181,7 @@ TEST_PAUSE_MARK = "l3-test-paused-at: "
 #: Seconds a paused run waits for its signal before it goes on (a test that forgot it).
 TEST_PAUSE_LIMIT_S = 300.0
 _paused: set[str] = set()
+_pause_lock = threading.Lock()
 
 
 def test_point(name: str) -> None:
@@ -206,7 +207,7 @@ def test_point(name: str) -> None:
     """
     if os.environ.get(TEST_PAUSE_ENV) != name:
         return
-    with _gc_lock:  # one pause per point and process
+    with _pause_lock:  # one pause per point and process
         if name in _paused:
             return
         _paused.add(name)
