@@ -504,23 +504,16 @@ def render_stage(table, raw, *, fold: bool = True) -> None:
 
     from l3cli import buffers
     from l3cli.gainmaps import apply_dng_gains
-    from l3cli.kernelset import prepare_kernels, render_display, render_mosaic
+    from l3cli.prepared import prepare
 
     if not fold:
         apply_dng_gains(raw)  # as read_raw did
-    ks = prepare_kernels(table, raw)
-    if not fold and ks.gains is not None:
+    p = prepare(table, raw, inplace=True)
+    if not fold and p.kernels.gains is not None:
+        ks = p.kernels
         ks = dataclasses.replace(ks, gains=dataclasses.replace(ks.gains, foldable=False))
-    m = ks.prepare_mosaic(raw.mosaic, inplace=True)
-    if table.multiscale is None:
-        buffers.release(render_display(ks, m, 8))
-        return
-    from l3cli import multiscale
-    from l3cli.io.encode import display_encode
-
-    img = multiscale.apply(table, render_mosaic(ks, m))
-    display_encode(img, table.output_space, 8)
-    buffers.release(img)
+        p = dataclasses.replace(p, kernels=ks, mosaic=ks.prepare_mosaic(raw.mosaic, inplace=True))
+    buffers.release(p.render(8))
 
 
 def _phase(raw, cfa):

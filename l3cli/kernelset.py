@@ -59,7 +59,7 @@ if TYPE_CHECKING:
     from l3cli.io.raw import RawImage
 
 __all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "check_fits", "linear_adaptation",
-           "pack_kernels", "prepare_kernels", "render_display", "render_mosaic", "render_raw",
+           "pack_kernels", "prepare_kernels", "render_display", "render_mosaic",
            "tone_curve_arrays"]
 
 _RGB = ("R", "G", "B")
@@ -491,30 +491,3 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
     del part
     buffers.release(band)
     return out
-
-
-def render_raw(table: TransformTable, raw: RawImage, *, table_name: str = "table",
-               white_balance: np.ndarray | None = None) -> np.ndarray:
-    """Render a :class:`l3cli.io.raw.RawImage` to float (checks that the table fits).
-
-    The raw's kernel set (:func:`prepare_kernels`: condition bins, white
-    balance, lens shading, the raw's DNG gain maps) renders its prepared
-    mosaic (``raw`` is not changed); a table's multi-scale stage
-    (:func:`l3cli.multiscale.apply`) follows.
-
-    Returns
-    -------
-    numpy.ndarray
-        float32 (H, W, n_out) in ``table.output_space``.
-
-    Raises
-    ------
-    InputError
-        The table expects a white balance and the raw has none (and none is
-        given), or one is given for a table trained without.
-    """
-    check_fits(table, raw, table_name=table_name)
-    ks = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
-    from l3cli import multiscale
-
-    return multiscale.apply(table, render_mosaic(ks, ks.prepare_mosaic(raw.mosaic)))

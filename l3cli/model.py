@@ -46,7 +46,7 @@ class Table(TransformTable):
         InputError, TableError
             An unreadable raw, or one the table does not fit (CFA, white balance).
         """
-        from l3cli.kernelset import render_raw
+        from l3cli.prepared import render_raw
 
         if isinstance(raw, str | os.PathLike):
             from l3cli.io.raw import read_raw

@@ -201,41 +201,14 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
     function for float (EXR) and display (TIFF/PNG/JPEG) outputs, with or
     without a kernel set's post matrix.
     """
-    from l3cli.kernelset import render_display, render_mosaic
+    from l3cli.io.image import format_of
+    from l3cli.prepared import bits_of, plain
 
     s = max(table.patch, *table.cfa.period) * 2
     tiny = np.zeros((s, s), dtype=np.float32)
-    with _RENDER_LOCK:
-        display = out_path is not None and Path(out_path).suffix.lower() != ".exr"
-        bits = 8
-        if display:
-            from l3cli.io.image import format_of
-
-            bits = 16 if format_of(out_path) == "tiff" else 8
-        if getattr(table, "multiscale", None) is not None:  # the stage's loops too
-            from l3cli import multiscale
-
-            y = render_mosaic(table, tiny)
-            if display:
-                multiscale.apply_display(table.multiscale, y, table.output_space, bits)
-            else:
-                multiscale.apply_stage(table.multiscale, y)
-        elif display:
-            render_display(table, tiny, bits)
-        else:
-            render_mosaic(table, tiny)
-
-
-def _render_display(table: Any, mosaic: np.ndarray, bits: int) -> np.ndarray:
-    """Render straight to display integers (:func:`l3cli.kernelset.render_display`).
-
-    ``table`` is a table or a raw's :class:`~l3cli.kernelset.KernelSet`. Rows
-    are display-encoded inside the tile kernel as they are rendered (under
-    the render lock); no full-size float image is held.
-    """
-    from l3cli.kernelset import render_display
-
-    return render_display(table, mosaic, bits, render_lock=_RENDER_LOCK)
+    bits = None if out_path is None else bits_of(format_of(out_path))
+    with _RENDER_LOCK:  # the multi-scale stage's loops too
+        plain(table, tiny, stage=True).render(bits)
 
 
 def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
@@ -247,49 +220,35 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
 
     The one implementation of a file's render, used by the pipeline's threads
     and by :func:`l3cli.render.render_file` (dask tasks, library callers).
-    Every table takes the same path: the raw's kernel set
-    (:func:`l3cli.kernelset.prepare_kernels`: condition bins, white-balance
-    gains and adaptation, lens shading, the DNG's gain maps) is prepared once,
-    and the fused tile kernel renders the decoded mosaic with the gains applied
-    to each band as it is copied (:meth:`~l3cli.kernelset.KernelSet.prepare_mosaic`
-    is then the mosaic itself), straight to integers for display outputs.
+    Every table takes the same path, the library's (:mod:`l3cli.prepared`):
+    the raw is prepared once (:func:`~l3cli.prepared.prepare`: condition bins,
+    white-balance gains and adaptation, lens shading, the DNG's gain maps) and
+    rendered by :meth:`~l3cli.prepared.Prepared.render`, the gains applied to
+    each band as the fused tile kernel copies it, straight to integers for
+    display outputs.
     ``turn`` is held around the render stage (the pipeline's
     :meth:`RenderTurns.turn`).
     """
-    from l3cli import multiscale
     from l3cli.io.image import format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
-    from l3cli.kernelset import check_fits, prepare_kernels, render_mosaic
+    from l3cli.prepared import bits_of, prepare
 
     fmt = format_of(out_path)
     t0 = time.perf_counter()
     raw = prefetch.take(raw_path) if prefetch is not None else None
     if raw is None:
         raw = read_raw(raw_path)
-    check_fits(table, raw, table_name=table_name)
-    shot = exif_attributes(raw.metadata.get("shot", {}))
     # the raw's gains (its DNG gain maps, the table's lens shading, white balance) are
     # applied by the tile kernel as it copies each band (l3cli.gainmaps), not here
-    kernels = prepare_kernels(table, raw, white_balance=white_balance, table_name=table_name)
-    mosaic = kernels.prepare_mosaic(raw.mosaic, inplace=True)  # the decode is ours
+    prepared = prepare(table, raw, white_balance=white_balance, table_name=table_name,
+                       inplace=True)  # the decode is ours
+    shot = exif_attributes(raw.metadata.get("shot", {}))
+    mosaic = prepared.mosaic
     t1 = time.perf_counter()
     with turn if turn is not None else contextlib.nullcontext():
-        if table.multiscale is not None:  # the stage takes the float render
-            with _RENDER_LOCK:
-                y = render_mosaic(kernels, mosaic)
-                if fmt == "exr":  # noise reduction beyond the patch
-                    img = multiscale.apply_stage(table.multiscale, y, inplace=True)
-                else:  # display-encoded as each row is blended
-                    img = multiscale.apply_display(table.multiscale, y, table.output_space,
-                                                   16 if fmt == "tiff" else 8, inplace=True)
-            buffers.release(y)
-            del y
-        elif fmt == "exr":
-            with _RENDER_LOCK:
-                img = render_mosaic(kernels, mosaic)
-        else:
-            img = _render_display(kernels, mosaic, 16 if fmt == "tiff" else 8)
+        img = prepared.render(bits_of(fmt), lock=_RENDER_LOCK)
+    del prepared
     t2 = time.perf_counter()
     decoded = raw.mosaic
     del raw

@@ -14,10 +14,12 @@ The layers, one way down:
 * this module: files (:func:`render_file`, :func:`render_files`, dask tasks);
 * :mod:`l3cli.pipeline`: a folder's decode / render / encode / write overlapped,
   one file's render (:func:`l3cli.pipeline.render_one`);
-* :mod:`l3cli.kernelset`: the one per-raw step (:func:`prepare_kernels`: the
-  raw's white balance, adaptation and condition bins folded into a
-  :class:`KernelSet`) and the renders of a mosaic (:func:`render_mosaic`,
-  :func:`render_display`), re-exported here;
+* :mod:`l3cli.prepared`: the one per-raw step (:func:`prepare`: the fit check,
+  the raw's white balance, adaptation, condition bins, lens shading and GainMaps
+  folded into a kernel set) and the one render path from it to float or display
+  integers (:meth:`Prepared.render`, the multi-scale stage included), re-exported here;
+* :mod:`l3cli.kernelset`: the kernel set and the renders of a mosaic
+  (:func:`render_mosaic`, :func:`render_display`);
 * :mod:`l3cli.classify` and :mod:`l3cli.render_rows`: the tile kernel.
 """
 
@@ -39,14 +41,14 @@ from l3cli.kernelset import (
     prepare_kernels,
     render_display,
     render_mosaic,
-    render_raw,
     tone_curve_arrays,
 )
 from l3cli.pipeline import render_one, render_pipeline
+from l3cli.prepared import Prepared, prepare, render_raw
 from l3cli.table import TransformTable
 
-__all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "check_fits", "check_white_balance",
-           "pack_kernels", "prepare_kernels", "render_display", "render_file", "render_files",
+__all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "Prepared", "check_fits", "check_white_balance",
+           "pack_kernels", "prepare", "prepare_kernels", "render_display", "render_file", "render_files",
            "render_mosaic", "render_raw", "render_task", "table_for_task", "tone_curve_arrays"]
 
 

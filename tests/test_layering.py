@@ -32,7 +32,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # curve, white balance, condition bins, lens shading, the multi-scale stage,
     # kernel sets; the metrics; a camera's description (its TOML, validated)
     ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
-               "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel",
+               "conditions", "kernelset", "prepared", "metrics", "multiscale", "multiscale_kernel",
                "shading", "camera", "illumination", "model", "features",
                "gainmaps", "shading_grid", "shading_fit")),
     # inputs: training pairs, registration, previews, simulation

@@ -364,7 +364,7 @@ def display_xyz(rendered: np.ndarray, space: str, display: bool) -> np.ndarray:
 def score_fold(images: Sequence[CVImage], units: Sequence[Unit], layout: LayoutStats,
                held_out: Sequence[int], opts: TrainOptions) -> list[float]:
     """Solve the fold's table in ``opts.target_space`` and score each held-out unit."""
-    from l3cli.render import render_mosaic
+    from l3cli.prepared import plain
 
     table = table_from_stats(fold_stats(layout, held_out, opts.target_space), opts)
     if opts.tone_curve:
@@ -373,7 +373,7 @@ def score_fold(images: Sequence[CVImage], units: Sequence[Unit], layout: LayoutS
     for u in held_out:
         unit = units[u]
         img = images[unit.image]
-        out = render_mosaic(table, img.mosaic)
+        out = plain(table, img.mosaic).render()
         scores.append(img.scorer.mean(display_xyz(out, opts.target_space, img.display),
                                       columns=unit.columns))
     return scores

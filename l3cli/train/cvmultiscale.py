@@ -105,7 +105,7 @@ def multiscale_fold_task(item: tuple) -> tuple[list[float], list[float]]:
     """One fold of :func:`multiscale_fold_scores` (a map task): ``(images, units, folds,
     f, layout, opts, seed, (sigmas, levels, energy_bins, ridge))`` -> the held-out units'
     scores with and without the stage."""
-    from l3cli.kernelset import render_mosaic
+    from l3cli import prepared
 
     images, units, folds, f, layout, opts, seed, (sigmas, levels, energy_bins, ridge) = item
     layout = as_layout(layout)
@@ -121,7 +121,7 @@ def multiscale_fold_task(item: tuple) -> tuple[list[float], list[float]]:
     rng = np.random.default_rng([seed, 27, f])
     feats, levs, ens = {}, [], []
     for i, img in enumerate(images):  # each image's render and bands, once per fold
-        plain = render_mosaic(table, img.mosaic)
+        plain = prepared.plain(table, img.mosaic).render()
         stack, coarse, lev, en = feature_maps(encode(plain, transfer), sigmas)
         mask = _train_mask(img, i, units, train_units, guard)
         feats[i] = (plain, stack, coarse, lev, en, mask)

@@ -51,7 +51,7 @@ def cut_sample(lev: np.ndarray, en: np.ndarray, mask: np.ndarray | None,
 def _rendered(table, pair: Pair):
     """The render of ``pair``'s raw by ``table`` (without a stage) and its target, both in
     the stage's coding (:func:`l3cli.multiscale.default_transfer`), and the mask."""
-    from l3cli.kernelset import render_raw
+    from l3cli.prepared import render_raw
 
     loaded = load_pair(pair, target_space=table.output_space)
     if loaded.raw.cfa.spec != table.cfa.spec:

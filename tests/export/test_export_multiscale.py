@@ -77,7 +77,7 @@ def _ort(model, mosaic):
 ])
 def test_export_of_a_multiscale_table_matches_render(space, transfer, sigmas):
     from l3cli.export import build_model
-    from l3cli.kernelset import render_raw
+    from l3cli.prepared import render_raw
 
     table, mosaic = _table(space, transfer, sigmas)
     cfa = CFA.from_spec("RGGB")

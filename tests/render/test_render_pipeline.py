@@ -86,14 +86,14 @@ def test_format_accepts_the_other_suffix_spellings(runner, tmp_path, table_path)
 
 
 def test_display_render_equals_render_then_encode(table_path):
-    from l3cli import pipeline
     from l3cli.io.encode import display_encode
+    from l3cli.prepared import plain
     from l3cli.render import render_mosaic, table_for_task
 
     table = table_for_task(table_path)
     m = np.random.default_rng(2).random((53, 40)).astype(np.float32)
     for bits in (8, 16):
-        got = pipeline._render_display(table, m, bits)
+        got = plain(table, m).render(bits)
         want = display_encode(render_mosaic(table, m), table.output_space, bits)
         np.testing.assert_array_equal(got, want)
 
@@ -321,17 +321,19 @@ def test_folder_renders_take_their_turns_in_input_order(tmp_path, table_path, mo
     monkeypatch.setattr(rawmod, "read_raw", slow_first)
     active: list[int] = []
     most: list[int] = []
-    orig_display = pipeline._render_display
+    from l3cli.prepared import Prepared
 
-    def record(table, mosaic, bits):
+    orig_render = Prepared.render
+
+    def record(self, bits=None, **kw):
         active.append(1)
         most.append(len(active))
         try:
-            return orig_display(table, mosaic, bits)
+            return orig_render(self, bits, **kw)
         finally:
             active.pop()
 
-    monkeypatch.setattr(pipeline, "_render_display", record)
+    monkeypatch.setattr(Prepared, "render", record)
     seen: list[str] = []
     orig_one = pipeline.render_one
 
