@@ -29,7 +29,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-
 #: The read and write stages (files, signals), not followed.
 SKIP = ("l3cli.io.", "l3cli.startup")
 
@@ -98,7 +97,7 @@ def main(argv: list[str]) -> None:
     route = route_of(argv[0], argv[1])
     seen: set[str] = set()
     back = 0
-    for i, mod in enumerate(route):
+    for mod in route:
         if mod in seen:
             back += 1
         seen.add(mod)
