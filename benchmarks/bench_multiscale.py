@@ -1,4 +1,4 @@
-"""Cost of the multi-scale stage (``l3 train --multiscale``, :mod:`l3cli.multiscale`).
+"""Cost of the multi-scale stage (``l3 train --multiscale``, :mod:`l3cli.multiscale.stage`).
 
 Usage::
 
@@ -8,8 +8,8 @@ Usage::
 ``TABLE.npz`` is a table trained with ``--multiscale`` (its stage is timed; the same
 table without the stage is the baseline). Prints seconds per megapixel:
 
-* *stage alone*: :func:`l3cli.multiscale.apply_stage` (float) and
-  :func:`l3cli.multiscale.apply_display` (8-bit) on a float render of the
+* *stage alone*: :func:`l3cli.multiscale.stage.apply_stage` (float) and
+  :func:`l3cli.multiscale.stage.apply_display` (8-bit) on a float render of the
   synthetic mosaic of ``bench_render.py`` (its parts too: the coding, the features);
 * *render stage*: :func:`l3cli.kernelset.render_display` 8-bit without the stage
   against the float render + the stage display-encoded row by row (what ``l3
@@ -53,8 +53,8 @@ def main(argv: list[str] | None = None) -> None:
     w, h = (int(v) for v in args.size.split("x"))
     mp = w * h / 1e6
 
-    from l3cli import multiscale as ms
     from l3cli.kernelset import render_display, render_mosaic
+    from l3cli.multiscale import stage as ms
     from l3cli.table import load_table, save_table
 
     table = load_table(args.table)

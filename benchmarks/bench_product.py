@@ -148,7 +148,7 @@ def blackmagic_pair(dng: Path, cache: Path) -> Path:
 
 def _wb_record(space: str = "xyz") -> dict:
     """An adaptation model of the kind training fits (one feature: log b/r)."""
-    from l3cli.whitebalance import WhiteBalanceModel
+    from l3cli.whitebalance.model import WhiteBalanceModel
 
     c0 = np.array([[1.05, 0.04, -0.02], [0.03, 0.97, 0.01], [-0.01, 0.05, 1.1]])
     c1 = np.array([[0.1, 0.0, 0.02], [0.0, 0.0, 0.0], [0.01, 0.0, -0.12]])
@@ -157,7 +157,7 @@ def _wb_record(space: str = "xyz") -> dict:
 
 
 def _curve(space: str = "xyz"):
-    from l3cli.tonecurve import ToneCurve
+    from l3cli.tone.curve import ToneCurve
 
     x = np.linspace(0, 1, 33)[:, None]
     return ToneCurve(np.hstack([x ** 2.0, x ** 2.2, x ** 1.9]), space="srgb").lut(space)
@@ -186,7 +186,7 @@ def _relayout(base, **features):
 def shading_field(size: tuple[int, int]):
     """A learned lens-shading field of the kind ``l3 train`` keeps (corners lifted ~1.6x,
     a little off centre, per Bayer position), for raws of ``size``."""
-    from l3cli.shading import GainField
+    from l3cli.lens.field import GainField
 
     coeffs = [[1.0, 0.45, 0.15], [1.0, 0.4, 0.12], [1.0, 0.4, 0.12], [1.0, 0.55, 0.2]]
     return GainField([0.03, -0.02], coeffs, size)
@@ -195,7 +195,7 @@ def shading_field(size: tuple[int, int]):
 def multiscale_stage():
     """A multi-scale stage of the default sigmas (1, 3, 9), 3 levels x 2 energies, sRGB
     coded, identity blend (its cost does not depend on the values)."""
-    from l3cli.multiscale import Multiscale
+    from l3cli.multiscale.stage import Multiscale
 
     return Multiscale.identity(3, (1.0, 3.0, 9.0), [0.05, 0.3],
                                np.array([[0.001, 0.01]] * 3), transfer="srgb")
@@ -503,7 +503,7 @@ def render_stage(table, raw, *, fold: bool = True) -> None:
     import dataclasses
 
     from l3cli import buffers
-    from l3cli.gainmaps import apply_dng_gains
+    from l3cli.lens.gainmaps import apply_dng_gains
     from l3cli.prepared import prepare
 
     if not fold:

@@ -1,4 +1,4 @@
-"""Render cost of a learned tone curve (l3cli.tonecurve): 12 MP, with and without.
+"""Render cost of a learned tone curve (l3cli.tone.curve): 12 MP, with and without.
 
 Usage::
 
@@ -56,7 +56,7 @@ def main() -> None:
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
     from l3cli.render import render_mosaic
-    from l3cli.tonecurve import ToneCurve
+    from l3cli.tone.curve import ToneCurve
 
     mosaic = synthetic_mosaic(h, w)
     patch, levels, bins = (int(v) for v in args.layout.split(","))

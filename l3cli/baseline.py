@@ -260,9 +260,9 @@ def render_baseline_file(
     As ``l3 render``: EXR keeps the target space (``l3:space`` attribute); TIFF,
     PNG and JPEG receive display sRGB.
     """
-    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
+    from l3cli.lens.gainmaps import apply_dng_gains
 
     raw = apply_dng_gains(read_raw(raw_path))  # the DNG's gain maps applied
     img = render_baseline(model, raw)

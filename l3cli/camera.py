@@ -66,7 +66,7 @@ class Optics:
     relative_illumination
         None, or a measured per-channel fall-off of the raw (``{"radius": [...],
         channel: [...]}``, relative to the centre, linear in the normalised
-        radius of :func:`l3cli.shading.normalised_coords`): acts on the raw only.
+        radius of :func:`l3cli.lens.field.normalised_coords`): acts on the raw only.
     """
 
     f_number: float = 4.0

@@ -23,7 +23,7 @@ The conditions (one getter each, :func:`condition_value`; all positive, so
     ``shutter_speed``; a simulation manifest's ``exposure_s``).
 ``white-balance``
     The shot's white as the ratio ``b/r`` of its camera response, from the
-    as-shot gains (``gain_r / gain_b``; :func:`l3cli.whitebalance.raw_gains`),
+    as-shot gains (``gain_r / gain_b``; :func:`l3cli.whitebalance.model.raw_gains`),
     so the bins are evenly spaced in ``log(b/r)`` -- the axis along which
     daylight, shade and tungsten whites differ most.
 
@@ -170,7 +170,7 @@ def raw_condition(raw: Any, by: str) -> float | None:
     shot = (raw.metadata or {}).get("shot") or {}
     gains = None
     if by == "white-balance":
-        from l3cli.whitebalance import raw_gains
+        from l3cli.whitebalance.model import raw_gains
 
         gains = raw_gains(raw)
     return condition_value(by, shot, gains)
@@ -190,7 +190,7 @@ def file_condition(path: str | os.PathLike, by: str,
     p = Path(path)
     gains = None
     if by == "white-balance":
-        from l3cli.whitebalance import file_gains
+        from l3cli.whitebalance.model import file_gains
 
         gains = file_gains(p)
         v = condition_value(by, {}, gains)

@@ -12,7 +12,7 @@ slowing ``l3 --help``.
 #: on the bundled Infinite-ISP frames/ (0.426 against 2.66 for the simulation set).
 #: The target is the linear version of the renders' display sRGB (renders are still
 #: written as display sRGB), linearised further by a per-channel tone curve learned from
-#: the pairs (``tone_curve``, l3cli.tonecurve: 1.373 -> 0.453 at the layout chosen
+#: the pairs (``tone_curve``, l3cli.tone.curve: 1.373 -> 0.453 at the layout chosen
 #: without it, 36 levels and a 0.1 threshold; 0.426 with 24 levels and 0.2).
 #: ``augment`` (:data:`l3cli.train.augment.AUGMENT_CHOICES`: train each pair mirrored and
 #: rotated too) and ``sample_weight`` (``"luminance"``: weight each sample by its target's
@@ -21,7 +21,7 @@ slowing ``l3 --help``.
 #: but lose 30 % on a LibRaw render of a real sensor (Blackmagic DNG, left half -> right half
 #: 0.078 -> 0.104) and the weights lose on a simulated converter; ``l3 train --tune`` tries
 #: both on the user's own data (docs/training.md, "Augmentation and sample weights").
-#: ``shading``: learn a lens-shading gain field (l3cli.shading; docs/training.md, "Lens
+#: ``shading``: learn a lens-shading gain field (l3cli.lens.field; docs/training.md, "Lens
 #: shading"); kept only where it predicts held-out images better than none.
 PAIRS_LAYOUT = {"patch": 7, "levels": 24, "contrast_bins": 3, "contrast_threshold": 0.2,
                 "target_space": "linear-srgb", "tone_curve": True,
@@ -78,7 +78,7 @@ SAMPLE_FRACTION = 1.0
 #: A class needs at least this many samples per coefficient to be trained.
 MIN_SAMPLES_FACTOR = 3.0
 
-# l3 train --multiscale (l3cli.multiscale: noise reduction beyond the patch)
+# l3 train --multiscale (l3cli.multiscale.stage: noise reduction beyond the patch)
 #: Fit the multi-scale stage after the table (off: docs/training.md, "Noise reduction
 #: beyond the patch").
 MULTISCALE = False

@@ -320,7 +320,7 @@ def format_summary(summary: dict[str, Any], *, table: TransformTable | None = No
                    f"coding {ms['transfer']}")
     if s.get("shading"):
         sh = s["shading"]
-        if "intervals" in sh:  # a spline grid (l3cli.shading_grid)
+        if "intervals" in sh:  # a spline grid (l3cli.lens.grid)
             out.append(f"input: lens shading corrected first (gain field learned on "
                        f"{sh['size'][1]}x{sh['size'][0]} raws, spline grid of "
                        f"{sh['intervals'][0]}x{sh['intervals'][1]} intervals; largest corner "

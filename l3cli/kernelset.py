@@ -3,15 +3,15 @@
 Everything a table does to a raw that is linear and the same for every pixel
 of the raw is settled here, once per raw, before the tile kernel runs:
 
-1. **mosaic gains** (:class:`l3cli.gainmaps.MosaicGains`): a DNG's GainMap
+1. **mosaic gains** (:class:`l3cli.lens.gainmaps.MosaicGains`): a DNG's GainMap
    opcodes, the table's learned lens shading and a white-balancing table's
    as-shot gains multiply the mosaic *before* classification (the levels and
    the saturation classes see the gained values). They are not passes over
    the mosaic: the tile kernel evaluates them per pixel as it copies each
    tile's band (:func:`l3cli.classify.run_tiles`' ``gains``), with the rules
-   and the float32 products of :func:`l3cli.gainmaps.apply_maps`,
-   :func:`l3cli.shading.correct_mosaic` and
-   :func:`l3cli.whitebalance.apply_gains`. Only where the kernel cannot
+   and the float32 products of :func:`l3cli.lens.gainmaps.apply_maps`,
+   :func:`l3cli.lens.field.correct_mosaic` and
+   :func:`l3cli.whitebalance.model.apply_gains`. Only where the kernel cannot
    (a context guide, whose block means read the corrected mosaic, or a DNG
    map of an unusual layout) does :meth:`KernelSet.prepare_mosaic` multiply
    the mosaic first.
@@ -26,7 +26,7 @@ of the raw is settled here, once per raw, before the tile kernel runs:
    XYZ to linear sRGB matrix of ``xyz`` tables), or that float renders apply
    per band. Only an adaptation that is not linear in the table's output
    space (``srgb`` and ``lab`` tables) is applied to float bands with
-   :func:`l3cli.whitebalance.adapt_image`.
+   :func:`l3cli.whitebalance.model.adapt_image`.
 
 Per pixel, a white-balancing or shading table, or a DNG with GainMaps,
 therefore costs what a plain table costs:
@@ -55,8 +55,8 @@ from l3cli.table import TransformTable
 
 if TYPE_CHECKING:
     from l3cli.classify import ClassDefinition
-    from l3cli.gainmaps import MosaicGains
     from l3cli.io.raw import RawImage
+    from l3cli.lens.gainmaps import MosaicGains
 
 __all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "check_fits", "linear_adaptation",
            "pack_kernels", "prepare_kernels", "render_display", "render_mosaic",
@@ -96,17 +96,17 @@ def tone_curve_arrays(table: TransformTable) -> tuple[np.ndarray, ...] | None:
     """The table's learned tone curve as the tile kernel reads it (None: no curve).
 
     The kernels render the curve's linear space; the kernel maps each output
-    row through the curve (:func:`l3cli.tonecurve.curve_row`).
+    row through the curve (:func:`l3cli.tone.curve.curve_row`).
     """
     if table.tone_lut is None:
         return None
-    from l3cli.tonecurve import curve_arrays
+    from l3cli.tone.curve import curve_arrays
 
     return curve_arrays(*table.tone_lut)
 
 
 def linear_adaptation(matrix: np.ndarray, output_space: str, space: str) -> np.ndarray | None:
-    """The 3x3 that :func:`l3cli.whitebalance.adapt_image` applies in ``output_space``, or None.
+    """The 3x3 that :func:`l3cli.whitebalance.model.adapt_image` applies in ``output_space``, or None.
 
     ``adapt_image(img, matrix, output_space, space)`` converts to the linear
     ``space``, applies ``matrix`` and converts back; between ``xyz`` and
@@ -152,7 +152,7 @@ class KernelSet:
     adapt
         ``(matrix, space)``: an adaptation that is not linear in
         ``output_space``, applied to float bands by
-        :func:`l3cli.whitebalance.adapt_image` after the curve; or None.
+        :func:`l3cli.whitebalance.model.adapt_image` after the curve; or None.
     mosaic_gains
         float32 (ph, pw): per CFA position, the white-balance gain the mosaic
         is multiplied by before classification; or None.
@@ -161,7 +161,7 @@ class KernelSet:
         above it after a gain below one.
     gains
         Every gain of the raw's mosaic before classification (DNG maps, lens
-        shading, ``mosaic_gains``): :class:`l3cli.gainmaps.MosaicGains`, or None.
+        shading, ``mosaic_gains``): :class:`l3cli.lens.gainmaps.MosaicGains`, or None.
     """
 
     definition: ClassDefinition
@@ -216,7 +216,7 @@ class KernelSet:
 
     def corrected_mosaic(self, mosaic: np.ndarray, *, inplace: bool = False) -> np.ndarray:
         """``mosaic`` times the raw's gains, as passes over it
-        (:meth:`l3cli.gainmaps.MosaicGains.apply`): the mosaic the classes see."""
+        (:meth:`l3cli.lens.gainmaps.MosaicGains.apply`): the mosaic the classes see."""
         if self.gains is None:
             return mosaic
         m = check_mosaic(mosaic, self.definition.cfa, self.definition.patch)
@@ -265,7 +265,7 @@ def prepare_kernels(table: TransformTable, raw: RawImage | None = None, *,
     ks = _prepare(table, raw, white_balance, table_name)
     if raw is None:
         return ks
-    from l3cli.gainmaps import mosaic_gains
+    from l3cli.lens.gainmaps import mosaic_gains
 
     gains = mosaic_gains(raw, field=getattr(table, "shading", None), wb=ks.mosaic_gains,
                          saturation=float(table.definition.saturation_threshold),
@@ -293,7 +293,7 @@ def _prepare(table: TransformTable, raw: RawImage | None, white_balance: np.ndar
         kernels = kernels_for(table, value)
     if table.white_balance is None:
         return KernelSet.plain(table, kernels)
-    from l3cli.whitebalance import WhiteBalanceModel, gain_pattern, gains_or_error
+    from l3cli.whitebalance.model import WhiteBalanceModel, gain_pattern, gains_or_error
 
     gains = gains_or_error(raw, white_balance)
     gmap = gain_pattern(raw.cfa, gains)
@@ -341,7 +341,7 @@ def _post_rows(ks: KernelSet, part: np.ndarray) -> None:
         flat = part.reshape(-1, part.shape[-1])
         flat[:] = flat @ ks.post.T.astype(np.float32)
     elif ks.adapt is not None:
-        from l3cli.whitebalance import adapt_image
+        from l3cli.whitebalance.model import adapt_image
 
         part[:] = adapt_image(part, ks.adapt[0], ks.output_space, ks.adapt[1])
 
@@ -413,7 +413,7 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
     ``xyz`` tables, one 3x3) and display-encodes it while it is in cache
     (:func:`l3cli.render_rows.encode_row`), 8 or 16 bits: no float image is
     held and no second pass is made. With a tone curve and no 3x3 after it,
-    the curve and the encoding are one lookup per value (:mod:`l3cli.tonecode`:
+    the curve and the encoding are one lookup per value (:mod:`l3cli.tone.code`:
     for 8 bits the same codes; for 16 bits interpolated, the same codes or one
     next to them). Only ``lab`` tables (whose conversion
     is colour-science's) and adaptations that are not linear in the table's
@@ -462,7 +462,7 @@ def render_display(table: TransformTable | KernelSet, mosaic: np.ndarray, bits: 
     if params is not None and ks.adapt is None:
         codes = None
         if ks.curve is not None and not params.use_matrix and ks.n_out == 3:
-            from l3cli.tonecode import code_table_for
+            from l3cli.tone.code import code_table_for
 
             with lock:
                 codes = code_table_for(ks.curve, params.thr, bits)

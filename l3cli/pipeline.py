@@ -240,7 +240,7 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     if raw is None:
         raw = read_raw(raw_path)
     # the raw's gains (its DNG gain maps, the table's lens shading, white balance) are
-    # applied by the tile kernel as it copies each band (l3cli.gainmaps), not here
+    # applied by the tile kernel as it copies each band (l3cli.lens.gainmaps), not here
     prepared = prepare(table, raw, white_balance=white_balance, table_name=table_name,
                        inplace=True)  # the decode is ours
     shot = exif_attributes(raw.metadata.get("shot", {}))

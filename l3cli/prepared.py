@@ -54,7 +54,7 @@ from l3cli.kernelset import (
 
 if TYPE_CHECKING:
     from l3cli.io.raw import RawImage
-    from l3cli.multiscale import Multiscale
+    from l3cli.multiscale.stage import Multiscale
     from l3cli.table import TransformTable
 
 __all__ = ["Prepared", "bits_of", "plain", "prepare", "render_raw"]
@@ -107,7 +107,7 @@ class Prepared:
             raise ValueError(f"bits must be None, 8 or 16, got {bits}")
         ks, held = self.kernels, lock if lock is not None else contextlib.nullcontext()
         if self.stage is not None:  # the stage takes the float render
-            from l3cli import multiscale
+            from l3cli.multiscale import stage as multiscale
 
             with held:
                 y = render_mosaic(ks, self.mosaic)

@@ -3,7 +3,7 @@
 Every output pixel is ``out = K[class]ᵀ [patch, 1]``: the pixel is classified
 by the shared classifier (:mod:`l3cli.classify`) and the affine kernel of its
 class is applied to its patch. A table with a learned tone curve
-(:mod:`l3cli.tonecurve`) then maps each channel through its look-up table.
+(:mod:`l3cli.tone.curve`) then maps each channel through its look-up table.
 The output has the raw's full size and is pixel-aligned with it: borders are
 padded by a mirror that keeps the CFA phase
 (:func:`l3cli.classify.mirror_indices`). Empty classes already hold the
@@ -107,7 +107,7 @@ def check_white_balance(table: TransformTable, raws: list[str | os.PathLike],
         return
     if white_balance is not None:
         return
-    from l3cli.whitebalance import file_gains
+    from l3cli.whitebalance.model import file_gains
 
     for raw in raws:
         if _dng_tag_gains(raw) is None and file_gains(raw) is None:
@@ -119,18 +119,18 @@ def check_white_balance(table: TransformTable, raws: list[str | os.PathLike],
 def _dng_tag_gains(path: str | os.PathLike) -> np.ndarray | None:
     """A DNG's as-shot gains from its tags alone (AsShotNeutral, AsShotWhiteXY), or None.
 
-    :func:`l3cli.whitebalance.file_gains` asks LibRaw for its camera white
+    :func:`l3cli.whitebalance.model.file_gains` asks LibRaw for its camera white
     balance, and rawpy unpacks (decodes) the whole raw to give it: a second
     decode of every file before the render (0.1-0.6 s per 9-MP DNG). A DNG's
     tags say it without decoding, and the two tags are checked against each
-    other as :func:`~l3cli.whitebalance.raw_gains` does; LibRaw's value (for
+    other as :func:`~l3cli.whitebalance.model.raw_gains` does; LibRaw's value (for
     a DNG, ``1 / AsShotNeutral`` itself) is compared when each file is read.
     """
     from types import SimpleNamespace
 
     from l3cli.io.metadata import read_shot_metadata
     from l3cli.io.raw import sidecar_path
-    from l3cli.whitebalance import raw_gains
+    from l3cli.whitebalance.model import raw_gains
 
     p = Path(path)
     if p.suffix.lower() != ".dng" or sidecar_path(p).exists():

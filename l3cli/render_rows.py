@@ -229,7 +229,7 @@ def curve_row(outf, o, tw, n_out, base, slope, lo, step_inv):  # pragma: no cove
 def curve_code16_row(src, tw, tab, lo, scale, out16, o):  # pragma: no cover - compiled
     """16-bit codes of the ``tw`` pixels of 3 values at ``src[0:]`` into ``out16`` from ``o``.
 
-    Per value its position on the grid of :func:`l3cli.tonecode.interpolated_codes`,
+    Per value its position on the grid of :func:`l3cli.tone.code.interpolated_codes`,
     clamped to the grid's nodes ``[0, cells]`` (a NaN gives 0: the clamps are
     written so that an unordered comparison picks the bound, so no index needs a
     second clamp), then its node's code + 1/2 plus the fraction times the step to
@@ -283,7 +283,7 @@ def curve_code16_row(src, tw, tab, lo, scale, out16, o):  # pragma: no cover - c
 def curve_encode_row(src, tw, n_out, first, thr, lo, scale, walk, out8, out16, bits, o):
     """Codes of the ``tw`` pixels of ``n_out`` values at ``src[0:]`` into ``out8``/``out16``
     from ``o``: per value its cell's first code, then ``walk`` comparisons with the next
-    thresholds (:func:`l3cli.tonecode.code_table`; the codes of the curve followed by the encoder).
+    thresholds (:func:`l3cli.tone.code.code_table`; the codes of the curve followed by the encoder).
 
     Three outputs and one comparison (an 8-bit encoding) take a loop over pixels with
     the channels written out (1.6-2x faster than a loop per channel, measured), with

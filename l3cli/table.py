@@ -36,33 +36,33 @@ output_space       str          ``xyz``, ``linear-srgb``, ``srgb`` or ``lab``
 provenance         str          JSON: inputs, options, seed, l3 version, date
 white_balance      str          optional JSON: the table expects white-balanced
                                 input and holds its adaptation model
-                                (:class:`l3cli.whitebalance.WhiteBalanceModel`);
+                                (:class:`l3cli.whitebalance.model.WhiteBalanceModel`);
                                 absent in tables trained without it
 cond_*             (optional)   per-ISO-bin kernels (:mod:`l3cli.conditions`)
 tone_lut           float32      optional (n_lut, n_out): the kernels render a learned
                                 curve space; the output is this look-up table
                                 (linear interpolation) of the kernels' values on the
                                 uniform grid ``tone_range[0] .. tone_range[1]`` of each
-                                channel (:mod:`l3cli.tonecurve`); absent in tables
+                                channel (:mod:`l3cli.tone.curve`); absent in tables
                                 without a tone curve (their kernels render directly)
 tone_range         float32      optional (2, n_out): the grid's ends (with tone_lut)
 shading_rule       str          optional (version 2): ``"radial-poly-r2-v1"``, a lens
                                 shading gain field applied to the normalised mosaic
-                                before classification (:mod:`l3cli.shading`)
+                                before classification (:mod:`l3cli.lens.field`)
 shading_centre     float64      (2,) optical centre (cy, cx), normalised coordinates
 shading_coeffs     float64      (n_positions, k) gain = sum_j coeffs[p, j] r^(2j)
 shading_size       int64        (2,) height, width of the training raws
 shading_grid       float64      (n_positions, ny + 3, nx + 3) with ``shading_rule``
                                 ``"spline-grid-v1"`` (instead of centre and coeffs): the
                                 control values of a cubic B-spline surface per position
-                                (:mod:`l3cli.shading_grid`)
+                                (:mod:`l3cli.lens.grid`)
 ================== ============ ===============================================
 
 A table with a shading gain field is written as version 2 (so that an l3
 that cannot apply it refuses the table; version 3 when it also holds a
 multi-scale stage); every other table as version 1.
 
-A table with a multi-scale stage (``l3 train --multiscale``, :mod:`l3cli.multiscale`)
+A table with a multi-scale stage (``l3 train --multiscale``, :mod:`l3cli.multiscale.stage`)
 holds the optional keys ``multiscale_rule`` (str, ``"gauss-bands-v2"``),
 ``multiscale_sigmas`` (float64 (n_scales,)), ``multiscale_level_cuts`` (float64
 (n_levels - 1,)), ``multiscale_energy_cuts`` (float64 (n_levels, n_energy - 1)),
@@ -139,9 +139,9 @@ class TransformTable:
         JSON-serialisable training record.
     tone_lut
         ``None``, or ``(lut, range)``: the kernels render a learned curve space
-        and the output is ``lut`` of their values (:mod:`l3cli.tonecurve`).
+        and the output is ``lut`` of their values (:mod:`l3cli.tone.curve`).
     white_balance
-        ``None``, or the white-balance record (:mod:`l3cli.whitebalance`): the
+        ``None``, or the white-balance record (:mod:`l3cli.whitebalance.model`): the
         table expects mosaics normalised by each raw's as-shot white balance
         and adapts its output to the raw's white.
 
@@ -175,9 +175,9 @@ class TransformTable:
     version: int = TABLE_VERSION
     white_balance: dict | None = None
     conditions: Any = None  # l3cli.conditions.Conditioned: per-bin kernels (--by iso)
-    tone_lut: tuple[np.ndarray, np.ndarray] | None = None  # (lut, range): l3cli.tonecurve
-    multiscale: Any = None  # l3cli.multiscale.Multiscale: applied to the rendered output
-    shading: Any = None  # l3cli.shading.GainField: lens shading corrected before classification
+    tone_lut: tuple[np.ndarray, np.ndarray] | None = None  # (lut, range): l3cli.tone.curve
+    multiscale: Any = None  # l3cli.multiscale.stage.Multiscale: applied to the rendered output
+    shading: Any = None  # l3cli.lens.field.GainField: lens shading corrected before classification
 
     def __post_init__(self) -> None:
         self.kernels = np.ascontiguousarray(self.kernels, dtype=np.float32)
@@ -425,7 +425,7 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         raise TableError(f"{path}: provenance must be a JSON object, got {type(prov).__name__}")
     wb = None
     if "white_balance" in arrs:
-        from l3cli.whitebalance import WhiteBalanceModel
+        from l3cli.whitebalance.model import WhiteBalanceModel
 
         try:
             wb = json.loads(_scalar(arrs, "white_balance", path, "U"))
@@ -445,13 +445,13 @@ def load_table(path: str | os.PathLike) -> TransformTable:
         tone = (arrs["tone_lut"], arrs["tone_range"])
         if any(a.dtype.kind != "f" for a in tone):
             raise TableError(f"{path}: tone_lut/tone_range must be floating point")
-    from l3cli.shading import field_from_arrays
+    from l3cli.lens.field import field_from_arrays
 
     try:
         shading = field_from_arrays(arrs, definition.cfa.n_positions)
     except TableError as exc:
         raise TableError(f"{path}: {exc}") from exc
-    from l3cli.multiscale import Multiscale
+    from l3cli.multiscale.stage import Multiscale
 
     try:
         multiscale = Multiscale.from_arrays(arrs)

@@ -12,7 +12,7 @@ unchanged. A camera that corrects its lens shading before
 rendering looks like this: its raws are shaded, its renders are not.
 
 ``docs/training.md`` ("Lens shading") measures ``l3 train --shading`` on it;
-``tests/test_shading.py`` checks that the learned field undoes the shading.
+``tests/lens/test_field.py`` checks that the learned field undoes the shading.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCE = ROOT / "examples" / "infinite_isp"
-#: Optical centre (cy, cx) in normalised coordinates (l3cli.shading.normalised_coords).
+#: Optical centre (cy, cx) in normalised coordinates (l3cli.lens.field.normalised_coords).
 CENTRE = (0.06, -0.09)
 #: Per colour: relative illumination (1 + k r^2)^-2 (cos^4 of a lens whose tan of the
 #: field angle is sqrt(k) r): at the corners (r ~ 1) R 0.64, G 0.69, B 0.56.
@@ -34,7 +34,7 @@ STRENGTH = {"R": 0.25, "G": 0.20, "B": 0.34}
 
 def shading_map(height: int, width: int, cfa) -> np.ndarray:
     """The relative illumination of each pixel (float64 (H, W), 1 at the centre)."""
-    from l3cli.shading import normalised_coords
+    from l3cli.lens.field import normalised_coords
 
     v, u = normalised_coords(height, width)
     r2 = (v[:, None] - CENTRE[0]) ** 2 + (u[None, :] - CENTRE[1]) ** 2

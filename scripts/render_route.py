@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python scripts/render_route.py TABLE.npz RAW [--show]
+    .venv/bin/python scripts/render_route.py TABLE.npz RAW [--show] [--functions]
 
 Traces (``sys.setprofile``, this thread only) the per-file render that
 ``l3 render RAW -o out.jpg`` runs, from :func:`l3cli.pipeline.render_one`'s entry
@@ -66,6 +66,7 @@ def route_of(table_path: str, raw_path: str) -> list[str]:
         render_one(table, "t", raw_path, out, {}, prefetch=_Given(raw))  # first calls: untraced
         raw = read_raw(raw_path)
         route: list[str] = []
+        names: list[str] = []  # the function each stop is in
 
         def where(frame) -> str | None:
             name = frame.f_globals.get("__name__", "")
@@ -82,19 +83,21 @@ def route_of(table_path: str, raw_path: str) -> list[str]:
                 return
             if not route or route[-1] != mod:
                 route.append(mod)
+                names.append(frame.f_code.co_name)
 
         sys.setprofile(prof)
         try:
             render_one(table, "t", raw_path, out, {}, prefetch=_Given(raw))
         finally:
             sys.setprofile(None)
-    return route
+    return [f"{m}:{n}" for m, n in zip(route, names, strict=True)]
 
 
 def main(argv: list[str]) -> None:
     if len(argv) < 2:
         sys.exit(__doc__)
-    route = route_of(argv[0], argv[1])
+    stops = route_of(argv[0], argv[1])
+    route = [s.partition(":")[0] for s in stops]
     seen: set[str] = set()
     back = 0
     for mod in route:
@@ -103,6 +106,8 @@ def main(argv: list[str]) -> None:
         seen.add(mod)
     if "--show" in argv:
         print(" -> ".join(m.removeprefix("l3cli.") for m in route))
+    if "--functions" in argv:
+        print("\n".join(s.removeprefix("l3cli.") for s in stops))
     print(f"stops {len(route)}, modules {len(seen)}, returns to a module already left {back}")
 
 

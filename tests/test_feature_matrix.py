@@ -53,7 +53,7 @@ def _table(d: ClassDefinition, *, seed: int = 0) -> TransformTable:
 
 
 def _shading(t):
-    from l3cli.shading import GainField
+    from l3cli.lens.field import GainField
 
     t.shading = GainField(np.array([0.45, 0.55]), np.array([[1.0, 0.5], [1.0, 0.3],
                                                             [1.0, 0.3], [1.0, 0.6]]), SHAPE)
@@ -61,7 +61,7 @@ def _shading(t):
 
 
 def _shading_grid(t):
-    from l3cli.shading_grid import SplineField
+    from l3cli.lens.grid import SplineField
 
     yy = np.linspace(-1, 1, 6)[:, None]
     xx = np.linspace(-1, 1, 6)[None, :]
@@ -82,7 +82,7 @@ def _conditions(t):
 
 
 def _white_balance(t):
-    from l3cli.whitebalance import WhiteBalanceModel
+    from l3cli.whitebalance.model import WhiteBalanceModel
 
     c0 = np.array([[1.05, 0.04, -0.02], [0.03, 0.97, 0.01], [-0.01, 0.05, 1.1]])
     c1 = np.array([[0.1, 0.0, 0.02], [0.0, 0.0, 0.0], [0.01, 0.0, -0.12]])
@@ -92,7 +92,7 @@ def _white_balance(t):
 
 
 def _tone_curve(t):
-    from l3cli.tonecurve import ToneCurve
+    from l3cli.tone.curve import ToneCurve
 
     x = np.linspace(0, 1, 33)[:, None]
     t.tone_lut = ToneCurve(np.hstack([x ** 2.0, x ** 2.2, x ** 1.9]), space="srgb").lut(
@@ -101,7 +101,7 @@ def _tone_curve(t):
 
 
 def _multiscale(t):
-    from l3cli.multiscale import Multiscale
+    from l3cli.multiscale.stage import Multiscale
 
     rng = np.random.default_rng(4)
     t.multiscale = Multiscale(np.array([1.0, 3.0, 9.0]), np.array([0.2, 0.5]),
@@ -226,7 +226,7 @@ def _check_export(table, raw_path, want, scale):
         if inp.name == "mosaic":
             feeds["mosaic"] = raw.mosaic[None, None].astype(np.float32)
         elif inp.name == "wb_gains":
-            from l3cli.whitebalance import gains_or_error
+            from l3cli.whitebalance.model import gains_or_error
 
             feeds["wb_gains"] = np.asarray([gains_or_error(raw, None)], np.float32)
         elif inp.name == "condition":

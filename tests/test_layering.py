@@ -31,15 +31,17 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # the L3 model: classes, the tile kernel, render rows, the table, tone
     # curve, white balance, condition bins, lens shading, the multi-scale stage,
     # kernel sets; the metrics; a camera's description (its TOML, validated)
-    ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
-               "conditions", "kernelset", "prepared", "metrics", "multiscale", "multiscale_kernel",
-               "shading", "camera", "illumination", "model", "features",
-               "gainmaps", "shading_grid", "shading_fit")),
+    # (a table feature's package is here but for its fit, a workflow: see below)
+    ("model", ("classify", "render_rows", "table", "conditions", "kernelset", "prepared",
+               "metrics", "camera", "illumination", "model", "features",
+               "tone", "whitebalance", "multiscale", "lens")),
     # inputs: training pairs, registration, previews, simulation
     ("inputs", ("pairs", "align", "preview", "simulate", "rawinfo")),
-    # workflows: train, render, evaluate, smooth, baseline, inspect, export
+    # workflows: train, render, evaluate, smooth, baseline, inspect, export, and the
+    # table features' fits (from training pairs)
     ("workflows", ("train", "render", "pipeline", "evaluate", "smooth", "baseline", "inspect",
-                   "plots_table", "export")),
+                   "plots_table", "export", "tone.fit", "whitebalance.fit", "multiscale.fit",
+                   "multiscale.cv", "lens.train")),
     # the command line
     ("cli", ("cli",)),
 )

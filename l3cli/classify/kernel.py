@@ -45,7 +45,7 @@ from l3cli.classify.layout import (
     kernel_tables,
 )
 from l3cli.classify.mosaic import band_rows, check_mosaic
-from l3cli.gainmaps import NO_GAINS
+from l3cli.lens.gainmaps import NO_GAINS
 
 __all__ = ["KERNEL_SOURCES", "MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER",
            "KernelTables", "kernel_tables", "check_mosaic", "band_rows", "run_tiles",
@@ -180,7 +180,7 @@ _NO_U16 = np.zeros(1, dtype=np.uint16)
 #: Encoder arguments when not in display mode (the order of ``DisplayParams``).
 _NO_DISPLAY = (False, np.eye(3), np.zeros(2, np.float32), np.zeros(1, np.uint16),
                np.zeros(2, np.float32), 0)
-#: No composed curve-and-encoding table (:mod:`l3cli.tonecode`): ``walk`` -1 (0 is an
+#: No composed curve-and-encoding table (:mod:`l3cli.tone.code`): ``walk`` -1 (0 is an
 #: interpolated table).
 _NO_CODES = (np.zeros((1, 1), np.uint8), _NO_F32, np.zeros(1, np.float32),
              np.zeros(1, np.float32), -1)
@@ -223,7 +223,7 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         uint16 C-contiguous (y1 - y0, W, n_out).
     curve
         Render and display: a learned tone curve's look-up table
-        (:func:`l3cli.tonecurve.curve_arrays`), applied to each output row
+        (:func:`l3cli.tone.curve.curve_arrays`), applied to each output row
         (before the display encoding).
     display
         ``MODE_DISPLAY`` only: the encoder's
@@ -232,10 +232,10 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         :func:`~l3cli.io.encode.display_encode` of the float render).
     codes
         ``MODE_DISPLAY`` only: the curve and the encoding as one lookup
-        (:func:`l3cli.tonecode.code_table`, for this curve and encoder without
+        (:func:`l3cli.tone.code.code_table`, for this curve and encoder without
         a matrix), used instead of ``curve`` and ``display``'s tables.
     gains
-        The raw's gains on the mosaic (:meth:`l3cli.gainmaps.MosaicGains.kernel_args`),
+        The raw's gains on the mosaic (:meth:`l3cli.lens.gainmaps.MosaicGains.kernel_args`),
         applied to each tile's band as it is copied: the kernel sees the mosaic
         times its gains without a pass over it. None: the mosaic as it is.
     """

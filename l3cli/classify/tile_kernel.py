@@ -58,7 +58,7 @@ def slp_vectorize():
 
 @nb.njit(nogil=True, error_model="numpy")
 def tile_gains(x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x):
-    """A tile's columns of the raw's per-column gain tables (:mod:`l3cli.gainmaps`),
+    """A tile's columns of the raw's per-column gain tables (:mod:`l3cli.lens.gainmaps`),
     contiguous for the band's columns ``xi[x0 + xx]`` (mirrored at the image's edges):
     ``(idx, frac, cap)`` (layers, ph, twp), the field's ``b`` (twp,) and coefficients
     (ph, k, twp), the white balance (ph, twp)."""
@@ -92,11 +92,11 @@ def tile_gains(x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x):
 def row_gains(dst, twp, yy, qy, g_mode, g_rows, g_diff, f_a, f_one, t_idx, t_frac, t_cap,
               t_b, t_c, t_wb, sat, r2, acc):
     """The raw's gains on one copied band row ``dst`` (image row ``yy``, row phase ``qy``),
-    in place, in this order and with these rules (:mod:`l3cli.gainmaps`): each DNG map
+    in place, in this order and with these rules (:mod:`l3cli.lens.gainmaps`): each DNG map
     layer's gain (``rows[idx] + frac * diffs[idx]`` of the map's grid interpolated for
     row ``yy``), the product clipped at ``cap`` (1 where the layer has a map); the
     learned field's (its polynomial in ``r²`` in float64, the operations of
-    :func:`l3cli.shading.gain_map`), never above ``max(v, 1)`` when every field gain is
+    :func:`l3cli.lens.field.gain_map`), never above ``max(v, 1)`` when every field gain is
     at least 1 (``f_one``), else a pixel at or above ``sat`` not lowered; the white
     balance's, a pixel at or above ``sat`` not lowered. The products are float32, as the
     passes over the mosaic make them. One simple loop per step: each vectorises."""
@@ -219,7 +219,7 @@ def tile_kernel(S: int, PW: int):
             # (+ zeros past the last patch: the render's vector loads of a patch row,
             # render_rows.affine_taps, read tap_lanes(S) values)
             pb = np.empty((nbr, twp + PAD), dtype=np.float32)
-            # the raw's gains (l3cli.gainmaps): the tile's columns of their tables
+            # the raw's gains (l3cli.lens.gainmaps): the tile's columns of their tables
             t_idx, t_frac, t_cap, t_b, t_c, t_wb = tile_gains(
                 x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x)
             g_r2 = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
@@ -235,7 +235,7 @@ def tile_kernel(S: int, PW: int):
                 else:
                     for xx in range(twp):
                         dst[xx] = src[xi[x0 + xx]]
-                if g_mode != 0:  # the raw's gains (l3cli.gainmaps), on the band's copy
+                if g_mode != 0:  # the raw's gains (l3cli.lens.gainmaps), on the band's copy
                     yy = yi[y0 + i0 + k]
                     row_gains(dst, twp, yy, yy % ph, g_mode, g_rows, g_diff, f_a, f_one,
                               t_idx, t_frac, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc)
@@ -473,7 +473,7 @@ def tile_kernel(S: int, PW: int):
                         render_row4(pb, i, tw, S, clsr, K, rowf, 0, n_out)
                     else:
                         render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
-                    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tonecode)
+                    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tone.code)
                         curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale,
                                          ct_walk, out8, out16, enc_bits, o)
                     elif ct_walk == 0:  # 16 bits: the composed codes interpolated

@@ -25,9 +25,9 @@ def info(raws: tuple[str, ...], as_json: bool, preview: str | None, planes: str 
     """
     from l3cli.cli.paths import check_outputs, plan_folder
     from l3cli.colourspace import srgb_encode
-    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
+    from l3cli.lens.gainmaps import apply_dng_gains
     from l3cli.rawinfo import quick_preview, raw_summary
 
     if preview and len(raws) != 1:

@@ -154,7 +154,7 @@ def _gains(ctx: click.Context, param: click.Parameter, value: str | None):
     if value is None:
         return None
     from l3cli.errors import InputError
-    from l3cli.whitebalance import parse_gains
+    from l3cli.whitebalance.model import parse_gains
 
     try:
         return parse_gains(value)

@@ -28,7 +28,7 @@ Graph inputs (names are part of the format, :data:`INPUTS`):
     mean the mosaic is the whole raw.
 
 DNG ``GainMap`` opcodes are the caller's, as black level is: the mosaic is
-fed with them applied (``l3cli.gainmaps.apply_dng_gains(read_raw(path))``).
+fed with them applied (``l3cli.lens.gainmaps.apply_dng_gains(read_raw(path))``).
 
 Output ``image``: float32 (N, C, H, W) in the table's output space, or with
 ``output="display"`` uint8/uint16 display values (sRGB for 3-channel tables).
@@ -79,7 +79,7 @@ def check_exportable(table: TransformTable, output: str = "linear") -> None:
         raise ConfigError("the table's lens shading spline grid cannot be exported yet "
                           "(a radial field can: retrain on raws whose shading is radial)")
     if table.white_balance is not None:
-        from l3cli.whitebalance import ADAPT_SPACE, WhiteBalanceModel
+        from l3cli.whitebalance.model import ADAPT_SPACE, WhiteBalanceModel
 
         model = WhiteBalanceModel.from_dict(table.white_balance)
         if model.space != table.output_space or ADAPT_SPACE[table.output_space] != model.space:
@@ -195,7 +195,7 @@ def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
     g = Graph()
     mosaic = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
     d = table.definition
-    if table.shading is not None:  # first, as l3cli.shading.corrected
+    if table.shading is not None:  # first, as l3cli.lens.field.corrected
         frame = g.add_input("frame", TensorProto.INT64, [4])
         mosaic = stages.shading(g, mosaic, table.shading, d.cfa.period,
                                 d.saturation_threshold, frame)
@@ -246,7 +246,7 @@ def _post_stages(table: TransformTable, output: str, bits: int, gains: str | Non
         lut, lo_hi = table.tone_lut
         out.append((True, lambda g, img: stages.tone_curve(g, img, lut, lo_hi)))
     if gains is not None:
-        from l3cli.whitebalance import WhiteBalanceModel
+        from l3cli.whitebalance.model import WhiteBalanceModel
 
         model = WhiteBalanceModel.from_dict(table.white_balance)
         out.append((True, lambda g, img: stages.adaptation(g, img, gains, model)))

@@ -1,7 +1,7 @@
-"""The multi-scale stage (:mod:`l3cli.multiscale`, rule ``gauss-bands-v2``) as ONNX nodes.
+"""The multi-scale stage (:mod:`l3cli.multiscale.stage`, rule ``gauss-bands-v2``) as ONNX nodes.
 
 :func:`stage` takes the rendered float image (N, C, H, W) in the table's output
-space and returns the stage's output, as :func:`l3cli.multiscale.apply_stage`
+space and returns the stage's output, as :func:`l3cli.multiscale.stage.apply_stage`
 computes it: the sRGB coding from the same table (its bucket found by exact
 comparisons with powers of two, :func:`coding`), the pyramid of 2 x 2 block means
 (``AveragePool`` with ``ceil_mode``: cut-short blocks average their own pixels),
@@ -43,8 +43,8 @@ def _reflect_indices(g: Graph, n: str, r: int) -> str:
 
 
 def _gauss(g: Graph, x: str, sigma: float, channels: int) -> str:
-    """:func:`l3cli.multiscale.lowpass` of (N, C, H, W) ``x``: along H, then along W."""
-    from l3cli.multiscale import gauss_taps
+    """:func:`l3cli.multiscale.stage.lowpass` of (N, C, H, W) ``x``: along H, then along W."""
+    from l3cli.multiscale.stage import gauss_taps
 
     half = gauss_taps(sigma).astype(np.float32)
     r = half.size - 1
@@ -61,7 +61,7 @@ def _gauss(g: Graph, x: str, sigma: float, channels: int) -> str:
 def _upsample(g: Graph, lo: str, like: str, f: int, axis: int) -> str:
     """Bilinear upsampling of ``lo`` by ``f`` along ``axis`` to ``like``'s size there: the
     place ``s = (2 x + 1 - f) / (2 f)``, the samples on either side (clamped), weights
-    ``1 - t`` and ``t`` (:func:`l3cli.multiscale_kernel.upsample_cols`)."""
+    ``1 - t`` and ``t`` (:func:`l3cli.multiscale._loops.upsample_cols`)."""
     n = _scalar_dim(g, like, axis)
     top = g.cast(g.op("Sub", _scalar_dim(g, lo, axis), g.const(1, np.int64)), F32)
     x = g.cast(g.op("Range", g.const(0, np.int64), n, g.const(1, np.int64)), F32)
@@ -81,10 +81,10 @@ def _upsample(g: Graph, lo: str, like: str, f: int, axis: int) -> str:
 
 
 def coding(g: Graph, x: str, inverse: bool) -> str:
-    """:func:`l3cli.multiscale.encode` (``inverse``: ``decode``) of ``x``: the linear
+    """:func:`l3cli.multiscale.stage.encode` (``inverse``: ``decode``) of ``x``: the linear
     segment, the table (its bucket: the octave by comparisons with powers of two, the
     place in it exactly), the formula beyond the table; odd."""
-    from l3cli.multiscale import CODE_SHIFT, code_table
+    from l3cli.multiscale.stage import CODE_SHIFT, code_table
 
     base, slope, first, last = code_table(inverse)
     per_octave = 1 << (23 - CODE_SHIFT)
@@ -128,8 +128,8 @@ def coding(g: Graph, x: str, inverse: bool) -> str:
 
 
 def stage(g: Graph, img: str, ms) -> str:
-    """The stage ``ms`` (:class:`l3cli.multiscale.Multiscale`) on (N, C, H, W) ``img``."""
-    from l3cli.multiscale import factor, low_sigma
+    """The stage ``ms`` (:class:`l3cli.multiscale.stage.Multiscale`) on (N, C, H, W) ``img``."""
+    from l3cli.multiscale.stage import factor, low_sigma
 
     c = ms.n_out
     coded = ms.transfer == "srgb"

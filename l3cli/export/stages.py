@@ -23,7 +23,7 @@ _RGB = ("R", "G", "B")
 
 
 def apply_gains(g: Graph, mosaic: str, gains: str, cfa, saturation: float) -> str:
-    """:func:`l3cli.whitebalance.apply_gains`: each pixel times its channel's gain (``gains``
+    """:func:`l3cli.whitebalance.model.apply_gains`: each pixel times its channel's gain (``gains``
     float32 (N, 3), green = 1); a pixel saturated in the raw stays at or above its value."""
     ph, pw = cfa.period
     which = np.array([[_RGB.index(cfa.channel_at(y, x)) for x in range(pw)] for y in range(ph)])
@@ -103,9 +103,9 @@ def affine(g: Graph, padded: str, classes: str, taps: str, bias: str, patch: int
 
 
 def tone_curve(g: Graph, x: str, lut: np.ndarray, lo_hi: np.ndarray) -> str:
-    """:func:`l3cli.tonecurve.curve_row` on (N, C, H, W) ``x``: per channel, linear
+    """:func:`l3cli.tone.curve.curve_row` on (N, C, H, W) ``x``: per channel, linear
     interpolation in the look-up table, the end entries outside its range."""
-    from l3cli.tonecurve import curve_arrays
+    from l3cli.tone.curve import curve_arrays
 
     base, slope, lo, step_inv = curve_arrays(lut, lo_hi)
     n_out, n1 = base.shape
@@ -122,7 +122,7 @@ def tone_curve(g: Graph, x: str, lut: np.ndarray, lo_hi: np.ndarray) -> str:
 
 
 def adaptation(g: Graph, img: str, gains: str, model) -> str:
-    """:func:`l3cli.whitebalance.adapt_image` with ``model.matrix(gains)`` per image
+    """:func:`l3cli.whitebalance.model.adapt_image` with ``model.matrix(gains)`` per image
     (the table's output space is the model's, so no conversion): (N, 3, H, W)."""
     nf = model.center.size
     coef = model.coef
@@ -164,8 +164,8 @@ def display(g: Graph, img: str, space: str, n_out: int, bits: int) -> str:
 
 def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: float,
             frame: str) -> str:
-    """:func:`l3cli.shading.correct_mosaic` of (N, 1, H, W) ``mosaic`` by the table's gain
-    field, evaluated in the graph (float64, as :func:`l3cli.shading.gain_map`) on the raw
+    """:func:`l3cli.lens.field.correct_mosaic` of (N, 1, H, W) ``mosaic`` by the table's gain
+    field, evaluated in the graph (float64, as :func:`l3cli.lens.field.gain_map`) on the raw
     that int64 (4,) ``frame`` places the mosaic on: ``(full height, full width, top,
     left)``, or zeros for the mosaic itself (the table's CFA positions are the full raw's)."""
     i64 = np.int64

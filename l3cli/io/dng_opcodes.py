@@ -22,7 +22,7 @@ The binary layout (DNG specification 1.4, chapter 7; big-endian):
 the tags), and :func:`dng_gain_maps` is what :func:`l3cli.io.raw.read_raw`
 calls on every DNG: the parsed maps ride on the :class:`~l3cli.io.raw.RawImage`
 (``gain_maps``), not yet applied. This layer parses; the model applies them
-as the DNG SDK does (:mod:`l3cli.gainmaps`: to the mosaic, or folded into the
+as the DNG SDK does (:mod:`l3cli.lens.gainmaps`: to the mosaic, or folded into the
 render's tile kernel). OpcodeList3's maps act on colour planes after
 demosaicing; l3 applies them to the mosaic's pixels of each plane's colour
 (the maps are smooth, so this is what the camera does up to the demosaic's
@@ -56,7 +56,7 @@ __all__ = ["GAIN_MAP", "GAIN_RANGE", "MAX_GAIN_MAPS", "OPCODE_LIST2", "OPCODE_LI
 log = logging.getLogger(__name__)
 
 #: The gains a lens-shading correction may give anywhere on a sensor, a DNG ``GainMap``'s
-#: and a table's stored field alike (:mod:`l3cli.shading` takes it from here): the DNG
+#: and a table's stored field alike (:mod:`l3cli.lens.field` takes it from here): the DNG
 #: SDK's range for gain-map entries (``kProfileGainTableMap_MinGainValue``/``MaxGainValue``
 #: in ``dng_sdk_limits.h``, 1/4096 .. 4096). A lens darkens its corners by a few stops at
 #: most (cameras' maps hold gains of about 1 to 8); beyond this range a gain only
@@ -269,7 +269,7 @@ def dng_gain_maps(raw: Any) -> DngGainMaps | None:
     """The GainMap opcodes of the DNG ``raw`` was read from (None: it has none).
 
     The file layer parses; the maps are applied by the model
-    (:mod:`l3cli.gainmaps`): to the mosaic for callers that want it corrected
+    (:mod:`l3cli.lens.gainmaps`): to the mosaic for callers that want it corrected
     (training, ``l3 info``), inside the tile kernel's band copy for renders.
     """
     if raw.path is None:

@@ -13,7 +13,7 @@ one flat dict with the keys of :data:`SHOT_KEYS` (absent keys are left out):
     rawpy (``other``, ``lens``: ISO, shutter, aperture, timestamp, lens).
 ``as_shot_neutral``, ``as_shot_white_xy``, ``color_matrix1``
     A DNG's AsShotNeutral (camera neutral), AsShotWhiteXY and ColorMatrix1
-    (XYZ -> camera), where present; :mod:`l3cli.whitebalance` cross-checks
+    (XYZ -> camera), where present; :mod:`l3cli.whitebalance.model` cross-checks
     them with LibRaw's camera white balance.
 
 :func:`exif_attributes` turns such a dict into OpenImageIO attributes, which
@@ -267,7 +267,7 @@ def check_gains(values: Any, where: str) -> np.ndarray:
     """Validate white-balance multipliers ``[r, g, b]``; return them normalised to green = 1.
 
     The one check of a white balance's value, wherever it comes from (a
-    sidecar, a raw's tags, ``--white-balance``); :mod:`l3cli.whitebalance`
+    sidecar, a raw's tags, ``--white-balance``); :mod:`l3cli.whitebalance.model`
     uses it too.
 
     Raises

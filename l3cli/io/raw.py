@@ -87,7 +87,7 @@ class RawImage:
         A DNG's GainMap opcodes (:class:`l3cli.io.dng_opcodes.DngGainMaps`)
         *not yet applied* to ``mosaic``, or None. :func:`read_raw` parses them
         and leaves the mosaic as stored; a caller that wants the corrected
-        mosaic applies them with :func:`l3cli.gainmaps.apply_dng_gains`
+        mosaic applies them with :func:`l3cli.lens.gainmaps.apply_dng_gains`
         (training, ``l3 info``, the baseline do), and a render folds them into
         the tile kernel (:func:`l3cli.kernelset.prepare_kernels`).
     """
@@ -129,7 +129,7 @@ class RawImage:
         """
         if self.gain_maps is not None:
             raise ValueError(f"{self.path}: apply the DNG gain maps before cropping "
-                             "(l3cli.gainmaps.apply_dng_gains)")
+                             "(l3cli.lens.gainmaps.apply_dng_gains)")
         ph, pw = self.cfa.period
         bl = self.black_level.reshape(ph, pw)
         bl = np.roll(bl, (-y0, -x0), axis=(0, 1)).ravel()
@@ -462,7 +462,7 @@ def read_raw(path: str | os.PathLike, *, libraw_only: bool = False,
         Normalised float32 mosaic with its CFA and levels. A DNG's GainMap
         opcodes (its lens shading correction) are parsed into
         ``raw.gain_maps`` and counted in ``raw.metadata["gain_maps"]``, not
-        applied: :func:`l3cli.gainmaps.apply_dng_gains` applies them for a
+        applied: :func:`l3cli.lens.gainmaps.apply_dng_gains` applies them for a
         caller that wants the corrected mosaic.
 
     Raises

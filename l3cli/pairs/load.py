@@ -25,8 +25,8 @@ from l3cli.align import (
     scaled_pair,
 )
 from l3cli.errors import InputError
-from l3cli.gainmaps import apply_dng_gains
 from l3cli.io.raw import RawImage, read_raw
+from l3cli.lens.gainmaps import apply_dng_gains
 from l3cli.pairs.find import (
     CLIP_HIGH,
     CLIP_LOW,

@@ -75,7 +75,7 @@ def raw_shading(camera, height: int, width: int) -> np.ndarray | None:
     the normalised radius, held beyond its last radius) and, for a camera that corrects
     its shading (``shading_corrected``), the cos⁴ fall-off, which then leaves the
     target unshaded."""
-    from l3cli.shading import normalised_coords
+    from l3cli.lens.field import normalised_coords
 
     optics = camera.optics
     out = None

@@ -195,7 +195,7 @@ def resolve_options(request: TrainRequest, pairs: Sequence[Pair]) -> TrainOption
     if r.white_balance is not None:
         as_shot = True
     if as_shot is None:  # real cameras: on when every raw says its white balance
-        from l3cli.whitebalance import file_gains
+        from l3cli.whitebalance.model import file_gains
 
         as_shot = all(p.align for p in pairs) and all(file_gains(p.raw) is not None
                                                       for p in pairs)
@@ -345,7 +345,7 @@ def _train_pairs(pairs: list[Pair], request: TrainRequest, *, workers, scheduler
         if table is None:
             table = fit_table(pairs, opts, client=client, show_progress=show_progress)
     if request.multiscale and not tune:  # the learned stage after the kernels
-        from l3cli.train.multiscale import attach_multiscale
+        from l3cli.multiscale.fit import attach_multiscale
 
         attach_multiscale(table, pairs, seed=opts.seed, show_progress=show_progress)
     return table

@@ -21,7 +21,7 @@ space at once (:data:`CV_SPACES`, 9 target channels): the patch products
 The class definition (level and contrast cut points) comes from the raws of
 all units (pass 1 of ``l3 train``); it uses no target values.
 
-With a learned tone curve (``TrainOptions.tone_curve``, :mod:`l3cli.tonecurve`)
+With a learned tone curve (``TrainOptions.tone_curve``, :mod:`l3cli.tone.curve`)
 the ``linear-srgb`` channels hold the curve space of one curve fitted to all
 the units (a global per-channel curve of ~17 values per channel from every
 flat block: the held-out unit's share in it is small; the defaults were chosen
@@ -43,7 +43,7 @@ from l3cli.classify import ClassDefinition, ContrastHistogram
 from l3cli.colourspace import D65_XYZ, convert, srgb_decode, srgb_encode
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair, load_pair
-from l3cli.train.curve import attach_curve, chosen_curve, curve_samples
+from l3cli.tone.fit import attach_curve, chosen_curve, curve_samples
 from l3cli.train.cvscore import DEFAULT_OPPONENT, ReferenceSCIELAB
 from l3cli.train.fit import (
     TONE_CURVE_SPACE,
@@ -110,22 +110,22 @@ def load_cv_images(pairs: Sequence[Pair], opts: TrainOptions, *,
                    opponent: str = DEFAULT_OPPONENT, shading_field=None) -> list[CVImage]:
     """Read every pair once, with its targets in all :data:`CV_SPACES`.
 
-    With ``shading_field`` (:class:`l3cli.shading.GainField`) the mosaics are
+    With ``shading_field`` (:class:`l3cli.lens.field.GainField`) the mosaics are
     corrected by it, as ``l3 train`` corrects them.
 
     With ``opts.white_balance`` (raws that carry a white balance) the images
     are what ``l3 train`` trains on: mosaics normalised by their white
     balance and targets with their shot's modelled adaptation taken out
-    (:func:`l3cli.train.adaptation.fit_white_adaptation`, fitted once on all the
+    (:func:`l3cli.whitebalance.fit.fit_white_adaptation`, fitted once on all the
     images, as the tone curve is), so a fold scores the table's colour
     mapping before the adaptation that ``l3 render`` puts back.
     """
-    from l3cli.whitebalance import training_mosaic, training_target
+    from l3cli.whitebalance.model import training_mosaic, training_target
 
     fitted = Fitted(shading_field=shading_field)
     wb_opts = None
     if opts.white_balance:
-        from l3cli.train.adaptation import fit_white_adaptation
+        from l3cli.whitebalance.fit import fit_white_adaptation
 
         wb_opts = replace(opts, target_space="linear-srgb")
         fitted = replace(fitted, target_adapt=fit_white_adaptation(pairs, wb_opts)[1] or None)

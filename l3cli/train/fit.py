@@ -89,9 +89,9 @@ def histogram_task(item: tuple) -> tuple[int, CFA, ContrastHistogram | None]:
     tuple
         ``(index, cfa, histogram or None)``; histograms add.
     """
-    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.raw import read_raw
-    from l3cli.whitebalance import training_mosaic
+    from l3cli.lens.gainmaps import apply_dng_gains
+    from l3cli.whitebalance.model import training_mosaic
 
     i, pair, opts, with_hist, *rest = item
     fitted = rest[0] if rest else NOTHING
@@ -172,7 +172,7 @@ def stats_task(item: tuple) -> PartialStats:
         )
     mask = training_pixels(raw.mosaic.shape, valid, opts, i)
     from l3cli.train.weights import luminance, sample_weights
-    from l3cli.whitebalance import training_mosaic, training_target
+    from l3cli.whitebalance.model import training_mosaic, training_target
 
     mosaic = training_mosaic(raw, opts, fitted)
     target = training_target(target, pair.raw, opts, fitted)
@@ -439,7 +439,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     show_progress
         Progress bars on stderr.
     shading_field
-        A lens-shading gain field learned already (:mod:`l3cli.train.shading`), used
+        A lens-shading gain field learned already (:mod:`l3cli.lens.train`), used
         instead of learning one (``opts.shading``).
 
     Raises
@@ -469,7 +469,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     shading_record = None
     fitted = Fitted(shading_field=shading_field)
     if opts.shading and shading_field is None:  # lens shading: corrected in every pass
-        from l3cli.train.shading import learn_shading
+        from l3cli.lens.train import learn_shading
 
         field, shading_record = learn_shading(pairs, opts)
         fitted = Fitted(shading_field=field)
@@ -478,12 +478,12 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
     model = None
     curve_record = None
     if opts.white_balance:  # whites differ: train on targets with the adaptation taken out
-        from l3cli.train.adaptation import fit_white_adaptation
+        from l3cli.whitebalance.fit import fit_white_adaptation
 
         model, adapt = fit_white_adaptation(pairs, opts)
         fitted = replace(fitted, target_adapt=adapt or None)
     if opts.tone_curve:  # the renders' own curve: train in its linear space
-        from l3cli.train.curve import fit_pairs_curve
+        from l3cli.tone.fit import fit_pairs_curve
 
         tone_model, curve_record = fit_pairs_curve(pairs, opts, fitted)
         fitted = replace(fitted, tone_model=tone_model)
@@ -500,7 +500,7 @@ def train(pairs: Iterable[Pair], opts: TrainOptions | None = None, *,
                               show_progress=show_progress, fitted=fitted)
     table = table_from_stats(stats, opts, provenance=prov)
     if opts.tone_curve:
-        from l3cli.train.curve import attach_curve
+        from l3cli.tone.fit import attach_curve
 
         attach_curve(table, fitted.tone_model, curve_record)
     if model is not None:

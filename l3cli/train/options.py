@@ -117,7 +117,7 @@ class TrainOptions:
     seed: int = defaults.SEED
     min_samples_factor: float = defaults.MIN_SAMPLES_FACTOR
     lambda_grid: Sequence[float] = tuple(float(v) for v in DEFAULT_LAMBDA_GRID)
-    #: White balance as an input (l3cli.whitebalance): normalise each raw by its as-shot
+    #: White balance as an input (l3cli.whitebalance.model): normalise each raw by its as-shot
     #: gains, or by ``wb_override`` for every raw.
     white_balance: bool = False
     wb_override: Sequence[float] | None = None
@@ -132,7 +132,7 @@ class TrainOptions:
     tone_curve: bool = defaults.TONE_CURVE
     augment: str = defaults.AUGMENT
     sample_weight: str = defaults.SAMPLE_WEIGHT
-    shading: bool = defaults.SHADING  # learn a lens-shading gain field (l3cli.shading)
+    shading: bool = defaults.SHADING  # learn a lens-shading gain field (l3cli.lens.field)
 
     def __post_init__(self) -> None:
         from l3cli.train.augment import augment_elements
@@ -261,14 +261,14 @@ class Fitted:
     Attributes
     ----------
     shading_field
-        The lens-shading gain field (:class:`l3cli.shading.GainField`), applied to every
-        training mosaic (:func:`l3cli.whitebalance.training_mosaic`); None: none.
+        The lens-shading gain field (:class:`l3cli.lens.field.GainField`), applied to every
+        training mosaic (:func:`l3cli.whitebalance.model.training_mosaic`); None: none.
     tone_model
-        The renders' tone curve (:class:`l3cli.tonecurve.ToneCurve`): the statistics are
+        The renders' tone curve (:class:`l3cli.tone.curve.ToneCurve`): the statistics are
         accumulated in its linear space; None: none.
     target_adapt
         Per capture (its raw's absolute path), the 3x3 white adaptation taken out of its
-        target (:func:`l3cli.whitebalance.training_target`); None: none.
+        target (:func:`l3cli.whitebalance.model.training_target`); None: none.
     """
 
     shading_field: object = None

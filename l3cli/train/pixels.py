@@ -1,7 +1,7 @@
 """Which pixels of a training image train: its valid pixels within a seeded random subset.
 
 Used by every training pass that reads pairs (:mod:`l3cli.train.fit`, the tone
-curve's :mod:`l3cli.train.curve`, cross-validation), so it lives below them.
+curve's :mod:`l3cli.tone.fit`, cross-validation), so it lives below them.
 """
 
 from __future__ import annotations

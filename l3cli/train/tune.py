@@ -2,8 +2,8 @@
 
 Searched by default (:data:`l3cli.defaults.TUNE_GRID`): the target space
 (:data:`l3cli.train.cv.CV_SPACES`), the patch size, lens shading on or off
-(:mod:`l3cli.train.shading`) and the multi-scale stage on or off
-(:mod:`l3cli.train.cvmultiscale`); a ``[train.tune]`` config table can add
+(:mod:`l3cli.lens.train`) and the multi-scale stage on or off
+(:mod:`l3cli.multiscale.cv`); a ``[train.tune]`` config table can add
 the number of levels, contrast bins and threshold, the dihedral augmentation
 and the sample weights. Every candidate is scored by K-fold cross-validation
 over whole training images (or column blocks of a single image), with
@@ -61,7 +61,7 @@ from l3cli import defaults
 from l3cli.errors import ConfigError, InputError
 from l3cli.pairs import Pair
 from l3cli.table import TransformTable
-from l3cli.train.curve import attach_curve
+from l3cli.tone.fit import attach_curve
 from l3cli.train.cv import (
     CV_SPACES,
     fold_scores,
@@ -323,7 +323,7 @@ class _Search:
             opts = self.opts(c)
             lay = self.layout(c)
             if c.multiscale:
-                from l3cli.train.cvmultiscale import multiscale_fold_scores
+                from l3cli.multiscale.cv import multiscale_fold_scores
 
                 try:
                     scores, _ = multiscale_fold_scores(images, self.units, self.folds, lay,
@@ -401,7 +401,7 @@ def tune(pairs: Sequence[Pair], base: TrainOptions | None = None, grid: TuneGrid
     shadings = grid.shading or (base.shading,)
     field, shading_record = None, None
     if True in shadings:  # the lens-shading field first, once: every candidate with it
-        from l3cli.train.shading import learn_shading  # sees the corrected mosaics
+        from l3cli.lens.train import learn_shading  # sees the corrected mosaics
 
         field, shading_record = learn_shading(pairs, replace(base, shading=True))
         if field is None:  # not kept: shading on is shading off
@@ -489,7 +489,7 @@ def _finish(s: _Search, chosen: CandidateResult, best: CandidateResult, margins:
         table.shading = s.field
         table.provenance["shading"] = shading_record
     if c.multiscale:
-        from l3cli.train.multiscale import attach_multiscale
+        from l3cli.multiscale.fit import attach_multiscale
 
         attach_multiscale(table, s.pairs, seed=opts.seed, show_progress=show_progress)
     seconds = time.perf_counter() - s.t0

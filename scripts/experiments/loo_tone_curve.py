@@ -4,7 +4,7 @@
 
 Keys: training options (``levels=24``, ``patch=5``, ``contrast_bins=2``,
 ``contrast_threshold=0.2``, ``augment=none|flips|d4``, ``sample_weight=none|luminance``) and the curve's settings in
-:mod:`l3cli.tonecurve` (``KNOTS``, ``SMOOTHNESS``, ``BLOCK``, ``FLAT_STD``).
+:mod:`l3cli.tone.curve` (``KNOTS``, ``SMOOTHNESS``, ``BLOCK``, ``FLAT_STD``).
 
 Unlike ``l3 train --tune`` (one curve from all the images: the held-out
 image's blocks are a small share of it), every fold here fits its curve to
@@ -20,11 +20,11 @@ import time
 
 import numpy as np
 
-import l3cli.tonecurve as tc
+import l3cli.tone.curve as tc
 from l3cli import defaults
 from l3cli.render import render_mosaic
+from l3cli.tone.fit import attach_curve
 from l3cli.train import TrainOptions, find_pairs
-from l3cli.train.curve import attach_curve
 from l3cli.train.cv import CV_SPACES, display_xyz, histogram, load_cv_images
 from l3cli.train.fit import definition_from_histogram, table_from_stats
 from l3cli.train.stats import ClassStats, accumulate

@@ -30,7 +30,7 @@ as the light that reached an *unshaded* sensor. The stand-in camera
 ``OUT/control/<part>`` holds the same renders with the *unshaded* raws at the
 same 16-bit scale: the truly corrected control (the true gain applied before
 training). ``OUT/truth.json`` records the field's parameters. The truth for a
-learned field (``l3cli.shading.gain_map``): ``1 / illumination(...)`` up to a
+learned field (``l3cli.lens.field.gain_map``): ``1 / illumination(...)`` up to a
 scale per channel (:func:`field_error`).
 
 Never train or tune on ``holdout``: it is scored only.
@@ -49,7 +49,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SOURCE = ROOT / "examples" / "infinite_isp"
 
 #: Per colour: optical centre (cy, cx) in normalised coordinates
-#: (l3cli.shading.normalised_coords: 0 at the image centre, 1 at the half-diagonal),
+#: (l3cli.lens.field.normalised_coords: 0 at the image centre, 1 at the half-diagonal),
 #: strength k of the fall-off (1 + k r'^2)^-2 and ellipticity e (r'^2 = (1 + e) dv^2 +
 #: (1 - e) du^2): red falls most and toward the lower right.
 LENS = {"R": {"centre": (-0.10, -0.14), "k": 0.36, "e": 0.15},
@@ -71,7 +71,7 @@ SCALE_BITS = 16
 
 def illumination(height: int, width: int, cfa) -> np.ndarray:
     """The lens's relative illumination of each pixel (float64 (H, W), at most 1)."""
-    from l3cli.shading import normalised_coords
+    from l3cli.lens.field import normalised_coords
 
     v, u = normalised_coords(height, width)
     out = np.empty((height, width))
@@ -174,7 +174,7 @@ def _raws(args: list[str]) -> list[Path]:
 
 def check(table_path: str) -> dict[str, float] | None:
     """Print the rms error per colour of a table's learned field against the truth."""
-    from l3cli.shading import gain_map
+    from l3cli.lens.field import gain_map
     from l3cli.table import load_table
 
     table = load_table(table_path)

@@ -106,7 +106,7 @@ def _wb_record(**changes) -> str:
                                     {"space": "sepia"}],
                          ids=["centre nan", "white negative", "white inf", "space"])
 def test_bad_white_balance_record_is_refused(work: Path, change) -> None:
-    from l3cli.whitebalance import WB_FEATURE
+    from l3cli.whitebalance.model import WB_FEATURE
 
     good = _wb_record(feature=WB_FEATURE)
     ok = _with(work / "table.npz", work / "ok.npz", white_balance=np.array(good))
@@ -375,7 +375,7 @@ def test_negative_seed_is_a_usage_error(runner, sim: Path) -> None:
 
 
 def test_white_balance_coefficients_are_bounded(work: Path) -> None:
-    from l3cli.whitebalance import WB_FEATURE
+    from l3cli.whitebalance.model import WB_FEATURE
 
     coef = (np.eye(3).reshape(1, 9) * 1e7).tolist() + [[0.0] * 9]
     bad = _with(work / "table.npz", work / "bad.npz",

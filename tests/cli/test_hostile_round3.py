@@ -159,8 +159,8 @@ def test_gain_map_gains_beyond_the_sdk_range_are_refused(runner, work: Path,
 def test_gain_maps_within_range_still_apply(work: Path) -> None:
     """The checks leave a valid list alone: OpcodeList3's maps of gain 2 on R and B (a
     plane each) double those pixels below white (the DNG SDK's arithmetic, by hand)."""
-    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.raw import read_raw
+    from l3cli.lens.gainmaps import apply_dng_gains
 
     g = np.full(4, 2.0, ">f4")
     plain = read_raw(_dng_with_opcodes(work / "plain.dng"))
@@ -178,7 +178,7 @@ def test_gain_map_plane_loop_is_bounded_by_the_image() -> None:
     """apply_gain_maps alone (the checks skipped): Planes = 0xFFFFFFFF applies the map to
     the image's one plane (or three), as Planes = 1 (or 3) does; a loop per claimed
     plane would not end for hours."""
-    from l3cli.gainmaps import apply_maps as apply_gain_maps
+    from l3cli.lens.gainmaps import apply_maps as apply_gain_maps
 
     m = np.full((40, 48), 0.25, np.float32)
     want = apply_gain_maps(m.copy(), [_gain_map()])
@@ -209,7 +209,7 @@ def test_too_many_gain_maps_are_refused() -> None:
 def test_extreme_map_spacing_stays_on_the_grid() -> None:
     """Spacing 1e-300 (positions far beyond the grid): the gain of the grid's edge, not an
     integer overflow's garbage."""
-    from l3cli.gainmaps import apply_maps as apply_gain_maps
+    from l3cli.lens.gainmaps import apply_maps as apply_gain_maps
 
     gains = np.array([1.5, 1.5, 1.25, 1.25], np.float32).reshape(2, 2, 1)
     m = np.full((40, 48), 0.25, np.float32)
@@ -308,8 +308,8 @@ def test_kernel_store_refuses_a_fifo_as_damaged(tmp_path: Path, monkeypatch) -> 
 def _group_table(tmp_path: Path) -> Path:
     """A valid table with both optional groups: a shading gain field and a multi-scale
     stage (the identity blend on two low-passes, three coarse levels)."""
-    from l3cli.multiscale import Multiscale
-    from l3cli.shading import GainField
+    from l3cli.lens.field import GainField
+    from l3cli.multiscale.stage import Multiscale
 
     t = make_table("RGGB")
     coeffs = np.array([[1.0, 0.3, 0.05]] * 4)
@@ -403,7 +403,7 @@ def test_a_table_with_both_groups_renders_finite(runner, work: Path) -> None:
 def test_shading_extremes_find_a_dip_between_grid_points() -> None:
     """A gain that dips below zero between the 257 grid points of r^2 (a narrow quadratic
     well at t = 0.5004) is found by the derivative's root: gain 1 - 1e8 (t - 0.5004)^2..."""
-    from l3cli.shading import GainField
+    from l3cli.lens.field import GainField
 
     # g(t) = a (t - t0)^2 - d: min -d at t0, positive one grid step away
     t0, a, d = 0.50037, 1e8, 1e-3
@@ -417,7 +417,7 @@ def _unusable_fit(monkeypatch) -> None:
     """A fit that passes the fit's own checks on the training area but whose gains turn
     negative before the farthest corner of any raw (an r^4 term of -0.3, centre (0.4, 0)):
     what small crops gave. The radial model is chosen (every candidate scores alike)."""
-    import l3cli.shading_fit as shading_fit
+    import l3cli.lens.fit as shading_fit
 
     def fit(model, samples, size):
         a = np.zeros((samples[0].raw.shape[1], max(int(model[1]), 2)))
@@ -430,7 +430,7 @@ def _unusable_fit(monkeypatch) -> None:
 
 def test_unusable_shading_fit_is_dropped(monkeypatch) -> None:
     from l3cli.cfa import CFA
-    from l3cli.shading_fit import BlockSamples, fit_field
+    from l3cli.lens.fit import BlockSamples, fit_field
 
     _unusable_fit(monkeypatch)
     rng = np.random.default_rng(0)

@@ -183,7 +183,7 @@ def test_curve_figure_has_labelled_readable_log_axes(tmp_path, captured):
 def test_tone_curve_figure(tmp_path, captured):
     from l3cli.colourspace import convert
     from l3cli.plots_table import plot_tone_curve
-    from l3cli.tonecurve import KNOTS, ToneCurve
+    from l3cli.tone.curve import KNOTS, ToneCurve
 
     t = plausible_table("GRBG", n_levels=4, seed=6)
     assert plot_tone_curve(t, tmp_path, name="t") == []  # no curve, no figure

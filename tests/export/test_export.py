@@ -33,7 +33,7 @@ from l3cli.io.encode import display_encode  # noqa: E402
 from l3cli.io.raw import RawImage, read_raw  # noqa: E402
 from l3cli.render import render_raw  # noqa: E402
 from l3cli.table import TransformTable, load_table, save_table  # noqa: E402
-from l3cli.whitebalance import WhiteBalanceModel  # noqa: E402
+from l3cli.whitebalance.model import WhiteBalanceModel  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 FRAMES = REPO / "examples" / "infinite_isp" / "frames"
@@ -234,7 +234,7 @@ def test_real_raw_with_a_synthetic_table(data_dir):
 # ------------------------------------------------------- lens shading, DNG GainMaps
 def _field(size, centre=(0.08, -0.12), coeffs=((1.0, 0.9, 0.5), (1.0, 0.7, 0.3),
                                               (1.0, 0.7, 0.3), (1.0, 1.2, 0.6))):
-    from l3cli.shading import GainField
+    from l3cli.lens.field import GainField
 
     return GainField(np.array(centre), np.array(coeffs, dtype=np.float64), size)
 
@@ -284,7 +284,7 @@ def test_gain_map_dng_is_fed_as_read(tmp_path):
     h, w = 40, 60
     dn = np.random.default_rng(3).integers(64, 4096, (h, w))
     path = write_dng_with_opcodes(tmp_path / "gm.dng", dn, encode_gain_maps(phone_gain_maps(h, w)))
-    from l3cli.gainmaps import apply_dng_gains
+    from l3cli.lens.gainmaps import apply_dng_gains
 
     raw = apply_dng_gains(read_raw(path))  # the caller applies the maps, as documented
     assert raw.metadata["gain_maps"] == {"OpcodeList2": 4, "OpcodeList3": 0}
@@ -450,7 +450,7 @@ def default_pairs_table(tmp_path_factory):
 
 @pytest.mark.slow
 def test_default_pairs_table_renders_holdout_frames(default_pairs_table):
-    from l3cli.whitebalance import raw_gains
+    from l3cli.whitebalance.model import raw_gains
 
     path, holdout = default_pairs_table
     t = load_table(path)
@@ -480,7 +480,7 @@ def test_default_model_runs_in_a_fresh_process(default_pairs_table, tmp_path):
     the holdout frames as ``l3 render`` writes them to PNG, within one code value."""
     import OpenImageIO as oiio
 
-    from l3cli.whitebalance import raw_gains
+    from l3cli.whitebalance.model import raw_gains
 
     table, holdout = default_pairs_table
     model = tmp_path / "pipeline.onnx"
@@ -532,7 +532,7 @@ def test_default_table_of_shaded_frames(tmp_path):
     raws (scripts/make_shaded_examples.py), ``l3 train`` with the pairs defaults (the
     field is learned and kept): the exported model renders crops of the holdout frames as
     ``l3 render`` does, every pixel in the same class."""
-    from l3cli.shading import corrected
+    from l3cli.lens.field import corrected
     from tests.builders import shaded_examples_script
 
     shaded_examples_script().main(tmp_path / "shaded")

@@ -14,14 +14,14 @@ from l3cli.classify import ClassDefinition  # noqa: E402
 from l3cli.io.encode import display_encode  # noqa: E402
 from l3cli.io.raw import RawImage  # noqa: E402
 from l3cli.kernelset import render_mosaic  # noqa: E402
-from l3cli.multiscale import Multiscale, encode, feature_maps  # noqa: E402
+from l3cli.multiscale.stage import Multiscale, encode, feature_maps  # noqa: E402
 from l3cli.table import TransformTable  # noqa: E402
 
 
 def _table(space: str, transfer: str, sigmas, seed: int = 0) -> tuple[TransformTable, np.ndarray]:
     """A random 5x5 table and a mosaic; its stage's cuts at quantiles of the render's own
     levels and energies (every class used), blends around the identity."""
-    from l3cli.train.multiscale import place_cuts
+    from l3cli.multiscale.fit import place_cuts
 
     d = ClassDefinition.build("RGGB", patch=5, level_cuts=np.geomspace(0.01, 0.6, 7),
                               contrast_cuts=[0.1, 0.3])
@@ -112,13 +112,13 @@ def test_coding_in_the_graph_is_the_stages_table_bit_for_bit():
 
     from l3cli.export.graph import Graph
     from l3cli.export.multiscale import coding
-    from l3cli.multiscale import decode
+    from l3cli.multiscale.stage import decode
 
     rng = np.random.default_rng(3)
     v = np.concatenate([rng.normal(0, 0.6, 20_000), rng.uniform(-70, 70, 2_000),
                         np.ldexp(1.0, np.arange(-12, 9)), [0.0, 0.0031308, 0.04045, 1.0, 64.0,
                                                            64.2, 200.0]]).astype(np.float32)
-    from l3cli.multiscale import encode as enc
+    from l3cli.multiscale.stage import encode as enc
 
     for inverse, ref in ((False, enc(v, "srgb")), (True, decode(v, "srgb"))):
         g = Graph()

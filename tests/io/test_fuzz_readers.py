@@ -532,8 +532,8 @@ def _group_table_arrays() -> dict[str, np.ndarray]:
     """A table with both optional groups: a lens-shading gain field and a multi-scale
     stage (both valid)."""
     from l3cli.classify import ClassDefinition
-    from l3cli.multiscale import Multiscale
-    from l3cli.shading import GainField
+    from l3cli.lens.field import GainField
+    from l3cli.multiscale.stage import Multiscale
     from l3cli.table import TransformTable
 
     d = ClassDefinition.build("RGGB", patch=3, level_cuts=[0.05, 0.2], contrast_cuts=0.3)

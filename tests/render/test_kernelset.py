@@ -3,8 +3,8 @@
 The reference is the path l3 took before the kernel set, written out here
 with the library's own building blocks: the condition bins interpolated
 (:func:`l3cli.conditions.kernels_for`), the mosaic multiplied by the gains
-(:func:`l3cli.whitebalance.apply_gains`), the plain float render, the 3x3
-adaptation of the whole float image (:func:`l3cli.whitebalance.adapt_image`)
+(:func:`l3cli.whitebalance.model.apply_gains`), the plain float render, the 3x3
+adaptation of the whole float image (:func:`l3cli.whitebalance.model.adapt_image`)
 and then the display encoding (:func:`l3cli.io.encode.display_encode`).
 The kernel set folds the adaptation into the kernels or into the encoder's
 matrix, so its pixels may differ by float32 rounding: float renders within
@@ -26,8 +26,8 @@ from l3cli.io.raw import RawImage, read_raw, write_raw
 from l3cli.kernelset import KernelSet, linear_adaptation, prepare_kernels
 from l3cli.render import render_display, render_file, render_mosaic, render_raw
 from l3cli.table import TransformTable
-from l3cli.tonecurve import ToneCurve
-from l3cli.whitebalance import WhiteBalanceModel, adapt_image, apply_gains, gains_or_error
+from l3cli.tone.curve import ToneCurve
+from l3cli.whitebalance.model import WhiteBalanceModel, adapt_image, apply_gains, gains_or_error
 
 
 def _old_float(table: TransformTable, raw: RawImage, white_balance=None) -> np.ndarray:
@@ -264,7 +264,7 @@ def test_white_balance_precheck_reads_dng_tags_without_decoding(tmp_path, monkey
     """The check before any output takes a DNG's white from its tags: asking LibRaw (rawpy
     unpacks the whole raw for it) decoded every file twice. A DNG without the tags still
     goes to LibRaw, and contradictory tags are still named before any output."""
-    import l3cli.whitebalance as wb
+    import l3cli.whitebalance.model as wb
     from l3cli.render import check_white_balance
 
     t = _table(_definition())

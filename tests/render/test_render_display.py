@@ -165,10 +165,10 @@ def test_encoder_kernel_loads_from_numba_cache_in_a_new_process(tmp_path):
 
 @pytest.mark.parametrize("bits", [8, 16])
 def test_display_render_applies_a_learned_tone_curve(bits):
-    """A table with a tone curve (l3cli.tonecurve): the curve runs in the kernel before
+    """A table with a tone curve (l3cli.tone.curve): the curve runs in the kernel before
     the encoding, so the display render equals the float render (curve applied) encoded
     (16 bits: the composed lookup is interpolated, within one code)."""
-    from l3cli.tonecurve import ToneCurve
+    from l3cli.tone.curve import ToneCurve
 
     t = _table("RGGB", 7, 3, "linear-srgb", seed=5)
     e = np.linspace(0.0, 1.0, 17)

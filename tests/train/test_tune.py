@@ -273,7 +273,7 @@ def test_multiscale_folds_score_the_same_renders_without_the_stage(tmp_path: Pat
     """The fold renders of the multi-scale scoring, without the stage, are the plain
     folds' (the same table per fold, the same S-CIELAB); the stage is fitted per fold
     and changes the scores."""
-    from l3cli.train.cvmultiscale import multiscale_fold_scores
+    from l3cli.multiscale.cv import multiscale_fold_scores
 
     folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0), "c": (7, 1.0)})
     opts = TrainOptions(target_space="linear-srgb", **TUNE_OPTS)

@@ -1,5 +1,5 @@
-"""The spline-grid lens-shading field (l3cli.shading_grid), its choice by held-out
-blocks, spatial folds of a single image (l3cli.shading_fit), and its table keys."""
+"""The spline-grid lens-shading field (l3cli.lens.grid), its choice by held-out
+blocks, spatial folds of a single image (l3cli.lens.fit), and its table keys."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import pytest
 
 from l3cli.cfa import CFA
 from l3cli.errors import TableError
-from l3cli.shading import corrected, gain_map, gains_at, normalised_coords
-from l3cli.shading_fit import BlockSamples, fit_field, spatial_folds
-from l3cli.shading_grid import SplineField, bspline_matrix, frame_extent
+from l3cli.lens.field import corrected, gain_map, gains_at, normalised_coords
+from l3cli.lens.fit import BlockSamples, fit_field, spatial_folds
+from l3cli.lens.grid import SplineField, bspline_matrix, frame_extent
 from l3cli.table import SHADING_VERSION, load_table, save_table
 from tests.builders import make_table, mosaic_raw
 
@@ -166,9 +166,9 @@ def test_standin_camera_one_shot_learns_its_lens(tmp_path):
     import importlib.util
 
     from l3cli.io.raw import read_raw
+    from l3cli.lens.train import learn_shading
     from l3cli.pairs import find_pairs
     from l3cli.train.options import TrainOptions
-    from l3cli.train.shading import learn_shading
     from tests.builders import REPO as ROOT
 
     spec = importlib.util.spec_from_file_location("standin",

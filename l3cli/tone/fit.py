@@ -1,9 +1,9 @@
-"""The renders' tone curve in training (:mod:`l3cli.tonecurve`; ``--tone-curve``).
+"""The renders' tone curve in training (:mod:`l3cli.tone.curve`; ``--tone-curve``).
 
 ``l3 train`` fits the curve to every pair's flat blocks, as pass 2 sees them
 (white-balanced mosaic, adapted target), keeps it only where it predicts
 held-out images better than the sRGB decoding
-(:func:`l3cli.tonecurve.select_curve`), accumulates the statistics in its
+(:func:`l3cli.tone.curve.select_curve`), accumulates the statistics in its
 space and stores its inverse look-up table in the table.
 """
 
@@ -27,8 +27,8 @@ log = logging.getLogger(__name__)
 
 def curve_samples(mosaic: np.ndarray, cfa, target: np.ndarray, mask: np.ndarray | None,
                   opts: TrainOptions):
-    """Flat-block samples of one pair for the tone curve (:func:`l3cli.tonecurve.block_samples`)."""
-    from l3cli.tonecurve import block_samples
+    """Flat-block samples of one pair for the tone curve (:func:`l3cli.tone.curve.block_samples`)."""
+    from l3cli.tone.curve import block_samples
 
     enc = srgb_encode(np.clip(target, 0.0, 1.0))
     return block_samples(mosaic, cfa, enc, saturation=opts.saturation, mask=mask)
@@ -42,11 +42,11 @@ def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions, fitted: Fitted = 
     -------
     curve, record
         The curve, or None when it does not generalise better than the sRGB
-        decoding (:func:`l3cli.tonecurve.select_curve`) or the renders have
+        decoding (:func:`l3cli.tone.curve.select_curve`) or the renders have
         too few flat, unclipped blocks (with a warning): the table is then
         trained in the target space itself, as with ``--no-tone-curve``.
     """
-    from l3cli.whitebalance import training_mosaic, training_target
+    from l3cli.whitebalance.model import training_mosaic, training_target
 
     samples = []
     for i, pair in enumerate(pairs):
@@ -59,8 +59,8 @@ def fit_pairs_curve(pairs: Sequence[Pair], opts: TrainOptions, fitted: Fitted = 
 
 
 def chosen_curve(samples) -> tuple:
-    """:func:`l3cli.tonecurve.select_curve` with the log lines of ``l3 train``."""
-    from l3cli.tonecurve import select_curve
+    """:func:`l3cli.tone.curve.select_curve` with the log lines of ``l3 train``."""
+    from l3cli.tone.curve import select_curve
 
     curve, record = select_curve(samples)
     if record.get("reason"):

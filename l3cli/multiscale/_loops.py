@@ -1,10 +1,10 @@
-"""The multi-scale stage's loops (:mod:`l3cli.multiscale`), in numba.
+"""The multi-scale stage's loops (:mod:`l3cli.multiscale.stage`), in numba.
 
 * :func:`stage_rows`: the whole stage after its reduced-resolution low-passes,
   in bands of rows run in parallel: the full-resolution low-passes (the finest,
   sigma below 3 pixels), the bilinear upsampling of the coarser ones, the band
   energy and level, the coarse class, and then either the feature maps
-  (training: :func:`l3cli.multiscale.feature_maps`) or the blend
+  (training: :func:`l3cli.multiscale.stage.feature_maps`) or the blend
   ``coarse + sum_r stack_r blend[cls, r, c]``, decoded from the stage's
   coding and written as float or display-encoded
   (:func:`l3cli.io.encode_rows.encode_row`) while the row is in cache: one
@@ -68,7 +68,7 @@ def _code(v, base, slope, first, last, inverse):  # pragma: no cover - compiled
     """The stage's coding of one float32 value (``inverse``: its inverse): the sRGB
     curve's linear segment exactly, above it the table's line through the curve's values
     at the value's bucket ends (the value's float32 bits shifted right by
-    :data:`l3cli.multiscale.CODE_SHIFT`), the formula itself beyond the table."""
+    :data:`l3cli.multiscale.stage.CODE_SHIFT`), the formula itself beyond the table."""
     a = abs(v)
     if inverse:
         if a <= np.float32(0.04045):

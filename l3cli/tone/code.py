@@ -139,7 +139,7 @@ def _curve_codes_np(v: np.ndarray, c: int, curve: tuple[np.ndarray, ...], thr: n
 
 def code_table(curve: tuple[np.ndarray, ...], thr: np.ndarray, bits: int, *,
                cells: int | None = None, max_walk: int = MAX_WALK) -> CodeTable | None:
-    """The composed lookup of a curve (:func:`l3cli.tonecurve.curve_arrays`) and an encoder.
+    """The composed lookup of a curve (:func:`l3cli.tone.curve.curve_arrays`) and an encoder.
 
     Parameters
     ----------
@@ -235,7 +235,7 @@ def interpolated_codes(curve: tuple[np.ndarray, ...], thr: np.ndarray, *,
     Parameters
     ----------
     curve
-        The curve's arrays (:func:`l3cli.tonecurve.curve_arrays`), as the tile kernel
+        The curve's arrays (:func:`l3cli.tone.curve.curve_arrays`), as the tile kernel
         reads them.
     thr
         The encoder's thresholds (:attr:`l3cli.io.encode.DisplayParams.thr`, no matrix).
@@ -257,7 +257,7 @@ def interpolated_codes(curve: tuple[np.ndarray, ...], thr: np.ndarray, *,
     ``round(65535 * srgb(0.5))``, and the table gives it or a code next to it.
 
     >>> from l3cli.io.encode import display_params, quantise_reference
-    >>> from l3cli.tonecurve import curve_arrays
+    >>> from l3cli.tone.curve import curve_arrays
     >>> lut = np.repeat(np.linspace(0, 1, 1024, dtype=np.float32)[:, None], 3, axis=1)
     >>> curve = curve_arrays(lut, np.array([[0.0] * 3, [1.0] * 3]))
     >>> ct = interpolated_codes(curve, display_params("linear-srgb", 3, 16).thr)

@@ -1,4 +1,4 @@
-"""A raw's gains folded into the tile kernel's band copy (:mod:`l3cli.gainmaps`, issue 40).
+"""A raw's gains folded into the tile kernel's band copy (:mod:`l3cli.lens.gainmaps`, issue 40).
 
 A DNG's GainMap opcodes, a table's learned lens shading and its white balance
 are applied by the tile kernel as it copies each tile's band, not as passes
@@ -29,14 +29,14 @@ import numpy as np
 import pytest
 
 from l3cli.classify import ClassDefinition
-from l3cli.gainmaps import apply_dng_gains, apply_maps
 from l3cli.io.dng_opcodes import GainMap, encode_gain_maps
 from l3cli.io.raw import read_raw
 from l3cli.kernelset import KernelSet, prepare_kernels
+from l3cli.lens.field import GainField
+from l3cli.lens.gainmaps import apply_dng_gains, apply_maps
 from l3cli.render import render_file, render_mosaic
-from l3cli.shading import GainField
 from l3cli.table import TransformTable
-from l3cli.whitebalance import WhiteBalanceModel
+from l3cli.whitebalance.model import WhiteBalanceModel
 from tests.dngmake import make_dng, phone_gain_maps
 
 H, W = 48, 72
@@ -264,7 +264,7 @@ def test_shading_pass_in_place_clips_as_a_copy():
     corrected pixel is not lifted above max(pixel, 1): it used to compare with the
     product it had just written, and left brightened pixels unclipped."""
     from l3cli.cfa import CFA
-    from l3cli.shading import correct_mosaic
+    from l3cli.lens.field import correct_mosaic
 
     m = np.random.default_rng(2).random((H, W), dtype=np.float32) * 1.1
     field = FIELDS["gains >= 1"]

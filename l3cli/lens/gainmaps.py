@@ -8,10 +8,10 @@ each with its own clipping rule:
    ``RawImage.gain_maps``): each map's gain, bilinearly interpolated on its
    grid at the pixel centre, then the result clipped at 1, as the DNG SDK
    does (:func:`apply_maps`);
-2. a table's learned gain field (:class:`l3cli.shading.GainField`,
-   :func:`l3cli.shading.correct_mosaic`'s rule);
+2. a table's learned gain field (:class:`l3cli.lens.field.GainField`,
+   :func:`l3cli.lens.field.correct_mosaic`'s rule);
 3. a white-balancing table's as-shot gains per CFA position
-   (:func:`l3cli.whitebalance.multiply_gains`' rule).
+   (:func:`l3cli.whitebalance.model.multiply_gains`' rule).
 
 :func:`apply_dng_gains` applies the first to a raw read by
 :func:`l3cli.io.raw.read_raw`, for callers that want the corrected mosaic
@@ -27,13 +27,13 @@ evaluates per pixel as it copies a tile's band from the mosaic
   interpolation between two values of its row; maps that touch different
   CFA positions (a phone's four, one per Bayer position) share a layer;
 * the field as its polynomial in ``r² = a[y] + b[x]`` (float64, the same
-  operations as :func:`l3cli.shading.gain_map`);
+  operations as :func:`l3cli.lens.field.gain_map`);
 * the white balance as its (ph, pw) gains.
 
 The fold covers maps whose pitch divides the CFA period and whose area is the
 whole image (every phone and action camera writes these); any other map, and
 tables with a context guide (its block means are taken from the corrected
-mosaic), and spline-grid fields (:mod:`l3cli.shading_grid`), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
+mosaic), and spline-grid fields (:mod:`l3cli.lens.grid`), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
 with the same result.
 """
 
@@ -223,20 +223,20 @@ class MosaicGains:
     def apply(self, mosaic: np.ndarray) -> np.ndarray:
         """``mosaic`` (float32 (H, W)) multiplied by the gains in place, as passes over it:
         the DNG maps (:func:`apply_maps`), the field
-        (:func:`l3cli.shading.correct_mosaic`), the white balance
-        (:func:`l3cli.whitebalance.multiply_gains`). Returns ``mosaic``."""
+        (:func:`l3cli.lens.field.correct_mosaic`), the white balance
+        (:func:`l3cli.whitebalance.model.multiply_gains`). Returns ``mosaic``."""
         if tuple(mosaic.shape) != tuple(self.shape):
             raise ValueError(f"the gains are for a {self.shape} mosaic, not {mosaic.shape}")
         if self.dng is not None:
             _apply_dng(mosaic, self.dng, self.cfa)
         if self.field is not None:
-            from l3cli.shading import correct_mosaic
+            from l3cli.lens.field import correct_mosaic
 
             correct_mosaic(mosaic, self.field, self.cfa, self.saturation,
                            full_shape=self.full_shape, origin=self.origin, out=mosaic,
                            name=self.name)
         if self.wb is not None:
-            from l3cli.whitebalance import multiply_gains
+            from l3cli.whitebalance.model import multiply_gains
 
             multiply_gains(mosaic, self.wb, self.saturation)
         return mosaic
@@ -362,9 +362,9 @@ def _build_layers(dng: Any, cfa: Any, shape: tuple[int, int]) -> tuple:
 def _field_floor(key: bytes, field_ref: tuple, full: tuple[int, int], period: tuple[int, int],
                  box: tuple[int, int, int, int]) -> bool:
     """Every float32 gain of the field on the mosaic's window ``box`` of its full raw is at
-    least 1 (:func:`l3cli.shading.correct_mosaic`'s test, on the values
-    :func:`l3cli.shading.gain_map` computes), found in bands of rows without the map."""
-    from l3cli.shading import normalised_coords
+    least 1 (:func:`l3cli.lens.field.correct_mosaic`'s test, on the values
+    :func:`l3cli.lens.field.gain_map` computes), found in bands of rows without the map."""
+    from l3cli.lens.field import normalised_coords
 
     field = field_ref[0]
     y0, x0, hh, ww = box
@@ -393,7 +393,7 @@ def _field_floor(key: bytes, field_ref: tuple, full: tuple[int, int], period: tu
 
 
 def _field_args(g: MosaicGains) -> tuple:
-    from l3cli.shading import normalised_coords
+    from l3cli.lens.field import normalised_coords
 
     field = g.field
     h, w = g.shape
@@ -404,7 +404,7 @@ def _field_args(g: MosaicGains) -> tuple:
     cy, cx = field.centre
     a = np.ascontiguousarray((v[y0:y0 + h] - cy) ** 2)
     b = np.ascontiguousarray((u[x0:x0 + w] - cx) ** 2)
-    # the field's positions are the full raw's (l3cli.shading.gain_map): position of
+    # the field's positions are the full raw's (l3cli.lens.field.gain_map): position of
     # the mosaic's (y, x) is that of (y0 + y, x0 + x)
     k = field.coeffs.shape[1]
     coeffs = np.empty((ph, k, w), _F64)
@@ -435,7 +435,7 @@ def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
         _check_shape(dng, shape, raw.path)
     full, origin = None, (0, 0)
     if field is not None:
-        from l3cli.shading import _placement
+        from l3cli.lens.field import _placement
 
         full_shape, y0, x0 = _placement(raw)
         full, origin = full_shape, (y0, x0)
@@ -445,7 +445,7 @@ def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
                         raw.path or "raw", full[1], full[0], field.size[1], field.size[0])
     foldable = fold and (dng is None or foldable_maps(dng, raw.cfa))
     if field is not None and not field.radial:
-        foldable = False  # a spline-grid field (l3cli.shading_grid): applied as a pass
+        foldable = False  # a spline-grid field (l3cli.lens.grid): applied as a pass
     return MosaicGains(shape, raw.cfa, dng, field, full, origin,
                        None if wb is None else np.asarray(wb, np.float32), float(saturation),
                        foldable, raw.path or "raw")

@@ -1,7 +1,7 @@
 """Cross-validation of the multi-scale stage (``--multiscale``) for ``l3 train``'s search.
 
 The stage is fitted after the table, on the table's own renders of its
-training raws (:mod:`l3cli.train.multiscale`). A fold does the same with the
+training raws (:mod:`l3cli.multiscale.fit`). A fold does the same with the
 fold's table: it renders every image of the fold (the held-out units and the
 units it trains on), places the stage's class cut points on the training
 units' renders, sums the stage's normal equations over their training pixels,
@@ -24,7 +24,8 @@ import numpy as np
 from l3cli import defaults
 from l3cli.colourspace import convert
 from l3cli.errors import InputError
-from l3cli.multiscale import (
+from l3cli.multiscale.fit import MultiscaleStats, accumulate, cut_sample, place_cuts, solve
+from l3cli.multiscale.stage import (
     Multiscale,
     blend_features,
     classes,
@@ -34,7 +35,7 @@ from l3cli.multiscale import (
     feature_maps,
     radius,
 )
-from l3cli.train.curve import attach_curve
+from l3cli.tone.fit import attach_curve
 from l3cli.train.cv import (
     CV_SPACES,
     CVImage,
@@ -45,7 +46,6 @@ from l3cli.train.cv import (
     fold_stats,
 )
 from l3cli.train.fit import TrainOptions, table_from_stats
-from l3cli.train.multiscale import MultiscaleStats, accumulate, cut_sample, place_cuts, solve
 
 __all__ = ["multiscale_fold_scores", "multiscale_fold_task"]
 

@@ -25,7 +25,7 @@ The low-passes of ``sigma >= 3`` are computed at reduced resolution (rule
 the largest power of two ``f <= sigma / 1.5``), a Gaussian of ``sigma'``
 (:func:`low_sigma`: ``sigma`` less the variance the block mean and the
 upsampling add, in low-resolution pixels) on them, and bilinear upsampling
-back to the image's pixels (:func:`l3cli.multiscale_kernel.stage_rows`); the
+back to the image's pixels (:func:`l3cli.multiscale._loops.stage_rows`); the
 finer ones, and the energy's, are the full-resolution Gaussian. The stage is
 then one pass over the image's rows after a pass over its blocks, fused with
 the display encoder for TIFF, PNG and JPEG output (:func:`apply_display`);
@@ -42,7 +42,7 @@ linear blending lost 4 % held-out S-CIELAB on the bundled frames).
 ``srgb`` and ``lab`` tables are blended as they are (``transfer = "none"``).
 
 The blend is fitted after the L3 table by per-class ridge regression of
-``target - lp_n`` on the bands (:mod:`l3cli.train.multiscale`, which renders
+``target - lp_n`` on the bands (:mod:`l3cli.multiscale.fit`, which renders
 the training raws). It is stored in
 the table as the optional ``multiscale_*`` keys (:meth:`Multiscale.to_arrays`,
 :meth:`Multiscale.from_arrays`) and applied to every render's float output
@@ -130,7 +130,7 @@ def code_table(inverse: bool) -> tuple[np.ndarray, np.ndarray, int, int]:
 def encode(v: np.ndarray, transfer: str) -> np.ndarray:
     """The stage's coding of ``v`` (float32): for ``"srgb"`` the sRGB transfer curve
     (IEC 61966-2-1) extended to an odd function on all reals, its linear segment exact
-    and above it from :func:`code_table` (:func:`l3cli.multiscale_kernel.code_rows`);
+    and above it from :func:`code_table` (:func:`l3cli.multiscale._loops.code_rows`);
     ``v`` itself for ``"none"``."""
     v = np.asarray(v, dtype=np.float32)
     return v if transfer == "none" else _transfer(v, inverse=False)
@@ -143,7 +143,7 @@ def decode(u: np.ndarray, transfer: str) -> np.ndarray:
 
 
 def _transfer(v: np.ndarray, *, inverse: bool, out: np.ndarray | None = None) -> np.ndarray:
-    from l3cli.multiscale_kernel import code_rows
+    from l3cli.multiscale._loops import code_rows
 
     src = np.asarray(v, order="C")  # (ascontiguousarray would make a 0-d array 1-d)
     out = np.empty_like(src) if out is None else out
@@ -190,10 +190,10 @@ def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
     Borders are mirrored (``scipy.ndimage``'s ``"reflect"``), the support is
     :data:`TRUNCATE` standard deviations: ``scipy.ndimage.gaussian_filter(image,
     (sigma, sigma, 0), mode="reflect", truncate=TRUNCATE)``'s taps and order of
-    operations in float32 (:func:`l3cli.multiscale_kernel.gauss_image`; within float32
+    operations in float32 (:func:`l3cli.multiscale._loops.gauss_image`; within float32
     rounding of scipy's float64 sums, tested).
     """
-    from l3cli.multiscale_kernel import gauss_image
+    from l3cli.multiscale._loops import gauss_image
 
     img = np.ascontiguousarray(image, dtype=np.float32)
     if img.ndim != 3:
@@ -211,9 +211,9 @@ def classes(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
     ``level_cuts`` (n_levels - 1,) increasing; ``energy_cuts``
     (n_levels, n_energy - 1), increasing in each row. A value equal to a
     cut falls in the bin above it (float32 comparisons;
-    :func:`l3cli.multiscale_kernel.class_rows`, one parallel pass).
+    :func:`l3cli.multiscale._loops.class_rows`, one parallel pass).
     """
-    from l3cli.multiscale_kernel import class_rows
+    from l3cli.multiscale._loops import class_rows
 
     lev2 = np.ascontiguousarray(lev, dtype=np.float32)
     shape = lev2.shape
@@ -377,7 +377,7 @@ class Multiscale:
                    arrs["multiscale_counts"], str(transfer))
 
 
-#: Output rows of one band of :func:`l3cli.multiscale_kernel.stage_rows` (its
+#: Output rows of one band of :func:`l3cli.multiscale._loops.stage_rows` (its
 #: temporaries: the low-passes of these rows and the energy's halo).
 BAND_ROWS = 32
 
@@ -394,12 +394,12 @@ _U16 = np.zeros(1, np.uint16)
 
 
 def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, **outs) -> None:
-    """:func:`l3cli.multiscale_kernel.stage_rows` on ``u`` (H, W, C) float32 in the stage's
+    """:func:`l3cli.multiscale._loops.stage_rows` on ``u`` (H, W, C) float32 in the stage's
     coding: the pyramid of 2 x 2 block means, the coarse scales' low-resolution
     Gaussians and their upsampling along the columns first."""
     import numba
 
-    from l3cli.multiscale_kernel import half_means, stage_rows, upsample_cols
+    from l3cli.multiscale._loops import half_means, stage_rows, upsample_cols
 
     h, w, c = u.shape
     sigmas = np.asarray(sigmas, dtype=np.float64)
@@ -516,7 +516,7 @@ def feature_maps(u: np.ndarray, sigmas) -> tuple[np.ndarray, np.ndarray, np.ndar
     lev = np.empty((h, w), np.float32)
     en = np.empty((h, w), np.float32)
     if u.size:
-        from l3cli.multiscale_kernel import MODE_FEATURES
+        from l3cli.multiscale._loops import MODE_FEATURES
 
         _run(sigmas, u, MODE_FEATURES, stack=stack, coarse=coarse, lev=lev, en=en)
     return stack, coarse, lev, en
@@ -535,7 +535,7 @@ def _coded(stage: Multiscale, y: np.ndarray, inplace: bool) -> np.ndarray:
 def apply_stage(stage: Multiscale, y: np.ndarray, *, inplace: bool = False) -> np.ndarray:
     """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new
     array; ``inplace``: ``y``'s memory is used for its coding)."""
-    from l3cli.multiscale_kernel import MODE_FLOAT
+    from l3cli.multiscale._loops import MODE_FLOAT
 
     u = _coded(stage, y, inplace)
     out = np.empty_like(u)
@@ -550,7 +550,7 @@ def apply_display(stage: Multiscale, y: np.ndarray, space: str, bits: int, *,
     integers of :func:`apply_stage`'s output, row by row as it is blended: no float
     output is held). ``lab`` tables take the float output and ``display_encode``."""
     from l3cli.io.encode import display_encode, display_params
-    from l3cli.multiscale_kernel import MODE_DISPLAY
+    from l3cli.multiscale._loops import MODE_DISPLAY
 
     params = display_params(space, stage.n_out, bits)
     if params is None:

@@ -1,6 +1,6 @@
 """A lens-shading gain field as a smooth 2-D spline grid per CFA position (issue 41).
 
-The radial field of :mod:`l3cli.shading` (a polynomial in r² about one optical
+The radial field of :mod:`l3cli.lens.field` (a polynomial in r² about one optical
 centre) cannot follow colour shading whose channels fall off about different
 centres, or not radially (elliptical fall-off, a tilted lens, microlens
 shifts): on a red fall-off to 0.5 in the far corner it misses by several
@@ -8,20 +8,20 @@ percent. :class:`SplineField` gives every CFA position its own smooth surface
 over the sensor, as a DNG ``GainMap`` does per plane: a uniform cubic B-spline
 on a grid of control values (``grid[p]``, (ny + 3) x (nx + 3) for ny x nx
 intervals over the full raw), in the normalised coordinates of
-:func:`l3cli.shading.normalised_coords` (a raw of another size: the same
+:func:`l3cli.lens.field.normalised_coords` (a raw of another size: the same
 frame-relative positions, clamped at the frame's edges).
 
-Learning (:func:`fit_spline`): the block model of :mod:`l3cli.shading`,
+Learning (:func:`fit_spline`): the block model of :mod:`l3cli.lens.field`,
 ``t = M_i (g(v, u) m)`` (``m`` a block's per-channel raw means, ``t`` its
 target's linear means, ``M_i`` one 3x3 matrix per image), is bilinear in the
 matrices and the control values, so both are solved in turn, each step a
 linear least-squares solve (the control values with a small second-difference
 penalty that keeps the surface smooth where blocks are few), until the
 residual stops falling. The number of intervals is chosen by held-out error in
-:func:`l3cli.shading_fit.fit_field`.
+:func:`l3cli.lens.fit.fit_field`.
 
-This module imports nothing of l3 but the errors: :mod:`l3cli.shading` (table
-keys, gain maps) and :mod:`l3cli.shading_fit` (the choice of model) build on it.
+This module imports nothing of l3 but the errors: :mod:`l3cli.lens.field` (table
+keys, gain maps) and :mod:`l3cli.lens.fit` (the choice of model) build on it.
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ class SplineField:
         ``(height, width)`` of the training raws (the frame the grid spans).
     """
 
-    #: Not a radial field (:attr:`l3cli.shading.GainField.radial`): rendered by a pass.
+    #: Not a radial field (:attr:`l3cli.lens.field.GainField.radial`): rendered by a pass.
     radial = False
 
     grid: np.ndarray
@@ -260,7 +260,7 @@ def _matrix(z: np.ndarray, t: np.ndarray, wt: np.ndarray) -> np.ndarray:
 def fit_spline(samples: Sequence[Any], size: tuple[int, int], intervals: tuple[int, int]
                ) -> tuple[np.ndarray, float]:
     """Control values per channel (n_ch, ny + 3, nx + 3) fitted to block samples
-    (:class:`l3cli.shading_fit.BlockSamples`), and the weighted sum of squares.
+    (:class:`l3cli.lens.fit.BlockSamples`), and the weighted sum of squares.
 
     With the matrices fixed, the normal equations of the control values are
     sums over blocks that do not depend on the matrices but through ``M Mᵀ``

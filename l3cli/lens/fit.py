@@ -1,4 +1,4 @@
-"""Learning a lens-shading gain field from training pairs' blocks (:mod:`l3cli.shading`).
+"""Learning a lens-shading gain field from training pairs' blocks (:mod:`l3cli.lens.field`).
 
 The pairs are cut into blocks (:func:`block_samples`); each block's per-channel
 raw means ``m`` and its target's linear means ``t`` should follow
@@ -6,12 +6,12 @@ raw means ``m`` and its target's linear means ``t`` should follow
 each render's white balance and the field's per-channel scale). Two kinds of
 field are fitted:
 
-* radial (:class:`l3cli.shading.GainField`): a polynomial in r² per colour
+* radial (:class:`l3cli.lens.field.GainField`): a polynomial in r² per colour
   about one optical centre; the matrices are solved inside a trust-region
   least-squares fit of the coefficients and the centre (variable projection);
-* spline grid (:class:`l3cli.shading_grid.SplineField`): a smooth surface per
+* spline grid (:class:`l3cli.lens.grid.SplineField`): a smooth surface per
   colour, matrices and control values solved in turn
-  (:func:`l3cli.shading_grid.fit_spline`).
+  (:func:`l3cli.lens.grid.fit_spline`).
 
 :func:`fit_field` scores every candidate (:func:`models`) on held-out blocks
 (:func:`heldout_folds`: each image held out in turn, or the spatial folds of a
@@ -29,14 +29,14 @@ from typing import Any
 import numpy as np
 
 from l3cli.errors import TableError
-from l3cli.shading import SHADING_RULE, GainField, normalised_coords
-from l3cli.shading_grid import SPLINE_RULE, SplineField, fit_spline, frame_extent, spline_basis
+from l3cli.lens.field import SHADING_RULE, GainField, normalised_coords
+from l3cli.lens.grid import SPLINE_RULE, SplineField, fit_spline, frame_extent, spline_basis
 
 __all__ = ["BlockSamples", "block_samples", "fit_field", "models", "heldout_folds",
            "spatial_folds", "ORDERS", "SPLINE_INTERVALS"]
 
 #: Polynomial orders tried (powers of r^2 beyond the constant) and spline grids
-#: (:mod:`l3cli.shading_grid`, intervals along the sensor's longer side): the least
+#: (:mod:`l3cli.lens.grid`, intervals along the sensor's longer side): the least
 #: complex that predicts held-out blocks within CHOICE_TOLERANCE of the best is kept
 #: (:func:`fit_field`).
 ORDERS = (2, 3)

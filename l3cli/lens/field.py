@@ -6,12 +6,12 @@ else. l3's classes know a pixel's CFA phase but not where on the sensor it
 lies, so a camera whose renders are shading-corrected is learned here in two
 parts: a gain field that corrects the raw first, then the table.
 
-The gain field (:class:`GainField`, :class:`~l3cli.shading_grid.SplineField`)
+The gain field (:class:`GainField`, :class:`~l3cli.lens.grid.SplineField`)
     Per CFA position ``p``, either a polynomial in the squared radius about an
     optical centre ``(cy, cx)``: ``g_p(r) = c_p0 + c_p1 r^2 + c_p2 r^4 (+ c_p3
     r^6)``, ``r`` in normalised sensor coordinates (:func:`normalised_coords`:
     the image centre is 0, the half-diagonal is 1), or a smooth spline surface
-    over the sensor (:mod:`l3cli.shading_grid`: colour shading about different
+    over the sensor (:mod:`l3cli.lens.grid`: colour shading about different
     centres or not radial). Positions of one colour share their gains when
     learned. The gains are scaled so that their
     smallest value over the training raws' area is 1: a correction brightens
@@ -23,7 +23,7 @@ The gain field (:class:`GainField`, :class:`~l3cli.shading_grid.SplineField`)
     of another size) never lowers a pixel at or above the threshold. Either
     kind gives its gains on a lattice (``plane``) and at points (``values``):
     :func:`gain_map` (a raw's map), :func:`gains_at` (given pixels).
-Learning (:mod:`l3cli.shading_fit`, glue in :mod:`l3cli.train.shading`)
+Learning (:mod:`l3cli.lens.fit`, glue in :mod:`l3cli.lens.train`)
     From blocks of the training pairs; the model (radial order or spline grid)
     chosen by held-out error (other images, or spatial folds of one image);
     kept only where it predicts held-out blocks better than no field, so
@@ -32,11 +32,11 @@ Application (:func:`corrected`, :func:`correct_mosaic`)
     Before classification. Training multiplies the mosaic by the per-pixel
     gain map (computed once per raw size, cached); a render evaluates the
     same gains per pixel inside the tile kernel, with the raw's DNG gain maps
-    and white balance (:mod:`l3cli.gainmaps`).
+    and white balance (:mod:`l3cli.lens.gainmaps`).
 DNG ``GainMap`` opcodes
     The camera's own correction, parsed from a DNG's OpcodeList2/3 by
     :mod:`l3cli.io.dng_opcodes` and applied as the DNG SDK does by
-    :mod:`l3cli.gainmaps`.
+    :mod:`l3cli.lens.gainmaps`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ import numpy as np
 
 from l3cli.errors import TableError
 from l3cli.io.dng_opcodes import GAIN_RANGE  # the range a gain may take (the DNG SDK's)
-from l3cli.shading_grid import MAX_SIZE, SPLINE_RULE, SplineField, sensor_size
+from l3cli.lens.grid import MAX_SIZE, SPLINE_RULE, SplineField, sensor_size
 from l3cli.tablekeys import optional_group
 
 __all__ = ["SHADING_RULE", "GainField", "SplineField", "normalised_coords", "gain_map", "gains_at",
@@ -267,7 +267,7 @@ def gains_at(field: Any, ys: np.ndarray, xs: np.ndarray, shape: tuple[int, int],
 
 def field_from_arrays(arrs: dict[str, np.ndarray], n_positions: int) -> Any:
     """The gain field stored in a table's arrays (a radial :class:`GainField` or a
-    :class:`~l3cli.shading_grid.SplineField`, by ``shading_rule``), or None."""
+    :class:`~l3cli.lens.grid.SplineField`, by ``shading_rule``), or None."""
     rule = arrs.get("shading_rule")
     if rule is not None and rule.dtype.kind == "U" and rule.ndim == 0 \
             and str(rule) == SPLINE_RULE:

@@ -342,13 +342,13 @@ def training_gains(raw: Any, opts: Any) -> np.ndarray:
 
 def training_mosaic(raw: Any, opts: Any, fitted: Any = None) -> np.ndarray:
     """The mosaic training sees: shading-corrected when ``fitted.shading_field`` is set
-    (:mod:`l3cli.shading`), then normalised by the white balance when ``opts.white_balance``.
+    (:mod:`l3cli.lens.field`), then normalised by the white balance when ``opts.white_balance``.
 
     ``fitted`` is what training fitted before (:class:`l3cli.train.options.Fitted`;
     None: nothing)."""
     field = getattr(fitted, "shading_field", None)
     if field is not None:
-        from l3cli.shading import corrected_raw
+        from l3cli.lens.field import corrected_raw
 
         raw = corrected_raw(field, raw, opts.saturation)
     if not getattr(opts, "white_balance", False):

@@ -1,4 +1,4 @@
-"""The tone curve and the display encoding as one lookup (l3cli.tonecode): exact
+"""The tone curve and the display encoding as one lookup (l3cli.tone.code): exact
 thresholds for 8 bits, interpolated codes for 16."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from l3cli.io.encode import display_encode, display_params, quantise_reference
 from l3cli.kernelset import KernelSet, render_display, render_mosaic
 from l3cli.render_rows import curve_code16_row, curve_encode_row
 from l3cli.table import TransformTable
-from l3cli.tonecode import _curve_codes_np, code_table, curve_codes, interpolated_codes
-from l3cli.tonecurve import ToneCurve
+from l3cli.tone.code import _curve_codes_np, code_table, curve_codes, interpolated_codes
+from l3cli.tone.curve import ToneCurve
 
 
 def _lut(space="linear-srgb"):
@@ -131,7 +131,7 @@ def test_display_render_with_a_curve_uses_it_and_matches_the_float_render(patch,
     m = np.clip(0.2 + 0.18 * np.sin(xx / 9.0) * np.cos(yy / 7.0)
                 + rng.normal(scale=0.03, size=yy.shape), 0, 1).astype(np.float32)
     ks = KernelSet.plain(t)
-    import l3cli.tonecode as tc
+    import l3cli.tone.code as tc
 
     used = []
     real = tc.code_table_for
@@ -154,7 +154,7 @@ def test_display_render_with_a_curve_uses_it_and_matches_the_float_render(patch,
 
 def tone_curve_arrays_of(lut, lo_hi):
     """The curve arrays the tile kernel reads, from a (lut, range) pair."""
-    from l3cli.tonecurve import curve_arrays
+    from l3cli.tone.curve import curve_arrays
 
     return curve_arrays(lut, lo_hi)
 

@@ -1,4 +1,4 @@
-"""The multi-scale stage (l3cli.multiscale): fit, apply, table keys, l3 train --multiscale."""
+"""The multi-scale stage (l3cli.multiscale.stage): fit, apply, table keys, l3 train --multiscale."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import pytest
 
 from l3cli import defaults
 from l3cli.errors import TableError
-from l3cli.multiscale import TRUNCATE, Multiscale, apply_stage, feature_maps
-from l3cli.train.multiscale import MultiscaleStats, accumulate, place_cuts, solve
+from l3cli.multiscale.fit import MultiscaleStats, accumulate, place_cuts, solve
+from l3cli.multiscale.stage import TRUNCATE, Multiscale, apply_stage, feature_maps
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _gauss_taps(sigma: float) -> np.ndarray:
@@ -38,7 +38,7 @@ def test_identity_blend_returns_the_render(transfer):
 def test_srgb_coding_is_the_iec_curve_and_inverts():
     import colour
 
-    from l3cli.multiscale import decode, encode
+    from l3cli.multiscale.stage import decode, encode
 
     # the coding is a table, linear between the curve's values 512 times per octave: the
     # chord of x ** (1 / 2.4) over a step of h = x / 512 is off by at most
@@ -79,7 +79,7 @@ def test_reduced_resolution_lowpass_has_the_gaussians_variance(sigma):
     centre's offset from the delta, (f² - 1) / 12; the taps', scaled by f²; the
     interpolation's, f² / 6): sigma² less what the 3-sigma truncation of the Gaussian
     takes away."""
-    from l3cli.multiscale import factor, low_sigma
+    from l3cli.multiscale.stage import factor, low_sigma
 
     f = factor(sigma)
     assert f == {3.0: 2, 6.0: 4, 9.0: 4}[sigma]
@@ -256,7 +256,7 @@ def test_train_multiscale_flag_and_render(runner, tmp_path):
 
 
 def test_bands_of_rows_give_the_whole_image_bit_for_bit(monkeypatch):
-    import l3cli.multiscale as ms
+    import l3cli.multiscale.stage as ms
 
     rng = np.random.default_rng(4)
     y = rng.random((157, 64, 3), dtype=np.float32) * 1.1
@@ -280,7 +280,7 @@ def test_lowpass_is_scipys_gaussian_filter(shape, sigma):
     size (|values| < 3: 1e-6)."""
     from scipy.ndimage import gaussian_filter
 
-    from l3cli.multiscale import lowpass
+    from l3cli.multiscale.stage import lowpass
 
     img = np.random.default_rng(11).normal(0.3, 0.4, shape).astype(np.float32)
     want = gaussian_filter(img, sigma=(sigma, sigma, 0.0), mode="reflect", truncate=TRUNCATE)
@@ -288,14 +288,14 @@ def test_lowpass_is_scipys_gaussian_filter(shape, sigma):
     assert got.dtype == np.float32
     np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
     # the taps are the Gaussian written out here
-    from l3cli.multiscale import gauss_taps
+    from l3cli.multiscale.stage import gauss_taps
 
     taps = _gauss_taps(sigma)
     np.testing.assert_allclose(gauss_taps(sigma), taps[taps.size // 2:], rtol=1e-12)
 
 
 def test_srgb_coding_is_odd_exact_on_its_linear_segment_and_the_formula_beyond_its_table():
-    from l3cli.multiscale import CODE_TOP, decode, encode
+    from l3cli.multiscale.stage import CODE_TOP, decode, encode
 
     rng = np.random.default_rng(12)
     v = rng.normal(0, 2, 99_999).astype(np.float32)
@@ -316,7 +316,7 @@ def test_direct_display_codes_are_the_encoders_codes_of_the_decoded_blend():
     code of the decoded value: around every threshold (its neighbours to 2000 float32
     steps), and on values of all kinds."""
     from l3cli.io.encode import display_encode
-    from l3cli.multiscale import decode, direct_table
+    from l3cli.multiscale.stage import decode, direct_table
 
     cell_code, uthr = direct_table()
 
@@ -344,7 +344,7 @@ def test_fused_display_output_is_the_encoded_float_output(transfer, space, bits)
     """apply_display (the blend display-encoded row by row, or looked up straight from the
     coding) gives display_encode of apply_stage's float output, code for code."""
     from l3cli.io.encode import display_encode
-    from l3cli.multiscale import apply_display
+    from l3cli.multiscale.stage import apply_display
 
     rng = np.random.default_rng(6)
     y = (rng.random((70, 45, 3), dtype=np.float32) * 1.3 - 0.1)
@@ -374,7 +374,7 @@ def test_stage_classes_and_blend_are_the_numpy_rule():
     the output (coarse + the class's blend of the bands, in numpy, float64)."""
     from scipy.ndimage import gaussian_filter
 
-    from l3cli.multiscale import classes
+    from l3cli.multiscale.stage import classes
 
     rng = np.random.default_rng(13)
     ramp = np.linspace(0.05, 1.0, 80, dtype=np.float32)[None, :, None]  # levels vary

@@ -12,7 +12,7 @@ from l3cli.errors import ConfigError, InputError
 from l3cli.io.raw import RawImage, read_raw, write_raw
 from l3cli.render import render_raw
 from l3cli.table import load_table, save_table
-from l3cli.whitebalance import (
+from l3cli.whitebalance.model import (
     WhiteBalanceModel,
     apply_gains,
     fit_adaptation_model,

@@ -1,6 +1,6 @@
 """The white-balance adaptation model of the training shots (a training pass).
 
-The model's value and its use at render time are :mod:`l3cli.whitebalance`
+The model's value and its use at render time are :mod:`l3cli.whitebalance.model`
 (the model layer); fitting it reads the training pairs, so it is training's:
 it lives here, above the inputs (:mod:`l3cli.pairs`).
 """
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from l3cli.whitebalance import (
+from l3cli.whitebalance.model import (
     ADAPT_SPACE,
     WhiteBalanceModel,
     _key,  # the capture key training_target looks up
@@ -31,11 +31,11 @@ def fit_white_adaptation(pairs: Sequence[Any], opts: Any
     """The adaptation model of the training shots (an extra pass of training).
 
     For every training pair, the 3x3 ``F_s`` that best maps a plain demosaic
-    (:func:`~l3cli.whitebalance.quick_rgb`) of the white-balanced raw onto the target in the
-    linear :data:`~l3cli.whitebalance.ADAPT_SPACE` (valid, unsaturated pixels): what the
+    (:func:`~l3cli.whitebalance.model.quick_rgb`) of the white-balanced raw onto the target in the
+    linear :data:`~l3cli.whitebalance.model.ADAPT_SPACE` (valid, unsaturated pixels): what the
     converter did to this shot's colours, up to its spatial processing,
     which all shots share. ``F`` is modelled as linear in the white's
-    features (:func:`~l3cli.whitebalance.fit_adaptation_model`), and the adaptation of a white is
+    features (:func:`~l3cli.whitebalance.model.fit_adaptation_model`), and the adaptation of a white is
     ``A(w) = F(w) F(w_0)^-1`` relative to the mean training white ``w_0``.
     The table is then trained on the targets with ``A(w_s)`` taken out, so
     every shot teaches the same mapping; rendering applies ``A`` of the raw's

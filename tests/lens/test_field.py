@@ -1,10 +1,9 @@
-"""Lens shading (l3cli.shading): the gain field, its table keys, its application
+"""Lens shading (l3cli.lens.field): the gain field, its table keys, its application
 before classification in every render path, and its learning from pairs."""
 
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,8 @@ import pytest
 from l3cli.cfa import CFA
 from l3cli.errors import TableError
 from l3cli.io.raw import write_raw
-from l3cli.shading import GainField, corrected, gain_map, normalised_coords
-from l3cli.shading_fit import BlockSamples, fit_field
+from l3cli.lens.field import GainField, corrected, gain_map, normalised_coords
+from l3cli.lens.fit import BlockSamples, fit_field
 from l3cli.table import SHADING_VERSION, TABLE_VERSION, load_table, save_table
 from tests.builders import (
     MINIMAL,
@@ -24,8 +23,6 @@ from tests.builders import (
     uniform_scene,
     write_dng_with_opcodes,
 )
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _field(n_pos=4, size=(24, 32)):
@@ -133,7 +130,7 @@ def test_corrected_keeps_clipping_and_is_applied_once():
 def test_other_raw_size_warns(caplog):
     t = make_table()
     t.shading = _field()
-    with caplog.at_level(logging.WARNING, logger="l3cli.shading"):
+    with caplog.at_level(logging.WARNING, logger="l3cli.lens.field"):
         corrected(t, mosaic_raw(np.full((20, 30), 0.3), path="x.dng"))
     assert "x.dng: the raw is 30x20" in caplog.text and "32x24" in caplog.text
 
@@ -220,9 +217,9 @@ def test_learned_field_recovers_known_shading(tmp_path):
     """The bundled frames with a known per-channel shading on the raws (targets
     unchanged): the learned field undoes it to within 2 % rms per channel (up to each
     channel's scale, which the kernels absorb)."""
+    from l3cli.lens.train import learn_shading
     from l3cli.pairs import find_pairs
     from l3cli.train.options import TrainOptions
-    from l3cli.train.shading import learn_shading
 
     mod = shaded_examples_script()
     mod.main(tmp_path)
@@ -269,9 +266,9 @@ def test_dng_gain_map_is_applied_as_by_hand(tmp_path):
     (bilinear interpolation at pixel centres, clamped, clipped at white), to 1e-6."""
     from scipy.interpolate import RegularGridInterpolator
 
-    from l3cli.gainmaps import apply_dng_gains
     from l3cli.io.dng_opcodes import encode_gain_maps
     from l3cli.io.raw import read_raw
+    from l3cli.lens.gainmaps import apply_dng_gains
     from l3cli.render import render_file, render_mosaic, render_raw
 
     h, w = 40, 60

@@ -1,4 +1,4 @@
-"""The learned per-channel tone curve (l3cli.tonecurve) and its use in training and render."""
+"""The learned per-channel tone curve (l3cli.tone.curve) and its use in training and render."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from l3cli.errors import TableError
 from l3cli.io.image import write_image
 from l3cli.render import render_mosaic
 from l3cli.table import TransformTable, load_table, save_table
-from l3cli.tonecurve import (
+from l3cli.tone.curve import (
     ToneCurve,
     apply_curve,
     block_samples,

@@ -1,14 +1,14 @@
-"""Lens shading in training (:mod:`l3cli.shading`; ``l3 train --shading``).
+"""Lens shading in training (:mod:`l3cli.lens.field`; ``l3 train --shading``).
 
 ``l3 train`` learns the gain field from the pairs before anything else, so
 that every later step (level cut points, white adaptation, tone curve,
-statistics) sees the corrected mosaics (:func:`l3cli.whitebalance.training_mosaic`
+statistics) sees the corrected mosaics (:func:`l3cli.whitebalance.model.training_mosaic`
 applies the fitted field, :class:`l3cli.train.options.Fitted`). The field is fitted
 in the renders' linear space (sRGB decoding), or in the space of the learned tone
 curve when there is one, curve and field refitted in turn until the field's
 held-out residual stops falling (:func:`learn_shading`). The field itself (its
 model chosen by held-out blocks: other images, or spatial folds of a single image)
-is :func:`l3cli.shading_fit.fit_field`'s.
+is :func:`l3cli.lens.fit.fit_field`'s.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from l3cli.colourspace import convert, srgb_encode
+from l3cli.lens.field import GainField
+from l3cli.lens.fit import BlockSamples, block_samples, fit_field
 from l3cli.pairs import Pair, load_pair
-from l3cli.shading import GainField
-from l3cli.shading_fit import BlockSamples, block_samples, fit_field
 
 __all__ = ["pair_blocks", "fit_pairs_shading", "learn_shading"]
 
@@ -41,7 +41,7 @@ def pair_blocks(pairs: Sequence[Pair], opts, tone_model=None
     """
     from l3cli.align import ScaledAlignment
     from l3cli.train.pixels import training_pixels
-    from l3cli.whitebalance import training_mosaic, training_target
+    from l3cli.whitebalance.model import training_mosaic, training_target
 
     samples, sizes, cfa = [], set(), None
     for i, pair in enumerate(pairs):
@@ -107,7 +107,7 @@ def learn_shading(pairs: Sequence[Pair], opts) -> tuple[GainField | None, dict]:
     curve: the field once, in the sRGB decoding of the renders). The record's
     ``alternations`` lists each round's held-out residual.
     """
-    from l3cli.train.curve import fit_pairs_curve
+    from l3cli.tone.fit import fit_pairs_curve
     from l3cli.train.options import Fitted
 
     work = Fitted()

@@ -1,4 +1,4 @@
-"""Fit the multi-scale stage (:mod:`l3cli.multiscale`) of a trained table.
+"""Fit the multi-scale stage (:mod:`l3cli.multiscale.stage`) of a trained table.
 
 After the L3 table is fitted, each training raw is rendered with it (the
 library's float render, :func:`l3cli.kernelset.render_raw`: white balance,
@@ -11,7 +11,7 @@ tone curve and adaptation as ``l3 render`` does them) and split into bands;
    weight mask) and solved by ridge regression shrunk towards ``A = I``.
 
 The targets are read in the table's output space and coded as the stage
-codes the render (:func:`l3cli.multiscale.default_transfer`), so the stage
+codes the render (:func:`l3cli.multiscale.stage.default_transfer`), so the stage
 learns what the render still misses in the coding it is applied in.
 """
 
@@ -26,7 +26,7 @@ import numpy as np
 
 from l3cli import defaults
 from l3cli.errors import InputError
-from l3cli.multiscale import Multiscale, default_transfer, encode, feature_maps
+from l3cli.multiscale.stage import Multiscale, default_transfer, encode, feature_maps
 from l3cli.pairs import Pair, load_pair
 
 __all__ = ["CUT_SAMPLES", "MultiscaleStats", "accumulate", "attach_multiscale", "cut_sample",
@@ -50,7 +50,7 @@ def cut_sample(lev: np.ndarray, en: np.ndarray, mask: np.ndarray | None,
 
 def _rendered(table, pair: Pair):
     """The render of ``pair``'s raw by ``table`` (without a stage) and its target, both in
-    the stage's coding (:func:`l3cli.multiscale.default_transfer`), and the mask."""
+    the stage's coding (:func:`l3cli.multiscale.stage.default_transfer`), and the mask."""
     from l3cli.prepared import render_raw
 
     loaded = load_pair(pair, target_space=table.output_space)
