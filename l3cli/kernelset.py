@@ -50,7 +50,7 @@ import numpy as np
 from l3cli import buffers
 from l3cli.classify import MODE_DISPLAY, MODE_RENDER, check_mosaic, run_tiles
 from l3cli.classify.layout import RENDER_LANES, pack_taps
-from l3cli.errors import InputError, TableError
+from l3cli.errors import InputError
 from l3cli.table import TransformTable
 
 if TYPE_CHECKING:
@@ -58,7 +58,7 @@ if TYPE_CHECKING:
     from l3cli.io.raw import RawImage
     from l3cli.lens.gainmaps import MosaicGains
 
-__all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "check_fits", "linear_adaptation",
+__all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "linear_adaptation",
            "pack_kernels", "prepare_kernels", "render_display", "render_mosaic",
            "tone_curve_arrays"]
 
@@ -310,25 +310,6 @@ def _prepare(table: TransformTable, raw: RawImage | None, white_balance: np.ndar
         post = None
     return KernelSet(table.definition, pack_kernels(kernels), table.n_out, table.output_space,
                      curve, post, adapt, gmap, float(table.definition.saturation_threshold))
-
-
-def check_fits(table: TransformTable, raw: RawImage, *, table_name: str = "table") -> None:
-    """Raise :class:`TableError` when ``table`` cannot render ``raw``.
-
-    The table's CFA (with its phase) must equal the raw's, and the raw must be
-    at least one patch and one CFA period large; the message names both.
-    """
-    name = getattr(raw, "path", None) or "raw"
-    if raw.cfa.spec != table.cfa.spec:
-        raise TableError(
-            f"{table_name} is for CFA {table.cfa.spec} but {name} has CFA {raw.cfa.spec}"
-        )
-    h, w = raw.mosaic.shape
-    s = table.patch
-    if h < max(s, table.cfa.period[0]) or w < max(s, table.cfa.period[1]):
-        raise TableError(
-            f"{table_name} uses {s}x{s} patches but {name} is only {w}x{h} pixels"
-        )
 
 
 def _kernel_set(table: TransformTable | KernelSet) -> KernelSet:

@@ -201,12 +201,12 @@ def warm_up(table: Any, out_path: str | os.PathLike | None = None) -> None:
     function for float (EXR) and display (TIFF/PNG/JPEG) outputs, with or
     without a kernel set's post matrix.
     """
-    from l3cli.io.image import format_of
-    from l3cli.prepared import bits_of, plain
+    from l3cli.io.image import display_bits, format_of
+    from l3cli.prepared import plain
 
     s = max(table.patch, *table.cfa.period) * 2
     tiny = np.zeros((s, s), dtype=np.float32)
-    bits = None if out_path is None else bits_of(format_of(out_path))
+    bits = None if out_path is None else display_bits(format_of(out_path))
     with _RENDER_LOCK:  # the multi-scale stage's loops too
         plain(table, tiny, stage=True).render(bits)
 
@@ -229,10 +229,10 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     ``turn`` is held around the render stage (the pipeline's
     :meth:`RenderTurns.turn`).
     """
-    from l3cli.io.image import format_of, write_image
+    from l3cli.io.image import display_bits, format_of, write_image
     from l3cli.io.metadata import exif_attributes
     from l3cli.io.raw import read_raw
-    from l3cli.prepared import bits_of, prepare
+    from l3cli.prepared import prepare
 
     fmt = format_of(out_path)
     t0 = time.perf_counter()
@@ -247,7 +247,7 @@ def render_one(table: Any, table_name: str, raw_path: str | os.PathLike,
     mosaic = prepared.mosaic
     t1 = time.perf_counter()
     with turn if turn is not None else contextlib.nullcontext():
-        img = prepared.render(bits_of(fmt), lock=_RENDER_LOCK)
+        img = prepared.render(display_bits(fmt), lock=_RENDER_LOCK)
     del prepared
     t2 = time.perf_counter()
     decoded = raw.mosaic

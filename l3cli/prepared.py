@@ -44,30 +44,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from l3cli import buffers
-from l3cli.kernelset import (
-    KernelSet,
-    check_fits,
-    prepare_kernels,
-    render_display,
-    render_mosaic,
-)
+from l3cli.errors import TableError
+from l3cli.kernelset import KernelSet, prepare_kernels, render_display, render_mosaic
 
 if TYPE_CHECKING:
     from l3cli.io.raw import RawImage
     from l3cli.multiscale.stage import Multiscale
     from l3cli.table import TransformTable
 
-__all__ = ["Prepared", "bits_of", "plain", "prepare", "render_raw"]
-
-#: Display bits of each output format (None: float32).
-_BITS = {"exr": None, "tiff": 16, "png": 8, "jpg": 8}
-
-
-def bits_of(fmt: str) -> int | None:
-    """The render's bits for an output format (:func:`l3cli.io.image.format_of`):
-    None (float32) for EXR, 16 for TIFF, 8 for PNG and JPEG."""
-    return _BITS[fmt]
-
+__all__ = ["Prepared", "check_fits", "plain", "prepare", "render_raw"]
 
 @dataclasses.dataclass(frozen=True)
 class Prepared:
@@ -122,6 +107,25 @@ class Prepared:
             with held:
                 return render_mosaic(ks, self.mosaic)
         return render_display(ks, self.mosaic, bits, render_lock=lock)
+
+
+def check_fits(table: TransformTable, raw: RawImage, *, table_name: str = "table") -> None:
+    """Raise :class:`TableError` when ``table`` cannot render ``raw``.
+
+    The table's CFA (with its phase) must equal the raw's, and the raw must be
+    at least one patch and one CFA period large; the message names both.
+    """
+    name = getattr(raw, "path", None) or "raw"
+    if raw.cfa.spec != table.cfa.spec:
+        raise TableError(
+            f"{table_name} is for CFA {table.cfa.spec} but {name} has CFA {raw.cfa.spec}"
+        )
+    h, w = raw.mosaic.shape
+    s = table.patch
+    if h < max(s, table.cfa.period[0]) or w < max(s, table.cfa.period[1]):
+        raise TableError(
+            f"{table_name} uses {s}x{s} patches but {name} is only {w}x{h} pixels"
+        )
 
 
 def prepare(table: TransformTable, raw: RawImage, *, white_balance: np.ndarray | None = None,

@@ -36,7 +36,6 @@ from l3cli.errors import InputError
 from l3cli.kernelset import (
     DISPLAY_BAND_PIXELS,
     KernelSet,
-    check_fits,
     pack_kernels,
     prepare_kernels,
     render_display,
@@ -44,7 +43,7 @@ from l3cli.kernelset import (
     tone_curve_arrays,
 )
 from l3cli.pipeline import render_one, render_pipeline
-from l3cli.prepared import Prepared, prepare, render_raw
+from l3cli.prepared import Prepared, check_fits, prepare, render_raw
 from l3cli.table import TransformTable
 
 __all__ = ["DISPLAY_BAND_PIXELS", "KernelSet", "Prepared", "check_fits", "check_white_balance",

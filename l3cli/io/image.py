@@ -36,7 +36,7 @@ from l3cli.errors import InputError, OutputError
 from l3cli.io import fd2
 from l3cli.io.atomic import atomic_path, check_free_space
 
-__all__ = ["read_image", "write_image", "IMAGE_FORMATS", "format_of", "COMPRESSIONS",
+__all__ = ["read_image", "write_image", "IMAGE_FORMATS", "display_bits", "format_of", "COMPRESSIONS",
            "DEFAULT_COMPRESSION"]
 
 #: Output formats by name → file suffix.
@@ -53,6 +53,10 @@ _SUFFIX_FORMAT = {".exr": "exr", ".tif": "tiff", ".tiff": "tiff", ".png": "png",
                   ".jpeg": "jpg"}
 
 
+#: Display bits each output format holds (None: float32).
+_FORMAT_BITS = {"exr": None, "tiff": 16, "png": 8, "jpg": 8}
+
+
 def format_of(path: str | os.PathLike) -> str:
     """The image format name of a path by its suffix (``exr``, ``tiff``, ``png``, ``jpg``)."""
     suffix = Path(path).suffix.lower()
@@ -62,6 +66,12 @@ def format_of(path: str | os.PathLike) -> str:
             f"{', '.join(sorted(_SUFFIX_FORMAT))}"
         )
     return _SUFFIX_FORMAT[suffix]
+
+
+def display_bits(fmt: str) -> int | None:
+    """The bits of a render for an output format (:func:`format_of`): None (float32)
+    for EXR, 16 for TIFF, 8 for PNG and JPEG."""
+    return _FORMAT_BITS[fmt]
 
 
 def read_image(path: str | os.PathLike) -> tuple[np.ndarray, str]:
