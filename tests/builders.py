@@ -39,11 +39,12 @@ H, W = 128, 160
 
 
 def mosaic_dn(lin: np.ndarray, spec: str, white: int) -> np.ndarray:
-
+    """The CFA samples of a linear RGB image (its own size) as integers up to ``white``."""
     c = CFA.from_spec(spec)
     chan = np.array([["RGB".index(n) for n in row] for row in c.pattern])
-    reps = (H // 2, W // 2)
-    idx = np.tile(chan, reps)
+    h, w = lin.shape[:2]
+    ph, pw = chan.shape
+    idx = np.tile(chan, (-(-h // ph), -(-w // pw)))[:h, :w]
     m = np.take_along_axis(lin, idx[:, :, None], axis=2)[:, :, 0]
     return np.round(m * white).astype(np.uint16)
 

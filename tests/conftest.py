@@ -64,3 +64,23 @@ def pairs_dir(tmp_path: Path) -> Path:
     # RawTherapee-like: raw minus 4 pixels each side, 16-bit TIFF
     write_image(d / "b.tif", srgb_encode(lin_b)[4:-4, 4:-4], space="srgb")
     return d
+
+
+@pytest.fixture(scope="session")
+def cluster():
+    """Address of a two-worker local dask cluster (one thread each), shared by the tests
+    of one pytest process that reach it with ``--scheduler`` / ``scheduler=``."""
+    import logging
+
+    from distributed import LocalCluster
+
+    # this scheduler lives in the test process, where the CLI's log handler is:
+    # keep its INFO chatter (it outlives each command's client) out of the output
+    dlog = logging.getLogger("distributed")
+    old = dlog.level
+    dlog.setLevel(logging.ERROR)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=":0", silence_logs=logging.ERROR,
+                      env={"NUMBA_NUM_THREADS": "1"}) as c:
+        yield c.scheduler_address
+    dlog.setLevel(old)

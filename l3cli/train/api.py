@@ -330,8 +330,10 @@ def _train_pairs(pairs: list[Pair], request: TrainRequest, *, workers, scheduler
 
             grid = request.tune_grid or TuneGrid()
             values = {**dataclasses.asdict(opts), "multiscale": request.multiscale}
-            grid = grid.fixed(**{k: values[k] for k in TuneGrid.OPTIONS
-                                 if getattr(request, k) is not None})
+            given = {k for k in TuneGrid.OPTIONS if getattr(request, k) is not None}
+            if request.tone_curve:  # the curve is the space of its candidates: held too
+                given.add("target_space")
+            grid = grid.fixed(**{k: values[k] for k in given})
             try:
                 table = run_tune(pairs, opts, grid, show_progress=show_progress,
                                  report=report, client=client).table

@@ -8,7 +8,6 @@ with one worker, as on a small machine.
 from __future__ import annotations
 
 import json
-import logging
 import os
 from pathlib import Path
 
@@ -59,23 +58,6 @@ def ran_on(address: str, task: str) -> bool:
 
     with Client(address, timeout="5s") as c:
         return c.run_on_scheduler(lambda dask_scheduler: task in dask_scheduler.task_prefixes)
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    """Address of a two-worker local dask cluster (one thread each)."""
-    from distributed import LocalCluster
-
-    # this scheduler lives in the test process, where the CLI's log handler is:
-    # keep its INFO chatter (it outlives each command's client) out of the output
-    dlog = logging.getLogger("distributed")
-    old = dlog.level
-    dlog.setLevel(logging.ERROR)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=":0", silence_logs=logging.ERROR,
-                      env={"NUMBA_NUM_THREADS": "1"}) as c:
-        yield c.scheduler_address
-    dlog.setLevel(old)
 
 
 @pytest.fixture(scope="module")
