@@ -167,7 +167,10 @@ def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: f
     """:func:`l3cli.shading.correct_mosaic` of (N, 1, H, W) ``mosaic`` by the table's gain
     field, evaluated in the graph (float64, as :func:`l3cli.shading.gain_map`) on the raw
     that int64 (4,) ``frame`` places the mosaic on: ``(full height, full width, top,
-    left)``, or zeros for the mosaic itself (the table's CFA positions are the full raw's)."""
+    left)``, or zeros for the mosaic itself (the table's CFA positions are the full raw's).
+    A radial field (:class:`l3cli.shading.GainField`) is its polynomial in r² by Horner, a
+    spline grid (:class:`l3cli.shading_grid.SplineField`) its tensor B-spline
+    (:func:`_spline_gain`)."""
     i64 = np.int64
     ph, pw = period
     hw = g.dims(mosaic)
@@ -177,26 +180,20 @@ def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: f
     size = g.cast(full, F64)
     half = g.op("Mul", g.const(0.5), g.op("Sqrt", g.op("ReduceSum", g.op("Mul", size, size),
                                                       keepdims=0)))
-    cy, cx = (float(v) for v in field.centre)
-    coords, phase = [], []
-    for axis, (c, p) in enumerate(((cy, ph), (cx, pw))):
+    coords, phase = [], []  # per axis: normalised coordinates and CFA phases (full raw's)
+    for axis, p in enumerate((ph, pw)):
         first = g.op("Squeeze", g.slice(origin, [axis], [axis + 1], [0]), g.const([0], i64))
         n = g.op("Squeeze", g.slice(hw, [axis], [axis + 1], [0]), g.const([0], i64))
         k = g.op("Range", first, g.op("Add", first, n), g.const(1, i64))  # full-raw index
         edge = g.op("Mul", g.const(0.5), g.op("Squeeze", g.slice(size, [axis], [axis + 1], [0]),
                                               g.const([0], i64)))
-        v = g.op("Div", g.op("Sub", g.op("Add", g.cast(k, F64), g.const(0.5)), edge), half)
-        d = g.op("Sub", v, g.const(c))
-        shape = [-1, 1] if axis == 0 else [1, -1]
-        coords.append(g.op("Reshape", g.op("Mul", d, d), g.const(shape, i64)))
-        phase.append(g.op("Reshape", g.op("Mod", k, g.const(p, i64)), g.const(shape, i64)))
-    r2 = g.op("Add", *coords)  # float64 (H, W)
-    pos = g.op("Add", g.op("Mul", phase[0], g.const(pw, i64)), phase[1])  # (H, W)
-    coeffs = field.coeffs
-    gain = None
-    for j in range(coeffs.shape[1] - 1, -1, -1):  # Horner, as GainField.gains
-        c = g.op("Gather", g.const(coeffs[:, j].copy()), pos, axis=0)
-        gain = c if gain is None else g.op("Add", g.op("Mul", gain, r2), c)
+        coords.append(g.op("Div", g.op("Sub", g.op("Add", g.cast(k, F64), g.const(0.5)), edge),
+                           half))  # l3cli.shading.normalised_coords
+        phase.append(g.op("Mod", k, g.const(p, i64)))
+    if field.radial:
+        gain = _radial_gain(g, field, coords, phase, pw)
+    else:
+        gain = _spline_gain(g, field, coords, phase, period)
     gain = g.op("Unsqueeze", g.cast(gain, F32), g.const([0, 1], i64))  # (1, 1, H, W)
     one = g.const(np.float32(1.0))
     prod = g.op("Mul", mosaic, gain)
@@ -206,3 +203,77 @@ def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: f
     mixed = g.op("Where", keep, prod, mosaic)  # a gain below one spares saturated pixels
     up = g.op("GreaterOrEqual", g.op("ReduceMin", gain, keepdims=0), one)
     return g.op("Where", up, brighten, mixed)
+
+
+def _radial_gain(g: Graph, field, coords: list[str], phase: list[str], pw: int) -> str:
+    """float64 (H, W): :meth:`l3cli.shading.GainField.plane` of each pixel's position."""
+    i64 = np.int64
+    cy, cx = (float(v) for v in field.centre)
+    sq, ph_ = [], []
+    for axis, (v, c) in enumerate(zip(coords, (cy, cx), strict=True)):
+        shape = [-1, 1] if axis == 0 else [1, -1]
+        d = g.op("Sub", v, g.const(c))
+        sq.append(g.op("Reshape", g.op("Mul", d, d), g.const(shape, i64)))
+        ph_.append(g.op("Reshape", phase[axis], g.const(shape, i64)))
+    r2 = g.op("Add", *sq)  # float64 (H, W)
+    pos = g.op("Add", g.op("Mul", ph_[0], g.const(pw, i64)), ph_[1])  # (H, W)
+    coeffs = field.coeffs
+    gain = None
+    for j in range(coeffs.shape[1] - 1, -1, -1):  # Horner, as GainField.gains
+        c = g.op("Gather", g.const(coeffs[:, j].copy()), pos, axis=0)
+        gain = c if gain is None else g.op("Add", g.op("Mul", gain, r2), c)
+    return gain
+
+
+def _bspline_matrix(g: Graph, x: str, lo: float, hi: float, n: int) -> str:
+    """float64 (len, n + 3): :func:`l3cli.shading_grid.bspline_matrix` of the float64 (len,)
+    ``x`` (each row's four weights put in place by comparisons: the other entries are
+    exact zeros)."""
+    i64 = np.int64
+    s = g.op("Mul", g.op("Div", g.op("Sub", g.op("Clip", x, g.const(lo), g.const(hi)),
+                                     g.const(lo)), g.const(hi - lo)), g.const(float(n)))
+    i = g.op("Min", g.cast(g.op("Floor", s), I64), g.const(n - 1, i64))
+    f = g.op("Sub", s, g.cast(i, F64))
+    f2 = g.op("Mul", f, f)
+    f3 = g.op("Mul", f2, f)
+    e = g.op("Sub", g.const(1.0), f)
+    c = g.const
+    w = [g.op("Mul", g.op("Mul", e, e), e),  # (1 - f)^3, ...
+         g.op("Add", g.op("Sub", g.op("Mul", c(3.0), f3), g.op("Mul", c(6.0), f2)), c(4.0)),
+         g.op("Add", g.op("Add", g.op("Add", g.op("Mul", c(-3.0), f3), g.op("Mul", c(3.0), f2)),
+                             g.op("Mul", c(3.0), f)), c(1.0)),
+         f3]
+    w = g.op("Div", g.op("Concat", *(g.op("Unsqueeze", v, c([1], i64)) for v in w), axis=1),
+             c(6.0))  # (len, 4)
+    first = g.op("Add", g.op("Unsqueeze", i, c([1], i64)), c(np.arange(4, dtype=i64)))
+    hit = g.op("Equal", g.op("Unsqueeze", first, c([2], i64)),
+               c(np.arange(n + 3, dtype=i64).reshape(1, 1, -1)))  # (len, 4, n + 3)
+    placed = g.op("Where", hit, g.op("Unsqueeze", w, c([2], i64)), c(0.0))
+    return g.op("ReduceSum", placed, c([1], i64), keepdims=0)
+
+
+def _spline_gain(g: Graph, field, coords: list[str], phase: list[str],
+                 period: tuple[int, int]) -> str:
+    """float64 (H, W): :meth:`l3cli.shading_grid.SplineField.plane` of each pixel's
+    position, as two ``MatMul``s: the rows' basis (zero outside the row's CFA phase) times
+    the control values of every position side by side, then times the columns' basis
+    (zero outside the column's phase). Each pixel's sums hold the terms of its own
+    position and exact zeros, in l3's association (rows first)."""
+    from l3cli.shading_grid import frame_extent
+
+    i64 = np.int64
+    ph, pw = period
+    ny, nx = field.intervals
+    ext = frame_extent(*field.size)
+    grid = field.grid.reshape(ph, pw, ny + 3, nx + 3).transpose(0, 2, 1, 3)
+    masked = []
+    for axis, (p, n) in enumerate(((ph, ny), (pw, nx))):
+        basis = _bspline_matrix(g, coords[axis], -ext[axis], ext[axis], n)  # (len, n + 3)
+        tiled = g.op("Tile", basis, g.const([1, p], i64))  # (len, p (n + 3))
+        own = g.op("Equal", g.op("Unsqueeze", phase[axis], g.const([1], i64)),
+                   g.const(np.repeat(np.arange(p, dtype=i64), n + 3)[None]))
+        masked.append(g.op("Where", own, tiled, g.const(0.0)))
+    rows = g.op("MatMul", masked[0],
+                g.const(np.ascontiguousarray(grid.reshape(ph * (ny + 3), pw * (nx + 3))),
+                        hint="shading_grid"))  # (H, pw (nx + 3))
+    return g.op("MatMul", rows, g.op("Transpose", masked[1], perm=[1, 0]))
