@@ -59,46 +59,42 @@ def condition_kernels(g: Graph, table, value: str) -> str:
     return g.cast(k, F32)
 
 
-def kernel_parts(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int
-                 ) -> tuple[str, str]:
-    """The per-class kernels (n_classes, q, n_out), a table's array or a graph tensor, as
-    the two tensors :func:`affine` gathers rows of: the taps (n_classes, n_out * patch²),
-    each output's row of taps in the patch's row-major order, and the constant terms
-    (n_classes, n_out)."""
-    q = patch * patch
+def kernel_parts(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int) -> str:
+    """The per-class kernels (n_classes, q + 1, n_out), a table's array or a graph tensor,
+    as the tensor :func:`affine` gathers rows of: (n_classes, n_out * (q + 1)), each
+    output's taps in the patch's row-major order followed by its constant term."""
+    q1 = patch * patch + 1
     if isinstance(kernels, np.ndarray):
-        taps = np.ascontiguousarray(kernels[:, :q, :].transpose(0, 2, 1))
-        return (g.const(taps.reshape(kernels.shape[0], n_out * q), hint="kernel_taps"),
-                g.const(np.ascontiguousarray(kernels[:, q, :]), hint="kernel_bias"))
-    i64 = np.int64
-    taps = g.op("Transpose", g.slice(kernels, [0], [q], [1]), perm=[0, 2, 1])
-    taps = g.op("Reshape", taps, g.const([0, n_out * q], i64))
-    bias = g.op("Squeeze", g.slice(kernels, [q], [q + 1], [1]), g.const([1], i64))
-    return taps, bias
+        rows = np.ascontiguousarray(kernels.transpose(0, 2, 1)).reshape(kernels.shape[0],
+                                                                        n_out * q1)
+        return g.const(rows, hint="kernel_rows")
+    rows = g.op("Transpose", kernels, perm=[0, 2, 1])
+    return g.op("Reshape", rows, g.const([0, n_out * q1], np.int64))
 
 
-def affine(g: Graph, padded: str, classes: str, taps: str, bias: str, patch: int,
-           n_out: int) -> str:
+def affine(g: Graph, padded: str, classes: str, coefs: str, patch: int, n_out: int) -> str:
     """The affine kernel of each pixel's class on its patch: float32 (N, n_out, h, w).
 
     ``padded`` (N, 1, h + 2r, w + 2r) holds the patches of the (N, 1, h, w) int64
-    ``classes``; ``taps`` and ``bias`` are :func:`kernel_parts`. Each pixel's row of
-    coefficients is one ``Gather`` (a contiguous row per pixel), its patch a row of
-    the taps' shifted views, and their products one batched ``MatMul`` of
-    (n_out, q) by (q, 1) per pixel: pixel-major, so that no per-tap plane of the
-    whole band is gathered element by element.
+    ``classes``; ``coefs`` is :func:`kernel_parts`. Each pixel's row of coefficients
+    (its outputs' taps and constant terms) is one ``Gather`` (a contiguous row per
+    pixel), its patch a row of the taps' shifted views and a one, and their products
+    one batched ``MatMul`` of (n_out, q + 1) by (q + 1, 1) per pixel: pixel-major, so
+    that no per-tap plane of the whole band is gathered element by element, and the
+    constant term is added in the same product (no second ``Gather`` and ``Add``).
     """
     i64 = np.int64
     s = patch
     cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, h, w)
     rows = [g.window(padded, dy, s, 2) for dy in range(s)]
     views = [g.window(row, dx, s, 3) for row in rows for dx in range(s)]
-    pat = g.op("Transpose", g.op("Concat", *views, axis=1), perm=[0, 2, 3, 1])  # (N, h, w, q)
-    pat = g.op("Unsqueeze", pat, g.const([4], i64))  # (N, h, w, q, 1)
-    coef = g.op("Reshape", g.op("Gather", taps, cls, axis=0),
-                g.const([0, 0, 0, n_out, s * s], i64))  # (N, h, w, n_out, q)
+    ones = g.op("Expand", g.const(np.float32(1.0)), g.op("Shape", views[0]))
+    pat = g.op("Transpose", g.op("Concat", *views, ones, axis=1),
+               perm=[0, 2, 3, 1])  # (N, h, w, q + 1)
+    pat = g.op("Unsqueeze", pat, g.const([4], i64))  # (N, h, w, q + 1, 1)
+    coef = g.op("Reshape", g.op("Gather", coefs, cls, axis=0),
+                g.const([0, 0, 0, n_out, s * s + 1], i64))  # (N, h, w, n_out, q + 1)
     out = g.op("Squeeze", g.op("MatMul", coef, pat), g.const([4], i64))  # (N, h, w, n_out)
-    out = g.op("Add", out, g.op("Gather", bias, cls, axis=0))
     return g.op("Transpose", out, perm=[0, 3, 1, 2])
 
 
