@@ -230,7 +230,11 @@ def band_classes(g: Graph, d: ClassDefinition, padded: str, maps: Patterns,
     ncc = d.n_contrast - 1
     cbin = None
     for j in range(ncc):
-        th = g.op("Gather", g.const(t.ccuts[:, j].copy()), lbin, axis=0)
+        cut = t.ccuts[:, j]
+        if np.all(cut == cut[0]):  # the same threshold at every level (the defaults')
+            th = g.const(np.float32(cut[0]))
+        else:
+            th = g.op("Gather", g.const(cut.copy()), lbin, axis=0)
         hit = g.cast(g.op("GreaterOrEqual", contrast, th), I64)
         cbin = hit if cbin is None else g.op("Add", cbin, hit)
     group = maps(d.position_group[positions], dtype=np.int64)

@@ -59,42 +59,64 @@ def condition_kernels(g: Graph, table, value: str) -> str:
     return g.cast(k, F32)
 
 
-def kernel_parts(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int) -> str:
+def kernel_parts(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int
+                 ) -> tuple[str, str]:
     """The per-class kernels (n_classes, q + 1, n_out), a table's array or a graph tensor,
-    as the tensor :func:`affine` gathers rows of: (n_classes, n_out * (q + 1)), each
-    output's taps in the patch's row-major order followed by its constant term."""
-    q1 = patch * patch + 1
+    as the two tensors :func:`affine` gathers rows of: the taps (n_classes, n_out * q),
+    each output's taps column by column (``dx`` major, ``dy`` minor: the order in which
+    :func:`affine` gathers a patch), and the constant terms (n_classes, n_out)."""
+    s, q = patch, patch * patch
     if isinstance(kernels, np.ndarray):
-        rows = np.ascontiguousarray(kernels.transpose(0, 2, 1)).reshape(kernels.shape[0],
-                                                                        n_out * q1)
-        return g.const(rows, hint="kernel_rows")
-    rows = g.op("Transpose", kernels, perm=[0, 2, 1])
-    return g.op("Reshape", rows, g.const([0, n_out * q1], np.int64))
+        n = kernels.shape[0]
+        taps = kernels[:, :q, :].reshape(n, s, s, n_out).transpose(0, 3, 2, 1)
+        return (g.const(np.ascontiguousarray(taps).reshape(n, n_out * q), hint="kernel_taps"),
+                g.const(np.ascontiguousarray(kernels[:, q, :]), hint="kernel_bias"))
+    i64 = np.int64
+    taps = g.op("Reshape", g.slice(kernels, [0], [q], [1]), g.const([0, s, s, n_out], i64))
+    taps = g.op("Reshape", g.op("Transpose", taps, perm=[0, 3, 2, 1]),
+                g.const([0, n_out * q], i64))
+    bias = g.op("Squeeze", g.slice(kernels, [q], [q + 1], [1]), g.const([1], i64))
+    return taps, bias
 
 
-def affine(g: Graph, padded: str, classes: str, coefs: str, patch: int, n_out: int) -> str:
+def _offsets(g: Graph, like: str, axis: int, span: int) -> str:
+    """int64 (n, span): ``i + d`` for ``i`` below the size of ``like`` along ``axis`` and
+    ``d`` below ``span`` (a window's indices into the padded rows or columns)."""
+    i64 = np.int64
+    n = g.op("Squeeze", g.slice(g.op("Shape", like), [axis], [axis + 1], [0]),
+             g.const([0], i64))
+    i = g.op("Range", g.const(0, i64), n, g.const(1, i64))
+    return g.op("Add", g.op("Unsqueeze", i, g.const([1], i64)),
+                g.const(np.arange(span, dtype=i64)[None]))
+
+
+def affine(g: Graph, padded: str, classes: str, taps: str, bias: str, patch: int,
+           n_out: int) -> str:
     """The affine kernel of each pixel's class on its patch: float32 (N, n_out, h, w).
 
     ``padded`` (N, 1, h + 2r, w + 2r) holds the patches of the (N, 1, h, w) int64
-    ``classes``; ``coefs`` is :func:`kernel_parts`. Each pixel's row of coefficients
-    (its outputs' taps and constant terms) is one ``Gather`` (a contiguous row per
-    pixel), its patch a row of the taps' shifted views and a one, and their products
-    one batched ``MatMul`` of (n_out, q + 1) by (q + 1, 1) per pixel: pixel-major, so
-    that no per-tap plane of the whole band is gathered element by element, and the
-    constant term is added in the same product (no second ``Gather`` and ``Add``).
+    ``classes``; ``taps`` and ``bias`` are :func:`kernel_parts`. Each pixel's patch is
+    gathered as a row (N, h, w, q) in three copies: the S padded rows of each output
+    row (a ``Gather`` of whole rows), those turned to put each column's S values side by
+    side (a ``Transpose`` of S values a pixel), and the S columns of each pixel (a
+    ``Gather`` of S-value blocks): column-major, as :func:`kernel_parts` orders the
+    taps. Each pixel's row of coefficients is one ``Gather`` (a contiguous row per
+    pixel), and their products one batched ``MatMul`` of (n_out, q) by (q, 1) per pixel:
+    pixel-major, so that no per-tap plane of the whole band is gathered element by
+    element.
     """
     i64 = np.int64
-    s = patch
+    s, q = patch, patch * patch
     cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, h, w)
-    rows = [g.window(padded, dy, s, 2) for dy in range(s)]
-    views = [g.window(row, dx, s, 3) for row in rows for dx in range(s)]
-    ones = g.op("Expand", g.const(np.float32(1.0)), g.op("Shape", views[0]))
-    pat = g.op("Transpose", g.op("Concat", *views, ones, axis=1),
-               perm=[0, 2, 3, 1])  # (N, h, w, q + 1)
-    pat = g.op("Unsqueeze", pat, g.const([4], i64))  # (N, h, w, q + 1, 1)
-    coef = g.op("Reshape", g.op("Gather", coefs, cls, axis=0),
-                g.const([0, 0, 0, n_out, s * s + 1], i64))  # (N, h, w, n_out, q + 1)
+    rows = g.op("Gather", padded, _offsets(g, classes, 2, s), axis=2)  # (N, 1, h, S, w + 2r)
+    cols = g.op("Transpose", rows, perm=[0, 1, 2, 4, 3])  # (N, 1, h, w + 2r, S)
+    pat = g.op("Gather", cols, _offsets(g, classes, 3, s), axis=3)  # (N, 1, h, w, S, S)
+    pat = g.op("Reshape", g.op("Squeeze", pat, g.const([1], i64)),
+               g.const([0, 0, 0, q, 1], i64))  # (N, h, w, q, 1)
+    coef = g.op("Reshape", g.op("Gather", taps, cls, axis=0),
+                g.const([0, 0, 0, n_out, q], i64))  # (N, h, w, n_out, q)
     out = g.op("Squeeze", g.op("MatMul", coef, pat), g.const([4], i64))  # (N, h, w, n_out)
+    out = g.op("Add", out, g.op("Gather", bias, cls, axis=0))
     return g.op("Transpose", out, perm=[0, 3, 1, 2])
 
 

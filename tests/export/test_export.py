@@ -128,6 +128,8 @@ FEATURES = {  # name: table keywords
     "plain": dict(space="xyz"),
     "patch7-contrast3": dict(patch=7),
     "1-contrast-bin": dict(contrast_cuts=None),
+    "per-level-contrast": dict(contrast_cuts=np.stack([np.linspace(0.05, 0.2, 8),
+                                                       np.linspace(0.2, 0.5, 8)], axis=1)),
     "no-merge": dict(merge_positions=False),
     "4x4-cfa": dict(spec="RGBW/GWRB/BRWG/WBGR", space="xyz"),
     "3x2-cfa": dict(spec="RGB/GBR", patch=3),
