@@ -12,7 +12,8 @@ convolution sums in the runtime's own order, and a last-bit difference in a
 level or contrast moves pixels near a cut point into the neighbouring class.
 Sums of 0/1 indicators (saturated pixels per patch) are exact in any order and
 use ``Conv``; whether a patch holds a saturated pixel of a channel is a
-``MaxPool`` along the rows then down the columns.
+``MaxPool`` along the rows then down the columns, skipped (an ``If``) in a
+band without a saturated pixel.
 
 Bins: the level bin is the number of level cuts at or below the level
 (one broadcast comparison with every float32 cut, summed, which equals the
@@ -54,6 +55,30 @@ def _search(g: Graph, value: str, cuts: np.ndarray) -> str:
                g.op("Unsqueeze", value, g.const([0], np.int64)))  # (n, N, 1, h, w)
     count = g.op("ReduceSum", g.cast(hit, F32), g.const([0], np.int64), keepdims=0)
     return g.cast(count, I64)
+
+
+def _saturation(g: Graph, saturated_f: str, masks: list[str], s: int, like: str) -> str:
+    """int64 (N, 1, h, w): bit ``c`` set where the patch holds a saturated channel-``c``
+    pixel (``saturated_f`` the padded band's 0/1 saturated pixels, ``masks`` each
+    channel's 0/1 positions). Each channel's patch maximum is a ``MaxPool`` along the
+    rows then down the columns (a maximum is exact in any order); a band without a
+    saturated pixel skips them (an ``If``: zeros of the shape of ``like``)."""
+    def pooled(b: Graph) -> str:
+        sat = None
+        for c, mask in enumerate(masks):
+            hit = b.op("Mul", saturated_f, mask)
+            anyc = b.op("MaxPool", b.op("MaxPool", hit, kernel_shape=[1, s]),
+                        kernel_shape=[s, 1])
+            bit = b.op("Mul", b.cast(anyc, I64), b.const(1 << c, np.int64))
+            sat = bit if sat is None else b.op("Add", sat, bit)
+        return sat
+
+    def none(b: Graph) -> str:
+        return b.op("Expand", b.const(np.int64(0)), b.op("Shape", like))
+
+    any_sat = g.op("Greater", g.op("ReduceMax", saturated_f, keepdims=0),
+                   g.const(np.float32(0.0)))
+    return g.if_else(any_sat, pooled, none, I64)
 
 
 def _orientation(g: Graph, d: ClassDefinition, padded: str) -> str:
@@ -203,7 +228,7 @@ def band_classes(g: Graph, d: ClassDefinition, padded: str, maps: Patterns,
     lev = spr = None
     saturated = g.op("GreaterOrEqual", padded, g.const(t.sat_thr))
     saturated_f = g.cast(saturated, F32)
-    sat = None
+    masks = []
     for c in range(nch):
         mask = maps((shifted == c).astype(f32), padded=True)
         u = g.op("Mul", padded, mask)
@@ -218,12 +243,8 @@ def band_classes(g: Graph, d: ClassDefinition, padded: str, maps: Patterns,
         ds = g.op("Mul", g.op("Sqrt", g.op("Max", var, g.const(f32(0.0)))), wc)
         lev = dl if lev is None else g.op("Add", lev, dl)
         spr = ds if spr is None else g.op("Add", spr, ds)
-        # saturation bit of channel c: any saturated channel-c pixel in the patch
-        hit = g.op("Mul", saturated_f, mask)
-        # the patch's maximum as a row's then a column's (max is exact in any order)
-        anyc = g.op("MaxPool", g.op("MaxPool", hit, kernel_shape=[1, s]), kernel_shape=[s, 1])
-        bit = g.op("Mul", g.cast(anyc, I64), g.const(1 << c, np.int64))
-        sat = bit if sat is None else g.op("Add", sat, bit)
+        masks.append(mask)
+    sat = _saturation(g, saturated_f, masks, s, lev)
     contrast = g.op("Div", spr, g.op("Add", g.op("Max", lev, g.const(f32(0.0))),
                                      g.const(t.eps)))
     lbin = _search(g, lev, d.level_cuts.astype(f32))

@@ -226,6 +226,19 @@ def test_batch_of_two_with_their_own_gains():
         np.testing.assert_allclose(out[i].transpose(1, 2, 0), want, rtol=0, atol=1e-5)
 
 
+def test_bands_with_and_without_saturated_pixels():
+    """Bands without a saturated pixel skip the saturation pass (an ``If``): a frame whose
+    top bands hold none and whose bottom bands do renders as l3 render does, every pixel
+    in its class (one in another would differ by far more than 1e-5)."""
+    m = _mosaic(75, 61, 5)
+    m[:40] = np.minimum(m[:40], np.float32(0.5))  # the first bands: nothing saturated
+    t = _table(patch=7, tone=True)
+    _check(t, m)
+    from l3cli.export.bands import BAND_ROWS
+
+    assert 40 >= 2 * BAND_ROWS and (m[40:] >= t.definition.saturation_threshold).any()
+
+
 def test_real_raw_with_a_synthetic_table(data_dir):
     """A real 14-bit Bayer raw (bundled test data), whole frame and an odd crop."""
     raw = read_raw(data_dir / "DSC_1339_768x512_rggb_14bit.raw")
