@@ -30,7 +30,7 @@ __all__ = ["BAND_ROWS", "render_bands"]
 #: Rows per iteration of the band loop (rounded up to whole CFA periods): a 4000-pixel-wide
 #: band of 16 rows holds about 38 MB of gathered coefficients at patch 7, 3 outputs. Fewer
 #: rows stream less through memory but recompute more of the patches' margin rows (6 at
-#: patch 7) and pay the ~330 nodes' overhead more often: 16 was the fastest of 8, 16 and 32
+#: patch 7) and pay the ~260 nodes' overhead more often: 16 was the fastest of 8, 16 and 32
 #: (``docs/export.md``, Speed).
 BAND_ROWS = 16
 
