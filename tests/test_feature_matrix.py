@@ -134,7 +134,7 @@ INSPECT_WORDS = {"lens shading": "lens shading", "lens shading grid": "lens shad
                  "multiscale stage": "multiscale"}
 PATHS = ["exr", "tif", "png", "jpg", "export", "inspect"]
 #: features the export refuses, with one line naming them (the rest must export)
-EXPORT_REFUSED = {"lens shading grid": "lens shading spline grid"}
+EXPORT_REFUSED: dict[str, str] = {}
 
 
 def _raw_file(tmp_path):

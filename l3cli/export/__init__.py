@@ -75,9 +75,6 @@ def check_exportable(table: TransformTable, output: str = "linear") -> None:
         raise ConfigError(f"output {output!r} is not known; use one of {', '.join(OUTPUTS)}")
     for name in _unknown_features(table):
         raise ConfigError(f"the table's {_NAMES.get(name, name)} cannot be exported yet")
-    if table.shading is not None and not table.shading.radial:
-        raise ConfigError("the table's lens shading spline grid cannot be exported yet "
-                          "(a radial field can: retrain on raws whose shading is radial)")
     if table.white_balance is not None:
         from l3cli.whitebalance.model import ADAPT_SPACE, WhiteBalanceModel
 

@@ -28,8 +28,11 @@ from l3cli.export.graph import Graph
 __all__ = ["BAND_ROWS", "render_bands"]
 
 #: Rows per iteration of the band loop (rounded up to whole CFA periods): a 4000-pixel-wide
-#: band of 32 rows holds about 75 MB of gathered coefficients at patch 7, 3 outputs.
-BAND_ROWS = 32
+#: band of 16 rows holds about 38 MB of gathered coefficients at patch 7, 3 outputs. Fewer
+#: rows stream less through memory but recompute more of the patches' margin rows (6 at
+#: patch 7) and pay the ~260 nodes' overhead more often: 16 was the fastest of 8, 16 and 32
+#: (``docs/export.md``, Speed).
+BAND_ROWS = 16
 
 #: ``body(graph, padded_band, classes) -> image``: builds one band's image (N, C, h, w)
 #: in the loop's body graph from its padded mosaic (N, 1, h + 2r, w + 2r) and its

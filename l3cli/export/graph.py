@@ -89,6 +89,17 @@ class Graph:
         onnx.checker.check_model(model)
         return model
 
+    def if_else(self, cond: str, build_then, build_else, elem_type: int) -> str:
+        """An ``If`` node on the bool scalar ``cond``: ``build_then(branch)`` and
+        ``build_else(branch)`` add their nodes to a branch graph of their own (which may
+        use this graph's tensors) and return the name of its result, of ``elem_type``."""
+        branches = {}
+        for tag, build in (("then", build_then), ("else", build_else)):
+            b = Graph(prefix=f"{self._name(tag)}_")
+            b.add_output(build(b), b._name("out"), elem_type, None)
+            branches[tag] = b.subgraph(tag)
+        return self.op("If", cond, then_branch=branches["then"], else_branch=branches["else"])
+
     # ------------------------------------------------------------- shortcuts
     def slice(self, x: str, starts, ends, axes) -> str:
         return self.op("Slice", x, self.const(starts, np.int64), self.const(ends, np.int64),

@@ -61,20 +61,33 @@ def condition_kernels(g: Graph, table, value: str) -> str:
 
 def kernel_parts(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int
                  ) -> tuple[str, str]:
-    """The per-class kernels (n_classes, q, n_out), a table's array or a graph tensor, as
-    the two tensors :func:`affine` gathers rows of: the taps (n_classes, n_out * patch²),
-    each output's row of taps in the patch's row-major order, and the constant terms
-    (n_classes, n_out)."""
-    q = patch * patch
+    """The per-class kernels (n_classes, q + 1, n_out), a table's array or a graph tensor,
+    as the two tensors :func:`affine` gathers rows of: the taps (n_classes, n_out * q),
+    each output's taps column by column (``dx`` major, ``dy`` minor: the order in which
+    :func:`affine` gathers a patch), and the constant terms (n_classes, n_out)."""
+    s, q = patch, patch * patch
     if isinstance(kernels, np.ndarray):
-        taps = np.ascontiguousarray(kernels[:, :q, :].transpose(0, 2, 1))
-        return (g.const(taps.reshape(kernels.shape[0], n_out * q), hint="kernel_taps"),
+        n = kernels.shape[0]
+        taps = kernels[:, :q, :].reshape(n, s, s, n_out).transpose(0, 3, 2, 1)
+        return (g.const(np.ascontiguousarray(taps).reshape(n, n_out * q), hint="kernel_taps"),
                 g.const(np.ascontiguousarray(kernels[:, q, :]), hint="kernel_bias"))
     i64 = np.int64
-    taps = g.op("Transpose", g.slice(kernels, [0], [q], [1]), perm=[0, 2, 1])
-    taps = g.op("Reshape", taps, g.const([0, n_out * q], i64))
+    taps = g.op("Reshape", g.slice(kernels, [0], [q], [1]), g.const([0, s, s, n_out], i64))
+    taps = g.op("Reshape", g.op("Transpose", taps, perm=[0, 3, 2, 1]),
+                g.const([0, n_out * q], i64))
     bias = g.op("Squeeze", g.slice(kernels, [q], [q + 1], [1]), g.const([1], i64))
     return taps, bias
+
+
+def _offsets(g: Graph, like: str, axis: int, span: int) -> str:
+    """int64 (n, span): ``i + d`` for ``i`` below the size of ``like`` along ``axis`` and
+    ``d`` below ``span`` (a window's indices into the padded rows or columns)."""
+    i64 = np.int64
+    n = g.op("Squeeze", g.slice(g.op("Shape", like), [axis], [axis + 1], [0]),
+             g.const([0], i64))
+    i = g.op("Range", g.const(0, i64), n, g.const(1, i64))
+    return g.op("Add", g.op("Unsqueeze", i, g.const([1], i64)),
+                g.const(np.arange(span, dtype=i64)[None]))
 
 
 def affine(g: Graph, padded: str, classes: str, taps: str, bias: str, patch: int,
@@ -82,21 +95,26 @@ def affine(g: Graph, padded: str, classes: str, taps: str, bias: str, patch: int
     """The affine kernel of each pixel's class on its patch: float32 (N, n_out, h, w).
 
     ``padded`` (N, 1, h + 2r, w + 2r) holds the patches of the (N, 1, h, w) int64
-    ``classes``; ``taps`` and ``bias`` are :func:`kernel_parts`. Each pixel's row of
-    coefficients is one ``Gather`` (a contiguous row per pixel), its patch a row of
-    the taps' shifted views, and their products one batched ``MatMul`` of
-    (n_out, q) by (q, 1) per pixel: pixel-major, so that no per-tap plane of the
-    whole band is gathered element by element.
+    ``classes``; ``taps`` and ``bias`` are :func:`kernel_parts`. Each pixel's patch is
+    gathered as a row (N, h, w, q) in three copies: the S padded rows of each output
+    row (a ``Gather`` of whole rows), those turned to put each column's S values side by
+    side (a ``Transpose`` of S values a pixel), and the S columns of each pixel (a
+    ``Gather`` of S-value blocks): column-major, as :func:`kernel_parts` orders the
+    taps. Each pixel's row of coefficients is one ``Gather`` (a contiguous row per
+    pixel), and their products one batched ``MatMul`` of (n_out, q) by (q, 1) per pixel:
+    pixel-major, so that no per-tap plane of the whole band is gathered element by
+    element.
     """
     i64 = np.int64
-    s = patch
+    s, q = patch, patch * patch
     cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, h, w)
-    rows = [g.window(padded, dy, s, 2) for dy in range(s)]
-    views = [g.window(row, dx, s, 3) for row in rows for dx in range(s)]
-    pat = g.op("Transpose", g.op("Concat", *views, axis=1), perm=[0, 2, 3, 1])  # (N, h, w, q)
-    pat = g.op("Unsqueeze", pat, g.const([4], i64))  # (N, h, w, q, 1)
+    rows = g.op("Gather", padded, _offsets(g, classes, 2, s), axis=2)  # (N, 1, h, S, w + 2r)
+    cols = g.op("Transpose", rows, perm=[0, 1, 2, 4, 3])  # (N, 1, h, w + 2r, S)
+    pat = g.op("Gather", cols, _offsets(g, classes, 3, s), axis=3)  # (N, 1, h, w, S, S)
+    pat = g.op("Reshape", g.op("Squeeze", pat, g.const([1], i64)),
+               g.const([0, 0, 0, q, 1], i64))  # (N, h, w, q, 1)
     coef = g.op("Reshape", g.op("Gather", taps, cls, axis=0),
-                g.const([0, 0, 0, n_out, s * s], i64))  # (N, h, w, n_out, q)
+                g.const([0, 0, 0, n_out, q], i64))  # (N, h, w, n_out, q)
     out = g.op("Squeeze", g.op("MatMul", coef, pat), g.const([4], i64))  # (N, h, w, n_out)
     out = g.op("Add", out, g.op("Gather", bias, cls, axis=0))
     return g.op("Transpose", out, perm=[0, 3, 1, 2])
@@ -167,7 +185,10 @@ def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: f
     """:func:`l3cli.lens.field.correct_mosaic` of (N, 1, H, W) ``mosaic`` by the table's gain
     field, evaluated in the graph (float64, as :func:`l3cli.lens.field.gain_map`) on the raw
     that int64 (4,) ``frame`` places the mosaic on: ``(full height, full width, top,
-    left)``, or zeros for the mosaic itself (the table's CFA positions are the full raw's)."""
+    left)``, or zeros for the mosaic itself (the table's CFA positions are the full raw's).
+    A radial field (:class:`l3cli.lens.field.GainField`) is its polynomial in r² by Horner, a
+    spline grid (:class:`l3cli.lens.grid.SplineField`) its tensor B-spline
+    (:func:`_spline_gain`)."""
     i64 = np.int64
     ph, pw = period
     hw = g.dims(mosaic)
@@ -177,26 +198,20 @@ def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: f
     size = g.cast(full, F64)
     half = g.op("Mul", g.const(0.5), g.op("Sqrt", g.op("ReduceSum", g.op("Mul", size, size),
                                                       keepdims=0)))
-    cy, cx = (float(v) for v in field.centre)
-    coords, phase = [], []
-    for axis, (c, p) in enumerate(((cy, ph), (cx, pw))):
+    coords, phase = [], []  # per axis: normalised coordinates and CFA phases (full raw's)
+    for axis, p in enumerate((ph, pw)):
         first = g.op("Squeeze", g.slice(origin, [axis], [axis + 1], [0]), g.const([0], i64))
         n = g.op("Squeeze", g.slice(hw, [axis], [axis + 1], [0]), g.const([0], i64))
         k = g.op("Range", first, g.op("Add", first, n), g.const(1, i64))  # full-raw index
         edge = g.op("Mul", g.const(0.5), g.op("Squeeze", g.slice(size, [axis], [axis + 1], [0]),
                                               g.const([0], i64)))
-        v = g.op("Div", g.op("Sub", g.op("Add", g.cast(k, F64), g.const(0.5)), edge), half)
-        d = g.op("Sub", v, g.const(c))
-        shape = [-1, 1] if axis == 0 else [1, -1]
-        coords.append(g.op("Reshape", g.op("Mul", d, d), g.const(shape, i64)))
-        phase.append(g.op("Reshape", g.op("Mod", k, g.const(p, i64)), g.const(shape, i64)))
-    r2 = g.op("Add", *coords)  # float64 (H, W)
-    pos = g.op("Add", g.op("Mul", phase[0], g.const(pw, i64)), phase[1])  # (H, W)
-    coeffs = field.coeffs
-    gain = None
-    for j in range(coeffs.shape[1] - 1, -1, -1):  # Horner, as GainField.gains
-        c = g.op("Gather", g.const(coeffs[:, j].copy()), pos, axis=0)
-        gain = c if gain is None else g.op("Add", g.op("Mul", gain, r2), c)
+        coords.append(g.op("Div", g.op("Sub", g.op("Add", g.cast(k, F64), g.const(0.5)), edge),
+                           half))  # l3cli.lens.field.normalised_coords
+        phase.append(g.op("Mod", k, g.const(p, i64)))
+    if field.radial:
+        gain = _radial_gain(g, field, coords, phase, pw)
+    else:
+        gain = _spline_gain(g, field, coords, phase, period)
     gain = g.op("Unsqueeze", g.cast(gain, F32), g.const([0, 1], i64))  # (1, 1, H, W)
     one = g.const(np.float32(1.0))
     prod = g.op("Mul", mosaic, gain)
@@ -206,3 +221,77 @@ def shading(g: Graph, mosaic: str, field, period: tuple[int, int], saturation: f
     mixed = g.op("Where", keep, prod, mosaic)  # a gain below one spares saturated pixels
     up = g.op("GreaterOrEqual", g.op("ReduceMin", gain, keepdims=0), one)
     return g.op("Where", up, brighten, mixed)
+
+
+def _radial_gain(g: Graph, field, coords: list[str], phase: list[str], pw: int) -> str:
+    """float64 (H, W): :meth:`l3cli.lens.field.GainField.plane` of each pixel's position."""
+    i64 = np.int64
+    cy, cx = (float(v) for v in field.centre)
+    sq, ph_ = [], []
+    for axis, (v, c) in enumerate(zip(coords, (cy, cx), strict=True)):
+        shape = [-1, 1] if axis == 0 else [1, -1]
+        d = g.op("Sub", v, g.const(c))
+        sq.append(g.op("Reshape", g.op("Mul", d, d), g.const(shape, i64)))
+        ph_.append(g.op("Reshape", phase[axis], g.const(shape, i64)))
+    r2 = g.op("Add", *sq)  # float64 (H, W)
+    pos = g.op("Add", g.op("Mul", ph_[0], g.const(pw, i64)), ph_[1])  # (H, W)
+    coeffs = field.coeffs
+    gain = None
+    for j in range(coeffs.shape[1] - 1, -1, -1):  # Horner, as GainField.gains
+        c = g.op("Gather", g.const(coeffs[:, j].copy()), pos, axis=0)
+        gain = c if gain is None else g.op("Add", g.op("Mul", gain, r2), c)
+    return gain
+
+
+def _bspline_matrix(g: Graph, x: str, lo: float, hi: float, n: int) -> str:
+    """float64 (len, n + 3): :func:`l3cli.lens.grid.bspline_matrix` of the float64 (len,)
+    ``x`` (each row's four weights put in place by comparisons: the other entries are
+    exact zeros)."""
+    i64 = np.int64
+    s = g.op("Mul", g.op("Div", g.op("Sub", g.op("Clip", x, g.const(lo), g.const(hi)),
+                                     g.const(lo)), g.const(hi - lo)), g.const(float(n)))
+    i = g.op("Min", g.cast(g.op("Floor", s), I64), g.const(n - 1, i64))
+    f = g.op("Sub", s, g.cast(i, F64))
+    f2 = g.op("Mul", f, f)
+    f3 = g.op("Mul", f2, f)
+    e = g.op("Sub", g.const(1.0), f)
+    c = g.const
+    w = [g.op("Mul", g.op("Mul", e, e), e),  # (1 - f)^3, ...
+         g.op("Add", g.op("Sub", g.op("Mul", c(3.0), f3), g.op("Mul", c(6.0), f2)), c(4.0)),
+         g.op("Add", g.op("Add", g.op("Add", g.op("Mul", c(-3.0), f3), g.op("Mul", c(3.0), f2)),
+                             g.op("Mul", c(3.0), f)), c(1.0)),
+         f3]
+    w = g.op("Div", g.op("Concat", *(g.op("Unsqueeze", v, c([1], i64)) for v in w), axis=1),
+             c(6.0))  # (len, 4)
+    first = g.op("Add", g.op("Unsqueeze", i, c([1], i64)), c(np.arange(4, dtype=i64)))
+    hit = g.op("Equal", g.op("Unsqueeze", first, c([2], i64)),
+               c(np.arange(n + 3, dtype=i64).reshape(1, 1, -1)))  # (len, 4, n + 3)
+    placed = g.op("Where", hit, g.op("Unsqueeze", w, c([2], i64)), c(0.0))
+    return g.op("ReduceSum", placed, c([1], i64), keepdims=0)
+
+
+def _spline_gain(g: Graph, field, coords: list[str], phase: list[str],
+                 period: tuple[int, int]) -> str:
+    """float64 (H, W): :meth:`l3cli.lens.grid.SplineField.plane` of each pixel's
+    position, as two ``MatMul``s: the rows' basis (zero outside the row's CFA phase) times
+    the control values of every position side by side, then times the columns' basis
+    (zero outside the column's phase). Each pixel's sums hold the terms of its own
+    position and exact zeros, in l3's association (rows first)."""
+    from l3cli.lens.grid import frame_extent
+
+    i64 = np.int64
+    ph, pw = period
+    ny, nx = field.intervals
+    ext = frame_extent(*field.size)
+    grid = field.grid.reshape(ph, pw, ny + 3, nx + 3).transpose(0, 2, 1, 3)
+    masked = []
+    for axis, (p, n) in enumerate(((ph, ny), (pw, nx))):
+        basis = _bspline_matrix(g, coords[axis], -ext[axis], ext[axis], n)  # (len, n + 3)
+        tiled = g.op("Tile", basis, g.const([1, p], i64))  # (len, p (n + 3))
+        own = g.op("Equal", g.op("Unsqueeze", phase[axis], g.const([1], i64)),
+                   g.const(np.repeat(np.arange(p, dtype=i64), n + 3)[None]))
+        masked.append(g.op("Where", own, tiled, g.const(0.0)))
+    rows = g.op("MatMul", masked[0],
+                g.const(np.ascontiguousarray(grid.reshape(ph * (ny + 3), pw * (nx + 3))),
+                        hint="shading_grid"))  # (H, pw (nx + 3))
+    return g.op("MatMul", rows, g.op("Transpose", masked[1], perm=[1, 0]))

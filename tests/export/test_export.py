@@ -128,6 +128,8 @@ FEATURES = {  # name: table keywords
     "plain": dict(space="xyz"),
     "patch7-contrast3": dict(patch=7),
     "1-contrast-bin": dict(contrast_cuts=None),
+    "per-level-contrast": dict(contrast_cuts=np.stack([np.linspace(0.05, 0.2, 8),
+                                                       np.linspace(0.2, 0.5, 8)], axis=1)),
     "no-merge": dict(merge_positions=False),
     "4x4-cfa": dict(spec="RGBW/GWRB/BRWG/WBGR", space="xyz"),
     "3x2-cfa": dict(spec="RGB/GBR", patch=3),
@@ -224,6 +226,19 @@ def test_batch_of_two_with_their_own_gains():
         np.testing.assert_allclose(out[i].transpose(1, 2, 0), want, rtol=0, atol=1e-5)
 
 
+def test_bands_with_and_without_saturated_pixels():
+    """Bands without a saturated pixel skip the saturation pass (an ``If``): a frame whose
+    top bands hold none and whose bottom bands do renders as l3 render does, every pixel
+    in its class (one in another would differ by far more than 1e-5)."""
+    m = _mosaic(75, 61, 5)
+    m[:40] = np.minimum(m[:40], np.float32(0.5))  # the first bands: nothing saturated
+    t = _table(patch=7, tone=True)
+    _check(t, m)
+    from l3cli.export.bands import BAND_ROWS
+
+    assert 40 >= 2 * BAND_ROWS and (m[40:] >= t.definition.saturation_threshold).any()
+
+
 def test_real_raw_with_a_synthetic_table(data_dir):
     """A real 14-bit Bayer raw (bundled test data), whole frame and an odd crop."""
     raw = read_raw(data_dir / "DSC_1339_768x512_rggb_14bit.raw")
@@ -270,6 +285,74 @@ def test_shading_table_matches_render(case):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
     plain = dataclasses.replace(t, shading=None)
     assert np.abs(render_raw(plain, raw) - want).max() > 0.05  # the field does something
+
+
+def _spline(size, seed=0, intervals=(3, 4), low=0.8):
+    """A spline-grid field: per position random control values from ``low`` to 1.6."""
+    from l3cli.lens.grid import SplineField
+
+    rng = np.random.default_rng(seed)
+    ny, nx = intervals
+    return SplineField(rng.uniform(low, 1.6, size=(4, ny + 3, nx + 3)), size)
+
+
+@pytest.mark.parametrize("case", ["brighten", "below-one", "crop", "other-size"])
+def test_spline_grid_table_matches_render(case):
+    """A table with a spline-grid lens shading field (``SplineField``): the B-spline grid is
+    evaluated in the graph from the input's size or the ``frame`` placement and corrects
+    the mosaic as l3 render's does, every pixel in the same class."""
+    from l3cli.lens.field import corrected
+
+    h, w = 46, 61
+    m = _mosaic(h, w, 12)
+    t = _table(patch=5)
+    raw, frame = _raw(m, "RGGB"), None
+    t.shading = _spline((h, w), low=0.8 if case == "below-one" else 1.0)
+    if case == "crop":  # a crop of a larger raw: the field is placed on the full raw
+        t.shading = _spline((90, 120), seed=1)
+        frame = [90, 120, 30, 44]
+        raw.metadata.update(crop=[30, 44], full_size=[90, 120])
+    if case == "other-size":  # learned on another size: frame-relative, clamped at edges
+        t.shading = _spline((60, 50), seed=2)
+    want = render_raw(t, raw)
+    got = _feeds(_session(build_model(t)), m, frame=frame)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    cls = _shading_classes(t).run(None, {"mosaic": m[None, None],
+                                         "frame": np.array(frame or [0] * 4, np.int64)})[0]
+    np.testing.assert_array_equal(cls[0, 0], classify(corrected(t, raw).mosaic, t.definition))
+    plain = dataclasses.replace(t, shading=None)
+    assert np.abs(render_raw(plain, raw) - want).max() > 0.05  # the field does something
+
+
+def test_spline_grid_reproduces_a_linear_ramp():
+    """An independent fact of uniform cubic B-splines: control values linear in their index
+    (``c_j = a + b (j - 1)``) give ``a + b s``, ``s`` the position in intervals. The graph's
+    gains on a constant mosaic are that ramp along the columns (``s`` from the pixel
+    centres' normalised coordinates), whatever the row and CFA position."""
+    from onnx import TensorProto
+
+    from l3cli.export import stages
+    from l3cli.export.graph import Graph
+    from l3cli.lens.grid import SplineField, frame_extent
+
+    h, w, nx = 30, 40, 5
+    a, b = 1.2, 0.15
+    ramp = a + b * (np.arange(nx + 3) - 1.0)
+    field = SplineField(np.broadcast_to(ramp, (4, 7, nx + 3)).copy(), (h, w))
+    g = Graph()
+    x = g.add_input("mosaic", TensorProto.FLOAT, ["N", 1, "H", "W"])
+    frame = g.add_input("frame", TensorProto.INT64, [4])
+    y = stages.shading(g, x, field, (2, 2), 0.95, frame)
+    g.add_output(y, "out", TensorProto.FLOAT, ["N", 1, "H", "W"])
+    sess = _session(g.model(doc="", metadata={}))
+    level = np.float32(0.01)
+    out = sess.run(None, {"mosaic": np.full((1, 1, h, w), level, np.float32),
+                          "frame": np.zeros(4, np.int64)})[0][0, 0]
+    half = 0.5 * np.hypot(h, w)
+    u = (np.arange(w) + 0.5 - 0.5 * w) / half
+    uh = frame_extent(h, w)[1]
+    s = (u + uh) / (2 * uh) * nx
+    np.testing.assert_allclose(out / level, np.broadcast_to(a + b * s, (h, w)), rtol=1e-6)
 
 
 def test_gain_map_dng_is_fed_as_read(tmp_path):
