@@ -57,27 +57,52 @@ def slp_vectorize():
 
 
 @nb.njit(nogil=True, error_model="numpy")
-def tile_gains(x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x):
+def tile_gains(x0, twp, xi, yi, yb, nbr, ph, g_mode, g_idx, g_frac, g_cap, g_grid, g_gdiff,
+               g_iv, f_b, f_cx, w_x):
     """A tile's columns of the raw's per-column gain tables (:mod:`l3cli.gainmaps`),
-    contiguous for the band's columns ``xi[x0 + xx]`` (mirrored at the image's edges):
-    ``(idx, frac, cap)`` (layers, ph, twp), the field's ``b`` (twp,) and coefficients
-    (ph, k, twp), the white balance (ph, twp)."""
+    contiguous for the band's columns ``xi[x0 + xx]`` (mirrored at the image's edges)
+    and rows ``yi[yb + k]`` (``k < nbr``): per DNG map layer and row phase the grid
+    rows the band's rows lie between, interpolated at the columns (float64 (layers, ph,
+    rows, twp), from grid row ``base`` (layers, ph)), and the clip (layers, ph, twp);
+    the field's ``b`` (twp,) and coefficients (ph, k, twp); the white balance (ph, twp)."""
     n_ly = g_idx.shape[0] if g_mode & 1 else 0
     nk = f_cx.shape[1] if g_mode & 2 else 0
     nw = ph if g_mode & 4 else 0
-    t_idx = np.empty((n_ly, ph, twp), dtype=np.uint64)
-    t_frac = np.empty((n_ly, ph, twp), dtype=np.float64)
+    n_i = g_grid.shape[2]
+    t_base = np.zeros((n_ly, ph), dtype=np.int64)
+    n_r = 2
+    for ly in range(n_ly):
+        lo = np.full(ph, n_i, dtype=np.int64)
+        hi = np.zeros(ph, dtype=np.int64)
+        for k in range(nbr):
+            yy = yi[yb + k]
+            qy = yy % ph
+            v = g_iv[ly, yy]
+            lo[qy] = min(lo[qy], v)
+            hi[qy] = max(hi[qy], v)
+        for qy in range(ph):
+            t_base[ly, qy] = min(lo[qy], hi[qy])
+            n_r = max(n_r, hi[qy] - t_base[ly, qy] + 2)
+    t_rows = np.empty((n_ly, ph, n_r, twp), dtype=np.float64)
     t_cap = np.empty((n_ly, ph, twp), dtype=np.float32)
+    for ly in range(n_ly):
+        for qy in range(ph):
+            for rr in range(n_r):
+                gi = min(t_base[ly, qy] + rr, n_i - 1)
+                gg = g_grid[ly, qy, gi]
+                gd = g_gdiff[ly, qy, gi]
+                tr = t_rows[ly, qy, rr]
+                for xx in range(twp):
+                    xs = xi[x0 + xx]
+                    j = g_idx[ly, qy, xs]
+                    tr[xx] = gg[j] + g_frac[ly, qy, xs] * gd[j]
+            for xx in range(twp):
+                t_cap[ly, qy, xx] = g_cap[ly, qy, xi[x0 + xx]]
     t_b = np.empty(twp if nk else 0, dtype=np.float64)
     t_c = np.empty((ph if nk else 0, nk, twp), dtype=np.float64)
     t_wb = np.empty((nw, twp), dtype=np.float32)
     for xx in range(twp):
         xs = xi[x0 + xx]
-        for ly in range(n_ly):
-            for qy in range(ph):
-                t_idx[ly, qy, xx] = np.uint64(g_idx[ly, qy, xs])
-                t_frac[ly, qy, xx] = g_frac[ly, qy, xs]
-                t_cap[ly, qy, xx] = g_cap[ly, qy, xs]
         if nk:
             t_b[xx] = f_b[xs]
             for qy in range(ph):
@@ -85,31 +110,32 @@ def tile_gains(x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x):
                     t_c[qy, kk, xx] = f_cx[qy, kk, xs]
         for qy in range(nw):
             t_wb[qy, xx] = w_x[qy, xs]
-    return t_idx, t_frac, t_cap, t_b, t_c, t_wb
+    return t_rows, t_base, t_cap, t_b, t_c, t_wb
 
 
 @nb.njit(nogil=True, error_model="numpy")
-def row_gains(dst, twp, yy, qy, g_mode, g_rows, g_diff, f_a, f_one, t_idx, t_frac, t_cap,
+def row_gains(dst, twp, yy, qy, g_mode, g_iv, g_fv, f_a, f_one, t_rows, t_base, t_cap,
               t_b, t_c, t_wb, sat, r2, acc):
     """The raw's gains on one copied band row ``dst`` (image row ``yy``, row phase ``qy``),
     in place, in this order and with these rules (:mod:`l3cli.gainmaps`): each DNG map
-    layer's gain (``rows[idx] + frac * diffs[idx]`` of the map's grid interpolated for
-    row ``yy``), the product clipped at ``cap`` (1 where the layer has a map); the
-    learned field's (its polynomial in ``r²`` in float64, the operations of
-    :func:`l3cli.shading.gain_map`), never above ``max(v, 1)`` when every field gain is
-    at least 1 (``f_one``), else a pixel at or above ``sat`` not lowered; the white
-    balance's, a pixel at or above ``sat`` not lowered. The products are float32, as the
-    passes over the mosaic make them. One simple loop per step: each vectorises."""
+    layer's gain (the band's two grid rows around row ``yy``, interpolated at the tile's
+    columns by :func:`tile_gains`, weighted ``1 - fv`` and ``fv``), the product clipped
+    at ``cap`` (1 where the layer has a map); the learned field's (its polynomial in
+    ``r²`` in float64, the operations of :func:`l3cli.shading.gain_map`), never above
+    ``max(v, 1)`` when every field gain is at least 1 (``f_one``), else a pixel at or
+    above ``sat`` not lowered; the white balance's, a pixel at or above ``sat`` not
+    lowered. The products are float32, as the passes over the mosaic make them. One
+    simple loop per step over contiguous values: each vectorises."""
     one = np.float32(1.0)
-    for ly in range(t_idx.shape[0]):
-        rr = g_rows[ly, yy]
-        dd = g_diff[ly, yy]
-        ti = t_idx[ly, qy]
-        tf = t_frac[ly, qy]
+    for ly in range(t_rows.shape[0]):
+        rr = g_iv[ly, yy] - t_base[ly, qy]
+        f1 = g_fv[ly, yy]
+        f0 = 1.0 - f1
+        a0 = t_rows[ly, qy, rr]
+        a1 = t_rows[ly, qy, rr + 1]
         tp = t_cap[ly, qy]
         for xx in range(twp):
-            j = ti[xx]
-            g = np.float32(rr[j] + tf[xx] * dd[j])
+            g = np.float32(f0 * a0[xx] + f1 * a1[xx])
             dst[xx] = min(dst[xx] * g, tp[xx])
     if g_mode & 2:
         a = f_a[yy]
@@ -172,7 +198,7 @@ def tile_kernel(S: int, PW: int):
                mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
                cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
                out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, g_mode, g_idx, g_frac,
-               g_cap, g_rows, g_diff, f_a, f_b, f_cx, f_one, w_x, t_lo, t_hi):
+               g_cap, g_grid, g_gdiff, g_iv, g_fv, f_a, f_b, f_cx, f_one, w_x, t_lo, t_hi):
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -220,8 +246,9 @@ def tile_kernel(S: int, PW: int):
             # render_rows.affine_taps, read tap_lanes(S) values)
             pb = np.empty((nbr, twp + PAD), dtype=np.float32)
             # the raw's gains (l3cli.gainmaps): the tile's columns of their tables
-            t_idx, t_frac, t_cap, t_b, t_c, t_wb = tile_gains(
-                x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x)
+            t_rows, t_base, t_cap, t_b, t_c, t_wb = tile_gains(
+                x0, twp, xi, yi, y0 + i0, nbr, ph, g_mode, g_idx, g_frac, g_cap, g_grid,
+                g_gdiff, g_iv, f_b, f_cx, w_x)
             g_r2 = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
             g_acc = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
             inner = x0 - r >= 0 and x0 - r + twp <= W
@@ -237,8 +264,8 @@ def tile_kernel(S: int, PW: int):
                         dst[xx] = src[xi[x0 + xx]]
                 if g_mode != 0:  # the raw's gains (l3cli.gainmaps), on the band's copy
                     yy = yi[y0 + i0 + k]
-                    row_gains(dst, twp, yy, yy % ph, g_mode, g_rows, g_diff, f_a, f_one,
-                              t_idx, t_frac, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc)
+                    row_gains(dst, twp, yy, yy % ph, g_mode, g_iv, g_fv, f_a, f_one,
+                              t_rows, t_base, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc)
                 for xx in range(twp, twp + PAD):
                     dst[xx] = np.float32(0.0)
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
