@@ -19,13 +19,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numba as nb  # noqa: E402
 import numpy as np  # noqa: E402
 
-from l3cli.classify.layout import (  # noqa: E402
-    MODE_CLASSES,
-    MODE_DISPLAY,
-    MODE_FEATURES,
-    MODE_RENDER,
-    TILE_ROWS,
-)
+from l3cli.classify.layout import TILE_ROWS  # noqa: E402
 from l3cli.render_rows import (  # noqa: E402
     curve_code16_row,
     curve_encode_row,
@@ -36,7 +30,7 @@ from l3cli.render_rows import (  # noqa: E402
     tap_lanes,
 )
 
-__all__ = ["row_gains", "slp_vectorize", "tile_gains", "tile_kernel"]
+__all__ = ["ENTRIES", "row_gains", "slp_vectorize", "tile_gains", "tile_kernel"]
 
 
 @contextlib.contextmanager
@@ -164,9 +158,94 @@ def row_gains(dst, twp, yy, qy, g_mode, g_iv, g_fv, f_a, f_one, t_rows, t_base, 
             dst[xx] = v * g if (g > one or (g < one and not v >= sat)) else v
 
 
+# ---------------------------------------------------------------- the entry points
+# One row of output per call, per entry point: what the tile loop hands each finished
+# output row (its features, and its classes where the entry needs them). ``outs`` is
+# the entry's own arguments, ``sc`` its per-tile scratch (``*_scratch``).
+@nb.njit(nogil=True)
+def _no_scratch(outs, tw):
+    return ()
+
+
+@nb.njit(nogil=True)
+def _features_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    out_lev, out_con, out_sat = outs
+    for x in range(tw):
+        out_lev[y, x0 + x] = lev[x]
+        out_con[y, x0 + x] = spr[x]
+        out_sat[y, x0 + x] = satr[x]
+
+
+@nb.njit(nogil=True)
+def _classes_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    out_cls = outs[0]
+    for x in range(tw):
+        out_cls[y, x0 + x] = clsr[x]
+
+
+@nb.njit(nogil=True)
+def _render_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    K, n_out, outf, cv_base, cv_slope, cv_lo, cv_step = outs
+    o = (y * W + x0) * n_out
+    if n_out <= 4:
+        render_row4(pb, i, tw, S, clsr, K, outf, o, n_out)
+    else:
+        render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
+    if cv_base.shape[1] > 1:  # a learned tone curve
+        curve_row(outf, o, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+
+
+@nb.njit(nogil=True)
+def _display_scratch(outs, tw):
+    n_out = outs[1]
+    return (np.empty(tw * n_out, dtype=np.float32), np.empty(tw * n_out, dtype=np.float32))
+
+
+@nb.njit(nogil=True)
+def _display_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    (K, n_out, out, cv_base, cv_slope, cv_lo, cv_step, use_matrix, matrix, thr, buckets,
+     interp, shift, enc_bits, ct_first, ct_thr, ct_lo, ct_scale, ct_walk) = outs
+    rowf, lin = sc
+    o = (y * W + x0) * n_out
+    # render the row, then encode it while in cache
+    if n_out <= 4:
+        render_row4(pb, i, tw, S, clsr, K, rowf, 0, n_out)
+    else:
+        render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
+    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tonecode)
+        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, out,
+                         out, enc_bits, o)
+    elif ct_walk == 0:  # 16 bits: the composed codes interpolated
+        curve_code16_row(rowf, tw, ct_thr, ct_lo, ct_scale, out, o)
+    else:
+        if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
+            curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+        encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp, shift, lin,
+                   out, out, enc_bits, o)
+
+
+#: The entry points: name -> (whether it classifies, its per-tile scratch, its row).
+ENTRIES = {
+    "features": (False, _no_scratch, _features_row),
+    "classes": (True, _no_scratch, _classes_row),
+    "render": (True, _no_scratch, _render_row),
+    "display": (True, _display_scratch, _display_row),
+}
+
+
 @functools.cache
-def tile_kernel(S: int, PW: int):
-    """The classifier (and renderer) compiled for patch size ``S``.
+def tile_kernel(S: int, PW: int, entry: str):
+    """The tile kernel's entry point ``entry`` (:data:`ENTRIES`) compiled for patch
+    size ``S``: ``kernel(mosaic, yi, xi, y0, nrows, tc, tables, guide, gains, outs,
+    t_lo, t_hi)``.
+
+    Each entry point is a function of its own (its own machine code, stored apart by
+    :mod:`l3cli.kernel_store`): the tile loop below, shared, with the entry's row
+    function (and whether it classifies) as compile-time constants. ``tables`` is
+    :class:`~l3cli.classify.layout.KernelTables` as a tuple, ``guide`` the
+    :class:`~l3cli.classify.features.ContextGuide` (a tuple), ``gains``
+    :meth:`l3cli.gainmaps.MosaicGains.kernel_args` (or :data:`l3cli.gainmaps.NO_GAINS`),
+    ``outs`` the entry's outputs and parameters (:func:`l3cli.classify.kernel.run_tiles`).
 
     ``S`` (and the CFA period's width ``PW``, for the structure tensor's
     ``S - PW``-tap sums) are compile-time constants, so the tap loops unroll
@@ -174,7 +253,7 @@ def tile_kernel(S: int, PW: int):
     (row-major) of ``TILE_ROWS`` x ``TILE_COLS`` output pixels without the
     GIL, so threads share an image's tiles (:func:`l3cli.classify.kernel.run_tiles`);
     each tile copies its padded band from the
-    mosaic (mirror indices at the image borders), reduces every band row to
+    mosaic (mirror indices at the image borders, the raw's gains applied), reduces every band row to
     horizontal S-tap sums of ``x`` and ``x²`` per channel present in the row
     (channel masks along the row) and an OR of saturated-channel bits, kept
     in a ring of S rows, and finishes each output row from its S ring rows:
@@ -183,6 +262,7 @@ def tile_kernel(S: int, PW: int):
     float32 without fast-math, so a pixel's features and class depend on its
     patch only, never on the tiling or on vectorisation.
     """
+    CLASSIFY, scratch, row_out = ENTRIES[entry]
     r = S // 2
     TR = TILE_ROWS
     PAD = max(tap_lanes(S) - S, 0)
@@ -192,13 +272,16 @@ def tile_kernel(S: int, PW: int):
     # error_model="numpy": no zero-division checks, whose branch per pixel kept the
     # contrast's division scalar (its divisor is at least eps > 0; the values are the same)
     @nb.njit(nogil=True, error_model="numpy")
-    def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
-               lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
-               xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
-               mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
-               cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
-               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, g_mode, g_idx, g_frac,
-               g_cap, g_grid, g_gdiff, g_iv, g_fv, f_a, f_b, f_cx, f_one, w_x, t_lo, t_hi):
+    def kernel(mosaic, yi, xi, y0, nrows, tc, tables, guide, gains, outs, t_lo, t_hi):
+        (idx_pattern, cnt_inv, wc, group, lut, lut_shift, lut_base, cuts, ccuts, sat_thr,
+         eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode, xcuts, ctx_eps, n_hl,
+         hl_cnt) = tables
+        ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx = guide
+        (g_mode, g_idx, g_frac, g_cap, g_grid, g_gdiff, g_iv, g_fv, f_a, f_b, f_cx, f_one,
+         w_x) = gains
+        if not CLASSIFY:  # features only: no orientation, context or highlight sums
+            n_or = 1
+            n_hl = 1
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -304,9 +387,7 @@ def tile_kernel(S: int, PW: int):
             jxy = np.empty(tw, dtype=np.float32)
             bst = np.empty(tw, dtype=np.float32)
             crow = np.empty(ctx.shape[1], dtype=np.float32)
-            # display mode: a row's float outputs, then its encoding
-            rowf = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
-            lin = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
+            sc = scratch(outs, tw)  # the entry's own (a display row's floats)
             for k in range(nbr):
                 slot = k % S
                 py = (y0 + i0 + k - r) % ph
@@ -396,11 +477,8 @@ def tile_kernel(S: int, PW: int):
                         b |= ring_b[(i + dy) % S, x]
                     satr[x] = b
                     spr[x] = spr[x] / (max(lev[x], np.float32(0.0)) + eps)  # now the contrast
-                if mode == MODE_FEATURES:
-                    for x in range(tw):
-                        out_lev[i0 + i, x0 + x] = lev[x]
-                        out_con[i0 + i, x0 + x] = spr[x]
-                        out_sat[i0 + i, x0 + x] = satr[x]
+                if not CLASSIFY:
+                    row_out(outs, sc, pb, i, i0 + i, x0, tw, W, S, lev, spr, satr, clsr)
                     continue
                 # level bin: a lookup on the float's leading bits, then at most two
                 # comparisons with the cut points of the bucket (see levels.level_lookup);
@@ -491,30 +569,6 @@ def tile_kernel(S: int, PW: int):
                             exb[x] = exb[x] * n_hl + np.int32(bst[x] >= hl_cnt)
                     for x in range(tw):
                         clsr[x] = clsr[x] * n_ext + exb[x]
-                o = ((i0 + i) * W + x0) * n_out
-                if mode == MODE_CLASSES:
-                    for x in range(tw):
-                        out_cls[i0 + i, x0 + x] = clsr[x]
-                elif mode == MODE_DISPLAY:  # render the row, then encode it while in cache
-                    if n_out <= 4:
-                        render_row4(pb, i, tw, S, clsr, K, rowf, 0, n_out)
-                    else:
-                        render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
-                    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tonecode)
-                        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale,
-                                         ct_walk, out8, out16, enc_bits, o)
-                    elif ct_walk == 0:  # 16 bits: the composed codes interpolated
-                        curve_code16_row(rowf, tw, ct_thr, ct_lo, ct_scale, out16, o)
-                    else:
-                        if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
-                            curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
-                        encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp,
-                                   shift, lin, out8, out16, enc_bits, o)
-                elif n_out <= 4:
-                    render_row4(pb, i, tw, S, clsr, K, outf, o, n_out)
-                else:
-                    render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
-                if mode == MODE_RENDER and cv_base.shape[1] > 1:  # learned tone curve
-                    curve_row(outf, o, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+                row_out(outs, sc, pb, i, i0 + i, x0, tw, W, S, lev, spr, satr, clsr)
 
     return kernel
