@@ -27,14 +27,17 @@ evaluates per pixel as it copies a tile's band from the mosaic
   band row's gains are one linear interpolation between two of those rows,
   contiguous along the row (a vector loop); maps that touch different CFA
   positions (a phone's four, one per Bayer position) share a layer;
-* the field as its polynomial in ``r² = a[y] + b[x]`` (float64, the same
-  operations as :func:`l3cli.shading.gain_map`);
+* a radial field as its polynomial in ``r² = a[y] + b[x]`` (float64, the same
+  operations as :func:`l3cli.shading.gain_map`); any other field (a spline
+  grid, :mod:`l3cli.shading_grid`) as its gain map, the float32 gains the
+  pass multiplies by (:func:`l3cli.shading.gain_map`, computed once per field
+  and raw size), read along each band row;
 * the white balance as its (ph, pw) gains.
 
 The fold covers maps whose pitch divides the CFA period and whose area is the
 whole image (every phone and action camera writes these); any other map, and
 tables with a context guide (its block means are taken from the corrected
-mosaic), and spline-grid fields (:mod:`l3cli.shading_grid`), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
+mosaic), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
 with the same result.
 """
 
@@ -182,10 +185,11 @@ NO_GAINS = (0, np.zeros((0, 1, 1), np.int64), np.zeros((0, 1, 1), _F64),
             np.zeros((0, 1, 1), np.float32), np.zeros((0, 1, 1, 1), _F64),
             np.zeros((0, 1, 1, 1), _F64), np.zeros((0, 1), np.int64), np.zeros((0, 1), _F64),
             np.zeros(1, _F64), np.zeros(1, _F64), np.zeros((1, 1, 1), _F64), False,
-            np.ones((1, 1), np.float32))
+            np.ones((1, 1), np.float32), np.ones((1, 1), np.float32), 0, 0)
 
-#: ``kernel_args()[0]`` bits: DNG maps, the learned field, white balance.
-DNG, FIELD, WB = 1, 2, 4
+#: ``kernel_args()[0]`` bits: DNG maps, the learned radial field, white balance, a
+#: learned field as its gain map (a spline-grid field).
+DNG, FIELD, WB, MAP = 1, 2, 4, 8
 
 
 @dataclass(eq=False)
@@ -262,6 +266,9 @@ class MosaicGains:
         float64 (ph, k, W) its polynomial per row phase and column,
         ``floor_one`` every field gain on the mosaic is at least 1 (its clipping
         rule). ``wb`` float32 (ph, W): the white-balance gain per row phase and
+        column. ``gmap``, ``my``, ``mx``: a field that is not radial (mode bit
+        :data:`MAP`) as its float32 gain map on the full raw and where the mosaic
+        starts on it (``floor_one`` its rule, as the radial field's); the
         column. Built once per instance.
         """
         args = self.__dict__.get("_args")
@@ -275,21 +282,26 @@ class MosaicGains:
 
 def _kernel_args(g: MosaicGains) -> tuple:
     mode = 0
-    idx, frac, cap, grid, gdiff, iv, fv, a, b, coeffs, floor_one, wb = NO_GAINS[1:]
+    idx, frac, cap, grid, gdiff, iv, fv, a, b, coeffs, floor_one, wb, gmap, my, mx = (
+        NO_GAINS[1:])
     ph, pw = g.cfa.period
     w = g.shape[1]
     if g.dng is not None:
         mode |= DNG
         idx, frac, cap, grid, gdiff, iv, fv = _build_layers(g.dng, g.cfa, g.shape)
-    if g.field is not None:
+    if g.field is not None and g.field.radial:
         mode |= FIELD
         a, b, coeffs, floor_one = _field_args(g)
+    elif g.field is not None:
+        mode |= MAP
+        gmap, my, mx, floor_one = _map_args(g)
     if g.wb is not None:
         mode |= WB
         wb = np.empty((ph, w), np.float32)
         for py in range(ph):
             wb[py] = np.resize(np.asarray(g.wb, np.float32)[py], w)  # column phase x % pw
-    return (mode, idx, frac, cap, grid, gdiff, iv, fv, a, b, coeffs, bool(floor_one), wb)
+    return (mode, idx, frac, cap, grid, gdiff, iv, fv, a, b, coeffs, bool(floor_one), wb,
+            gmap, int(my), int(mx))
 
 
 def _pieces(dng: Any, cfa: Any) -> list[tuple[Any, dict[tuple[int, int], int]]] | None:
@@ -431,6 +443,21 @@ def _field_args(g: MosaicGains) -> tuple:
     return a, b, coeffs, floor_one
 
 
+def _map_args(g: MosaicGains) -> tuple:
+    """A field that is not radial (:mod:`l3cli.shading_grid`) as the gain map of its full
+    raw (:func:`l3cli.shading.gain_map`: the float32 gains the pass multiplies by,
+    computed once per field and size), where the mosaic starts on it, and whether every
+    gain on the mosaic is at least 1 (:func:`l3cli.shading.correct_mosaic`'s test)."""
+    from l3cli.shading import gain_map
+
+    h, w = g.shape
+    full = tuple(g.full_shape) if g.full_shape is not None else (h, w)
+    y0, x0 = g.origin
+    gmap = gain_map(g.field, full, g.cfa.period)
+    floor_one = float(gmap[y0:y0 + h, x0:x0 + w].min()) >= 1.0
+    return gmap, y0, x0, floor_one
+
+
 def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
                  saturation: float = 1.0, fold: bool = True) -> MosaicGains | None:
     """The gains of ``raw``'s mosaic before classification: its pending DNG maps, the
@@ -459,8 +486,6 @@ def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
                         "%dx%d raws; applying it in coordinates relative to the frame",
                         raw.path or "raw", full[1], full[0], field.size[1], field.size[0])
     foldable = fold and (dng is None or foldable_maps(dng, raw.cfa))
-    if field is not None and not field.radial:
-        foldable = False  # a spline-grid field (l3cli.shading_grid): applied as a pass
     return MosaicGains(shape, raw.cfa, dng, field, full, origin,
                        None if wb is None else np.asarray(wb, np.float32), float(saturation),
                        foldable, raw.path or "raw")

@@ -319,3 +319,31 @@ def test_field_on_a_crop_is_placed_on_its_full_raw(tmp_path, field):
     assert ks.folded
     got = render_mosaic(ks, ks.prepare_mosaic(np.ascontiguousarray(crop.mosaic)))[:, :, 0]
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("lift", [True, False])
+def test_spline_field_folds_as_its_pass(tmp_path, lift):
+    """A spline-grid field (l3cli.shading_grid) is folded into the band copy as its gain
+    map: a 5x5 kernel (the same in every class) renders a GainMap DNG, and a crop of a
+    plain one (placed on its full raw), as the mosaic corrected first by the passes (DNG
+    maps, the field's correct_mosaic, white balance) through a plain kernel set, within
+    sum |taps| x 1e-6, for both of the field's clipping rules (every gain >= 1; some
+    below 1)."""
+    from l3cli.shading_grid import SplineField
+
+    rng = np.random.default_rng(4)
+    kernel = np.abs(rng.normal(size=(26, 3))).astype(np.float32) / 10
+    grid = 1 + 0.5 * rng.random((4, 5, 6)) if lift else 0.7 + 0.6 * rng.random((4, 5, 6))
+    t = _table(kernel, wb=True)
+    t.shading = SplineField(grid, (H, W))
+    gm = read_raw(_dng(tmp_path, "gm.dng", list2=phone_gain_maps(H, W, points=(5, 7))))
+    crop = read_raw(_dng(tmp_path, "plain.dng")).crop(2, 4, H - 6, W - 10)
+    for raw in (gm, crop):
+        ks = prepare_kernels(t, raw)
+        assert ks.folded and ks.gains.field is t.shading
+        assert ks.gains.kernel_args()[11] == lift  # which of the field's rules it takes
+        mosaic = np.ascontiguousarray(raw.mosaic)
+        want = render_mosaic(KernelSet.plain(t), ks.corrected_mosaic(mosaic))
+        got = render_mosaic(ks, ks.prepare_mosaic(mosaic))
+        np.testing.assert_allclose(got, want, rtol=0,
+                                   atol=float(np.abs(kernel).sum(0).max()) * 1e-6)

@@ -3,14 +3,18 @@
 Render and train both come through :func:`run_tiles`. Per tile of pixels the
 numba kernel (:mod:`l3cli.classify.tile_kernel`) computes S-tap horizontal
 then vertical sums of each channel's ``x`` and ``x²`` and an OR of the
-saturated-channel bits, then level, contrast and class per pixel; in render
-mode it hands each row's classes to the render loops
-(:mod:`l3cli.render_rows`) while the tile is in cache.
+saturated-channel bits, then level, contrast and class per pixel, and hands
+each finished row to its entry point's row function: the features, the
+classes, or (render and display) the render loops (:mod:`l3cli.render_rows`)
+while the tile is in cache. Each mode is an entry point of its own
+(``features``, ``classes``, ``render``, ``display``: compiled and stored
+apart, each with only its own outputs), all taking ``(mosaic, yi, xi, y0,
+nrows, tc, tables, guide, gains, outs, t_lo, t_hi)``.
 
 The kernel's inputs that depend on the class definition only are built in
 one place, :func:`l3cli.classify.layout.kernel_tables`, as a
-:class:`~l3cli.classify.layout.KernelTables` whose field order is the
-kernel's argument order.
+:class:`~l3cli.classify.layout.KernelTables`, passed as the tuple ``tables``
+that the kernel unpacks in its field order.
 
 The kernel runs without the GIL on a range of tiles; :func:`run_tiles`
 shares an image's tiles among :func:`tile_threads` threads. Its machine code
@@ -212,8 +216,10 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     mode
         ``MODE_CLASSES`` (int32 classes into ``out_cls``), ``MODE_FEATURES``
         (float32 level, float32 contrast, int32 saturation bits into
-        ``out_features``) or ``MODE_RENDER`` (``out`` = affine kernels of the
-        classes applied to the patches).
+        ``out_features``), ``MODE_RENDER`` (``out`` = affine kernels of the
+        classes applied to the patches) or ``MODE_DISPLAY`` (``out`` = the
+        render display-encoded); each runs its own entry point of the kernel
+        (:data:`l3cli.classify.tile_kernel.ENTRIES`).
     rows
         ``(y0, y1)``: output rows; the output arrays have ``y1 - y0`` rows.
     kernels

@@ -108,17 +108,34 @@ def tile_gains(x0, twp, xi, yi, yb, nbr, ph, g_mode, g_idx, g_frac, g_cap, g_gri
 
 
 @nb.njit(nogil=True, error_model="numpy")
+def field_rule(dst, twp, g, f_one, sat):
+    """A learned field's float32 gains ``g`` on a band row ``dst``, in place, with its
+    clipping rule (:func:`l3cli.shading.correct_mosaic`): never above ``max(v, 1)`` when
+    every field gain is at least 1 (``f_one``), else a pixel at or above ``sat`` not
+    lowered."""
+    one = np.float32(1.0)
+    if f_one:
+        for xx in range(twp):
+            v = dst[xx]
+            dst[xx] = min(v * g[xx], max(v, one))
+    else:
+        for xx in range(twp):
+            v = dst[xx]
+            dst[xx] = v * g[xx] if (v < sat or g[xx] >= one) else v
+
+
+@nb.njit(nogil=True, error_model="numpy")
 def row_gains(dst, twp, yy, qy, g_mode, g_iv, g_fv, f_a, f_one, t_rows, t_base, t_cap,
-              t_b, t_c, t_wb, sat, r2, acc):
+              t_b, t_c, t_wb, sat, r2, acc, gf, f_map, m_y0, m_col, inner, xi, x0):
     """The raw's gains on one copied band row ``dst`` (image row ``yy``, row phase ``qy``),
     in place, in this order and with these rules (:mod:`l3cli.gainmaps`): each DNG map
     layer's gain (the band's two grid rows around row ``yy``, interpolated at the tile's
     columns by :func:`tile_gains`, weighted ``1 - fv`` and ``fv``), the product clipped
     at ``cap`` (1 where the layer has a map); the learned field's (its polynomial in
-    ``r²`` in float64, the operations of :func:`l3cli.shading.gain_map`), never above
-    ``max(v, 1)`` when every field gain is at least 1 (``f_one``), else a pixel at or
-    above ``sat`` not lowered; the white balance's, a pixel at or above ``sat`` not
-    lowered. The products are float32, as the passes over the mosaic make them. One
+    ``r²`` in float64, the operations of :func:`l3cli.shading.gain_map`), or a field's
+    gain map (``f_map``: row ``m_y0 + yy``, the band's columns from ``m_col`` when
+    ``inner``, else ``xi[x0 + xx]`` offset by ``m_col``), with :func:`field_rule`;
+    the white balance's, a pixel at or above ``sat`` not lowered. The products are float32, as the passes over the mosaic make them. One
     simple loop per step over contiguous values: each vectorises."""
     one = np.float32(1.0)
     for ly in range(t_rows.shape[0]):
@@ -141,15 +158,18 @@ def row_gains(dst, twp, yy, qy, g_mode, g_iv, g_fv, f_a, f_one, t_rows, t_base, 
         for kk in range(nk - 2, -1, -1):
             for xx in range(twp):
                 acc[xx] = acc[xx] * r2[xx] + tc[kk, xx]
-        if f_one:
+        for xx in range(twp):
+            gf[xx] = np.float32(acc[xx])
+        field_rule(dst, twp, gf, f_one, sat)
+    if g_mode & 8:
+        mrow = f_map[m_y0 + yy]
+        if inner:
             for xx in range(twp):
-                v = dst[xx]
-                dst[xx] = min(v * np.float32(acc[xx]), max(v, one))
+                gf[xx] = mrow[m_col + np.uint64(xx)]
         else:
             for xx in range(twp):
-                v = dst[xx]
-                g = np.float32(acc[xx])
-                dst[xx] = v * g if (v < sat or g >= one) else v
+                gf[xx] = mrow[m_col + np.uint64(xi[x0 + xx])]
+        field_rule(dst, twp, gf, f_one, sat)
     if g_mode & 4:
         tw = t_wb[qy]
         for xx in range(twp):
@@ -278,7 +298,7 @@ def tile_kernel(S: int, PW: int, entry: str):
          hl_cnt) = tables
         ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx = guide
         (g_mode, g_idx, g_frac, g_cap, g_grid, g_gdiff, g_iv, g_fv, f_a, f_b, f_cx, f_one,
-         w_x) = gains
+         w_x, f_map, m_y0, m_x0) = gains
         if not CLASSIFY:  # features only: no orientation, context or highlight sums
             n_or = 1
             n_hl = 1
@@ -334,8 +354,10 @@ def tile_kernel(S: int, PW: int, entry: str):
                 g_gdiff, g_iv, f_b, f_cx, w_x)
             g_r2 = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
             g_acc = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
+            g_f = np.empty(twp if g_mode & 10 else 0, dtype=np.float32)
             inner = x0 - r >= 0 and x0 - r + twp <= W
             c0 = np.uint64(x0 - r) if inner else np.uint64(0)
+            m_col = np.uint64(m_x0) + c0  # the gain map's first column of the band
             for k in range(nbr):
                 src = mosaic[yi[y0 + i0 + k]]
                 dst = pb[k]
@@ -348,7 +370,8 @@ def tile_kernel(S: int, PW: int, entry: str):
                 if g_mode != 0:  # the raw's gains (l3cli.gainmaps), on the band's copy
                     yy = yi[y0 + i0 + k]
                     row_gains(dst, twp, yy, yy % ph, g_mode, g_iv, g_fv, f_a, f_one,
-                              t_rows, t_base, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc)
+                              t_rows, t_base, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc,
+                              g_f, f_map, m_y0, m_col, inner, xi, x0)
                 for xx in range(twp, twp + PAD):
                     dst[xx] = np.float32(0.0)
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
