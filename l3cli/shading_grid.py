@@ -117,7 +117,8 @@ class SplineField:
         ``(height, width)`` of the training raws (the frame the grid spans).
     """
 
-    #: Not a radial field (:attr:`l3cli.shading.GainField.radial`): rendered by a pass.
+    #: Not a radial field (:attr:`l3cli.shading.GainField.radial`): the tile kernel reads
+    #: its gain map in the band copy (:mod:`l3cli.gainmaps`); the export refuses it.
     radial = False
 
     grid: np.ndarray
