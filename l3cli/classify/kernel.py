@@ -3,14 +3,18 @@
 Render and train both come through :func:`run_tiles`. Per tile of pixels the
 numba kernel (:mod:`l3cli.classify.tile_kernel`) computes S-tap horizontal
 then vertical sums of each channel's ``x`` and ``x²`` and an OR of the
-saturated-channel bits, then level, contrast and class per pixel; in render
-mode it hands each row's classes to the render loops
-(:mod:`l3cli.render_rows`) while the tile is in cache.
+saturated-channel bits, then level, contrast and class per pixel, and hands
+each finished row to its entry point's row function: the features, the
+classes, or (render and display) the render loops (:mod:`l3cli.render_rows`)
+while the tile is in cache. Each mode is an entry point of its own
+(``features``, ``classes``, ``render``, ``display``: compiled and stored
+apart, each with only its own outputs), all taking ``(mosaic, yi, xi, y0,
+nrows, tc, tables, guide, gains, outs, t_lo, t_hi)``.
 
 The kernel's inputs that depend on the class definition only are built in
 one place, :func:`l3cli.classify.layout.kernel_tables`, as a
-:class:`~l3cli.classify.layout.KernelTables` whose field order is the
-kernel's argument order.
+:class:`~l3cli.classify.layout.KernelTables`, passed as the tuple ``tables``
+that the kernel unpacks in its field order.
 
 The kernel runs without the GIL on a range of tiles; :func:`run_tiles`
 shares an image's tiles among :func:`tile_threads` threads. Its machine code
@@ -73,23 +77,29 @@ def tile_threads() -> int:
         return cpu_count()
 
 
+#: The tile kernel's entry point of each mode (:data:`l3cli.classify.tile_kernel.ENTRIES`).
+_ENTRY = {MODE_CLASSES: "classes", MODE_FEATURES: "features", MODE_RENDER: "render",
+          MODE_DISPLAY: "display"}
+
+
 @functools.cache
-def _kernel(S: int, PW: int) -> Any:
-    """The tile kernel for patch ``S`` and CFA period width ``PW``: stored machine code
-    when there is some for the arguments' types, else numba's (:mod:`l3cli.kernel_store`)."""
+def _kernel(S: int, PW: int, entry: str) -> Any:
+    """The tile kernel's entry point ``entry`` for patch ``S`` and CFA period width ``PW``:
+    stored machine code when there is some for the arguments' types, else numba's
+    (:mod:`l3cli.kernel_store`)."""
     from l3cli.kernel_store import Stored
 
     def dispatcher() -> Any:
         from l3cli.classify.tile_kernel import tile_kernel
 
-        return tile_kernel(S, PW)
+        return tile_kernel(S, PW, entry)
 
     def compiling() -> Any:
         from l3cli.classify.tile_kernel import slp_vectorize
 
         return slp_vectorize()
 
-    return Stored(f"tile-kernel-{S}-{PW}", KERNEL_SOURCES, dispatcher, context=compiling)
+    return Stored(f"tile-{entry}-{S}-{PW}", KERNEL_SOURCES, dispatcher, context=compiling)
 
 
 class _Batch:
@@ -172,20 +182,16 @@ def _run_split(fn: Any, args: tuple, n_tiles: int) -> None:
 
 
 _NO_F32 = np.zeros((1, 1), dtype=np.float32)
-_NO_I32 = np.zeros((1, 1), dtype=np.int32)
-_NO_OUT = np.zeros(1, dtype=np.float32)
+#: No tone curve (a table of one entry per channel: the kernel tests ``shape[1] > 1``).
 _NO_CURVE = (_NO_F32, _NO_F32, np.zeros(1, np.float32), np.zeros(1, np.float32))
-_NO_U8 = np.zeros(1, dtype=np.uint8)
-_NO_U16 = np.zeros(1, dtype=np.uint16)
-#: Encoder arguments when not in display mode (the order of ``DisplayParams``).
-_NO_DISPLAY = (False, np.eye(3), np.zeros(2, np.float32), np.zeros(1, np.uint16),
-               np.zeros(2, np.float32), 0)
 #: No composed curve-and-encoding table (:mod:`l3cli.tone.code`): ``walk`` -1 (0 is an
 #: interpolated table).
 _NO_CODES = (np.zeros((1, 1), np.uint8), _NO_F32, np.zeros(1, np.float32),
              np.zeros(1, np.float32), -1)
-_NO_GUIDE = ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32),
-                         *(np.zeros(1, np.int64),) * 2, np.zeros(1, np.float32))
+#: No context guide (a definition without one never reads it).
+_NO_GUIDE = tuple(ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2,
+                               np.zeros(1, np.float32), *(np.zeros(1, np.int64),) * 2,
+                               np.zeros(1, np.float32)))
 
 
 def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
@@ -210,8 +216,10 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     mode
         ``MODE_CLASSES`` (int32 classes into ``out_cls``), ``MODE_FEATURES``
         (float32 level, float32 contrast, int32 saturation bits into
-        ``out_features``) or ``MODE_RENDER`` (``out`` = affine kernels of the
-        classes applied to the patches).
+        ``out_features``), ``MODE_RENDER`` (``out`` = affine kernels of the
+        classes applied to the patches) or ``MODE_DISPLAY`` (``out`` = the
+        render display-encoded); each runs its own entry point of the kernel
+        (:data:`l3cli.classify.tile_kernel.ENTRIES`).
     rows
         ``(y0, y1)``: output rows; the output arrays have ``y1 - y0`` rows.
     kernels
@@ -242,37 +250,39 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     S = definition.patch
     h, w = mosaic.shape
     y0, y1 = rows if rows is not None else (0, h)
-    tables = kernel_tables(definition)
     yi, xi = definition.mirror_maps(h, w)
     pw = definition.cfa.period[1]
     tc = pw * max(1, TILE_COLS // pw)
-    cls_o = out_cls if out_cls is not None else _NO_I32
-    lev_o, con_o, sat_o = out_features if out_features is not None else (_NO_F32, _NO_F32,
-                                                                         _NO_I32)
-    K = kernels if kernels is not None else _NO_F32
-    out8, out16, bits, outf = _NO_U8, _NO_U16, 0, _NO_OUT
-    if mode == MODE_DISPLAY:
-        if out is None or display is None or out.dtype not in (np.uint8, np.uint16):
+    curve = tuple(curve) if curve is not None else _NO_CURVE
+    if mode == MODE_FEATURES:
+        if out_features is None:
+            raise ValueError("features mode needs out_features")
+        outs: tuple = tuple(out_features)
+    elif mode == MODE_CLASSES:
+        if out_cls is None:
+            raise ValueError("classes mode needs out_cls")
+        outs = (out_cls,)
+    elif mode == MODE_RENDER:
+        if out is None or kernels is None:
+            raise ValueError("render mode needs kernels and a float32 out")
+        outs = (kernels, n_out, out.reshape(-1), *curve)
+    elif mode == MODE_DISPLAY:
+        if (out is None or kernels is None or display is None
+                or out.dtype not in (np.uint8, np.uint16)):
             raise ValueError("display mode needs a uint8/uint16 out and the encoder's parameters")
         bits = 8 if out.dtype == np.uint8 else 16
-        if bits == 8:
-            out8 = out.reshape(-1)
-        else:
-            out16 = out.reshape(-1)
+        outs = (kernels, n_out, out.reshape(-1), *curve, *display, bits,
+                *(codes if codes is not None else _NO_CODES))
     else:
-        display = _NO_DISPLAY
-        if out is not None:
-            outf = out.reshape(-1)
+        raise ValueError(f"no tile kernel mode {mode}")
     guide = _NO_GUIDE
     if definition.context_block and mode != MODE_FEATURES:
-        guide = context_guide(mosaic, definition.cfa, definition.context_block)
+        guide = tuple(context_guide(mosaic, definition.cfa, definition.context_block))
     n_tiles = -(-(y1 - y0) // TILE_ROWS) * -(-w // tc)
-    args = (mosaic, yi, xi, y0, y1 - y0, tc, *tables, *guide, mode, cls_o, lev_o, con_o, sat_o,
-            K, n_out, outf, *(curve if curve is not None else _NO_CURVE), *display, bits, out8,
-            out16, *(codes if codes is not None and mode == MODE_DISPLAY else _NO_CODES),
-            *(gains if gains is not None else NO_GAINS))
+    args = (mosaic, yi, xi, y0, y1 - y0, tc, tuple(kernel_tables(definition)), guide,
+            tuple(gains) if gains is not None else NO_GAINS, outs)
     # resolved once (argument types, loaded code), not once per range
-    _run_split(_kernel(S, pw).function(*args, 0, n_tiles), args, n_tiles)
+    _run_split(_kernel(S, pw, _ENTRY[mode]).function(*args, 0, n_tiles), args, n_tiles)
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,

@@ -2,8 +2,8 @@
 
 :func:`kernel_tables` builds, once per :class:`~l3cli.classify.ClassDefinition`,
 the arrays and scalars the numba kernel (:mod:`l3cli.classify.tile_kernel`) takes
-in the order of :class:`KernelTables`' fields, which is the kernel's argument
-order (a test checks it against the kernel's signature). :func:`pack_taps`
+as its ``tables`` tuple, in the order of :class:`KernelTables`' fields, in which
+every entry point unpacks it (a test checks it against the kernel's source). :func:`pack_taps`
 lays a table's transforms out for the render loops
 (:func:`l3cli.render_rows.affine_taps`).
 """
@@ -36,7 +36,7 @@ MODE_CLASSES, MODE_FEATURES, MODE_RENDER, MODE_DISPLAY = 0, 1, 2, 3
 
 
 class KernelTables(NamedTuple):
-    """What the tile kernel needs of a class definition, in its argument order."""
+    """What the tile kernel needs of a class definition, in the order it unpacks them."""
 
     #: int64 (ph, pw): channel index of each CFA position.
     idx_pattern: np.ndarray

@@ -19,13 +19,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numba as nb  # noqa: E402
 import numpy as np  # noqa: E402
 
-from l3cli.classify.layout import (  # noqa: E402
-    MODE_CLASSES,
-    MODE_DISPLAY,
-    MODE_FEATURES,
-    MODE_RENDER,
-    TILE_ROWS,
-)
+from l3cli.classify.layout import TILE_ROWS  # noqa: E402
 from l3cli.render_rows import (  # noqa: E402
     curve_code16_row,
     curve_encode_row,
@@ -36,7 +30,7 @@ from l3cli.render_rows import (  # noqa: E402
     tap_lanes,
 )
 
-__all__ = ["row_gains", "slp_vectorize", "tile_gains", "tile_kernel"]
+__all__ = ["ENTRIES", "row_gains", "slp_vectorize", "tile_gains", "tile_kernel"]
 
 
 @contextlib.contextmanager
@@ -57,27 +51,52 @@ def slp_vectorize():
 
 
 @nb.njit(nogil=True, error_model="numpy")
-def tile_gains(x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x):
+def tile_gains(x0, twp, xi, yi, yb, nbr, ph, g_mode, g_idx, g_frac, g_cap, g_grid, g_gdiff,
+               g_iv, f_b, f_cx, w_x):
     """A tile's columns of the raw's per-column gain tables (:mod:`l3cli.lens.gainmaps`),
-    contiguous for the band's columns ``xi[x0 + xx]`` (mirrored at the image's edges):
-    ``(idx, frac, cap)`` (layers, ph, twp), the field's ``b`` (twp,) and coefficients
-    (ph, k, twp), the white balance (ph, twp)."""
+    contiguous for the band's columns ``xi[x0 + xx]`` (mirrored at the image's edges)
+    and rows ``yi[yb + k]`` (``k < nbr``): per DNG map layer and row phase the grid
+    rows the band's rows lie between, interpolated at the columns (float64 (layers, ph,
+    rows, twp), from grid row ``base`` (layers, ph)), and the clip (layers, ph, twp);
+    the field's ``b`` (twp,) and coefficients (ph, k, twp); the white balance (ph, twp)."""
     n_ly = g_idx.shape[0] if g_mode & 1 else 0
     nk = f_cx.shape[1] if g_mode & 2 else 0
     nw = ph if g_mode & 4 else 0
-    t_idx = np.empty((n_ly, ph, twp), dtype=np.uint64)
-    t_frac = np.empty((n_ly, ph, twp), dtype=np.float64)
+    n_i = g_grid.shape[2]
+    t_base = np.zeros((n_ly, ph), dtype=np.int64)
+    n_r = 2
+    for ly in range(n_ly):
+        lo = np.full(ph, n_i, dtype=np.int64)
+        hi = np.zeros(ph, dtype=np.int64)
+        for k in range(nbr):
+            yy = yi[yb + k]
+            qy = yy % ph
+            v = g_iv[ly, yy]
+            lo[qy] = min(lo[qy], v)
+            hi[qy] = max(hi[qy], v)
+        for qy in range(ph):
+            t_base[ly, qy] = min(lo[qy], hi[qy])
+            n_r = max(n_r, hi[qy] - t_base[ly, qy] + 2)
+    t_rows = np.empty((n_ly, ph, n_r, twp), dtype=np.float64)
     t_cap = np.empty((n_ly, ph, twp), dtype=np.float32)
+    for ly in range(n_ly):
+        for qy in range(ph):
+            for rr in range(n_r):
+                gi = min(t_base[ly, qy] + rr, n_i - 1)
+                gg = g_grid[ly, qy, gi]
+                gd = g_gdiff[ly, qy, gi]
+                tr = t_rows[ly, qy, rr]
+                for xx in range(twp):
+                    xs = xi[x0 + xx]
+                    j = g_idx[ly, qy, xs]
+                    tr[xx] = gg[j] + g_frac[ly, qy, xs] * gd[j]
+            for xx in range(twp):
+                t_cap[ly, qy, xx] = g_cap[ly, qy, xi[x0 + xx]]
     t_b = np.empty(twp if nk else 0, dtype=np.float64)
     t_c = np.empty((ph if nk else 0, nk, twp), dtype=np.float64)
     t_wb = np.empty((nw, twp), dtype=np.float32)
     for xx in range(twp):
         xs = xi[x0 + xx]
-        for ly in range(n_ly):
-            for qy in range(ph):
-                t_idx[ly, qy, xx] = np.uint64(g_idx[ly, qy, xs])
-                t_frac[ly, qy, xx] = g_frac[ly, qy, xs]
-                t_cap[ly, qy, xx] = g_cap[ly, qy, xs]
         if nk:
             t_b[xx] = f_b[xs]
             for qy in range(ph):
@@ -85,31 +104,49 @@ def tile_gains(x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x):
                     t_c[qy, kk, xx] = f_cx[qy, kk, xs]
         for qy in range(nw):
             t_wb[qy, xx] = w_x[qy, xs]
-    return t_idx, t_frac, t_cap, t_b, t_c, t_wb
+    return t_rows, t_base, t_cap, t_b, t_c, t_wb
 
 
 @nb.njit(nogil=True, error_model="numpy")
-def row_gains(dst, twp, yy, qy, g_mode, g_rows, g_diff, f_a, f_one, t_idx, t_frac, t_cap,
-              t_b, t_c, t_wb, sat, r2, acc):
+def field_rule(dst, twp, g, f_one, sat):
+    """A learned field's float32 gains ``g`` on a band row ``dst``, in place, with its
+    clipping rule (:func:`l3cli.lens.field.correct_mosaic`): never above ``max(v, 1)`` when
+    every field gain is at least 1 (``f_one``), else a pixel at or above ``sat`` not
+    lowered."""
+    one = np.float32(1.0)
+    if f_one:
+        for xx in range(twp):
+            v = dst[xx]
+            dst[xx] = min(v * g[xx], max(v, one))
+    else:
+        for xx in range(twp):
+            v = dst[xx]
+            dst[xx] = v * g[xx] if (v < sat or g[xx] >= one) else v
+
+
+@nb.njit(nogil=True, error_model="numpy")
+def row_gains(dst, twp, yy, qy, g_mode, g_iv, g_fv, f_a, f_one, t_rows, t_base, t_cap,
+              t_b, t_c, t_wb, sat, r2, acc, gf, f_map, m_y0, m_col, inner, xi, x0):
     """The raw's gains on one copied band row ``dst`` (image row ``yy``, row phase ``qy``),
     in place, in this order and with these rules (:mod:`l3cli.lens.gainmaps`): each DNG map
-    layer's gain (``rows[idx] + frac * diffs[idx]`` of the map's grid interpolated for
-    row ``yy``), the product clipped at ``cap`` (1 where the layer has a map); the
-    learned field's (its polynomial in ``r²`` in float64, the operations of
-    :func:`l3cli.lens.field.gain_map`), never above ``max(v, 1)`` when every field gain is
-    at least 1 (``f_one``), else a pixel at or above ``sat`` not lowered; the white
-    balance's, a pixel at or above ``sat`` not lowered. The products are float32, as the
-    passes over the mosaic make them. One simple loop per step: each vectorises."""
+    layer's gain (the band's two grid rows around row ``yy``, interpolated at the tile's
+    columns by :func:`tile_gains`, weighted ``1 - fv`` and ``fv``), the product clipped
+    at ``cap`` (1 where the layer has a map); the learned field's (its polynomial in
+    ``r²`` in float64, the operations of :func:`l3cli.lens.field.gain_map`), or a field's
+    gain map (``f_map``: row ``m_y0 + yy``, the band's columns from ``m_col`` when
+    ``inner``, else ``xi[x0 + xx]`` offset by ``m_col``), with :func:`field_rule`;
+    the white balance's, a pixel at or above ``sat`` not lowered. The products are float32, as the passes over the mosaic make them. One
+    simple loop per step over contiguous values: each vectorises."""
     one = np.float32(1.0)
-    for ly in range(t_idx.shape[0]):
-        rr = g_rows[ly, yy]
-        dd = g_diff[ly, yy]
-        ti = t_idx[ly, qy]
-        tf = t_frac[ly, qy]
+    for ly in range(t_rows.shape[0]):
+        rr = g_iv[ly, yy] - t_base[ly, qy]
+        f1 = g_fv[ly, yy]
+        f0 = 1.0 - f1
+        a0 = t_rows[ly, qy, rr]
+        a1 = t_rows[ly, qy, rr + 1]
         tp = t_cap[ly, qy]
         for xx in range(twp):
-            j = ti[xx]
-            g = np.float32(rr[j] + tf[xx] * dd[j])
+            g = np.float32(f0 * a0[xx] + f1 * a1[xx])
             dst[xx] = min(dst[xx] * g, tp[xx])
     if g_mode & 2:
         a = f_a[yy]
@@ -121,15 +158,18 @@ def row_gains(dst, twp, yy, qy, g_mode, g_rows, g_diff, f_a, f_one, t_idx, t_fra
         for kk in range(nk - 2, -1, -1):
             for xx in range(twp):
                 acc[xx] = acc[xx] * r2[xx] + tc[kk, xx]
-        if f_one:
+        for xx in range(twp):
+            gf[xx] = np.float32(acc[xx])
+        field_rule(dst, twp, gf, f_one, sat)
+    if g_mode & 8:
+        mrow = f_map[m_y0 + yy]
+        if inner:
             for xx in range(twp):
-                v = dst[xx]
-                dst[xx] = min(v * np.float32(acc[xx]), max(v, one))
+                gf[xx] = mrow[m_col + np.uint64(xx)]
         else:
             for xx in range(twp):
-                v = dst[xx]
-                g = np.float32(acc[xx])
-                dst[xx] = v * g if (v < sat or g >= one) else v
+                gf[xx] = mrow[m_col + np.uint64(xi[x0 + xx])]
+        field_rule(dst, twp, gf, f_one, sat)
     if g_mode & 4:
         tw = t_wb[qy]
         for xx in range(twp):
@@ -138,9 +178,94 @@ def row_gains(dst, twp, yy, qy, g_mode, g_rows, g_diff, f_a, f_one, t_idx, t_fra
             dst[xx] = v * g if (g > one or (g < one and not v >= sat)) else v
 
 
+# ---------------------------------------------------------------- the entry points
+# One row of output per call, per entry point: what the tile loop hands each finished
+# output row (its features, and its classes where the entry needs them). ``outs`` is
+# the entry's own arguments, ``sc`` its per-tile scratch (``*_scratch``).
+@nb.njit(nogil=True)
+def _no_scratch(outs, tw):
+    return ()
+
+
+@nb.njit(nogil=True)
+def _features_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    out_lev, out_con, out_sat = outs
+    for x in range(tw):
+        out_lev[y, x0 + x] = lev[x]
+        out_con[y, x0 + x] = spr[x]
+        out_sat[y, x0 + x] = satr[x]
+
+
+@nb.njit(nogil=True)
+def _classes_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    out_cls = outs[0]
+    for x in range(tw):
+        out_cls[y, x0 + x] = clsr[x]
+
+
+@nb.njit(nogil=True)
+def _render_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    K, n_out, outf, cv_base, cv_slope, cv_lo, cv_step = outs
+    o = (y * W + x0) * n_out
+    if n_out <= 4:
+        render_row4(pb, i, tw, S, clsr, K, outf, o, n_out)
+    else:
+        render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
+    if cv_base.shape[1] > 1:  # a learned tone curve
+        curve_row(outf, o, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+
+
+@nb.njit(nogil=True)
+def _display_scratch(outs, tw):
+    n_out = outs[1]
+    return (np.empty(tw * n_out, dtype=np.float32), np.empty(tw * n_out, dtype=np.float32))
+
+
+@nb.njit(nogil=True)
+def _display_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
+    (K, n_out, out, cv_base, cv_slope, cv_lo, cv_step, use_matrix, matrix, thr, buckets,
+     interp, shift, enc_bits, ct_first, ct_thr, ct_lo, ct_scale, ct_walk) = outs
+    rowf, lin = sc
+    o = (y * W + x0) * n_out
+    # render the row, then encode it while in cache
+    if n_out <= 4:
+        render_row4(pb, i, tw, S, clsr, K, rowf, 0, n_out)
+    else:
+        render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
+    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tone.code)
+        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, out,
+                         out, enc_bits, o)
+    elif ct_walk == 0:  # 16 bits: the composed codes interpolated
+        curve_code16_row(rowf, tw, ct_thr, ct_lo, ct_scale, out, o)
+    else:
+        if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
+            curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+        encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp, shift, lin,
+                   out, out, enc_bits, o)
+
+
+#: The entry points: name -> (whether it classifies, its per-tile scratch, its row).
+ENTRIES = {
+    "features": (False, _no_scratch, _features_row),
+    "classes": (True, _no_scratch, _classes_row),
+    "render": (True, _no_scratch, _render_row),
+    "display": (True, _display_scratch, _display_row),
+}
+
+
 @functools.cache
-def tile_kernel(S: int, PW: int):
-    """The classifier (and renderer) compiled for patch size ``S``.
+def tile_kernel(S: int, PW: int, entry: str):
+    """The tile kernel's entry point ``entry`` (:data:`ENTRIES`) compiled for patch
+    size ``S``: ``kernel(mosaic, yi, xi, y0, nrows, tc, tables, guide, gains, outs,
+    t_lo, t_hi)``.
+
+    Each entry point is a function of its own (its own machine code, stored apart by
+    :mod:`l3cli.kernel_store`): the tile loop below, shared, with the entry's row
+    function (and whether it classifies) as compile-time constants. ``tables`` is
+    :class:`~l3cli.classify.layout.KernelTables` as a tuple, ``guide`` the
+    :class:`~l3cli.classify.features.ContextGuide` (a tuple), ``gains``
+    :meth:`l3cli.lens.gainmaps.MosaicGains.kernel_args` (or :data:`l3cli.lens.gainmaps.NO_GAINS`),
+    ``outs`` the entry's outputs and parameters (:func:`l3cli.classify.kernel.run_tiles`).
 
     ``S`` (and the CFA period's width ``PW``, for the structure tensor's
     ``S - PW``-tap sums) are compile-time constants, so the tap loops unroll
@@ -148,7 +273,7 @@ def tile_kernel(S: int, PW: int):
     (row-major) of ``TILE_ROWS`` x ``TILE_COLS`` output pixels without the
     GIL, so threads share an image's tiles (:func:`l3cli.classify.kernel.run_tiles`);
     each tile copies its padded band from the
-    mosaic (mirror indices at the image borders), reduces every band row to
+    mosaic (mirror indices at the image borders, the raw's gains applied), reduces every band row to
     horizontal S-tap sums of ``x`` and ``x²`` per channel present in the row
     (channel masks along the row) and an OR of saturated-channel bits, kept
     in a ring of S rows, and finishes each output row from its S ring rows:
@@ -157,6 +282,7 @@ def tile_kernel(S: int, PW: int):
     float32 without fast-math, so a pixel's features and class depend on its
     patch only, never on the tiling or on vectorisation.
     """
+    CLASSIFY, scratch, row_out = ENTRIES[entry]
     r = S // 2
     TR = TILE_ROWS
     PAD = max(tap_lanes(S) - S, 0)
@@ -166,13 +292,16 @@ def tile_kernel(S: int, PW: int):
     # error_model="numpy": no zero-division checks, whose branch per pixel kept the
     # contrast's division scalar (its divisor is at least eps > 0; the values are the same)
     @nb.njit(nogil=True, error_model="numpy")
-    def kernel(mosaic, yi, xi, y0, nrows, tc, idx_pattern, cnt_inv, wc, group, lut, lut_shift,
-               lut_base, cuts, ccuts, sat_thr, eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode,
-               xcuts, ctx_eps, n_hl, hl_cnt, ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx,
-               mode, out_cls, out_lev, out_con, out_sat, K, n_out, outf, cv_base, cv_slope,
-               cv_lo, cv_step, use_matrix, matrix, thr, buckets, interp, shift, enc_bits, out8,
-               out16, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, g_mode, g_idx, g_frac,
-               g_cap, g_rows, g_diff, f_a, f_b, f_cx, f_one, w_x, t_lo, t_hi):
+    def kernel(mosaic, yi, xi, y0, nrows, tc, tables, guide, gains, outs, t_lo, t_hi):
+        (idx_pattern, cnt_inv, wc, group, lut, lut_shift, lut_base, cuts, ccuts, sat_thr,
+         eps, n_sat, n_or, ori_c, ori_s, coh2, ctx_mode, xcuts, ctx_eps, n_hl,
+         hl_cnt) = tables
+        ctx, ctx_r0, ctx_r1, ctx_wy, ctx_c0, ctx_c1, ctx_wx = guide
+        (g_mode, g_idx, g_frac, g_cap, g_grid, g_gdiff, g_iv, g_fv, f_a, f_b, f_cx, f_one,
+         w_x, f_map, m_y0, m_x0) = gains
+        if not CLASSIFY:  # features only: no orientation, context or highlight sums
+            n_or = 1
+            n_hl = 1
         W = mosaic.shape[1]
         ph, pw = idx_pattern.shape
         nch = cnt_inv.shape[1]
@@ -220,12 +349,15 @@ def tile_kernel(S: int, PW: int):
             # render_rows.affine_taps, read tap_lanes(S) values)
             pb = np.empty((nbr, twp + PAD), dtype=np.float32)
             # the raw's gains (l3cli.lens.gainmaps): the tile's columns of their tables
-            t_idx, t_frac, t_cap, t_b, t_c, t_wb = tile_gains(
-                x0, twp, xi, ph, g_mode, g_idx, g_frac, g_cap, f_b, f_cx, w_x)
+            t_rows, t_base, t_cap, t_b, t_c, t_wb = tile_gains(
+                x0, twp, xi, yi, y0 + i0, nbr, ph, g_mode, g_idx, g_frac, g_cap, g_grid,
+                g_gdiff, g_iv, f_b, f_cx, w_x)
             g_r2 = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
             g_acc = np.empty(twp if g_mode & 2 else 0, dtype=np.float64)
+            g_f = np.empty(twp if g_mode & 10 else 0, dtype=np.float32)
             inner = x0 - r >= 0 and x0 - r + twp <= W
             c0 = np.uint64(x0 - r) if inner else np.uint64(0)
+            m_col = np.uint64(m_x0) + c0  # the gain map's first column of the band
             for k in range(nbr):
                 src = mosaic[yi[y0 + i0 + k]]
                 dst = pb[k]
@@ -237,8 +369,9 @@ def tile_kernel(S: int, PW: int):
                         dst[xx] = src[xi[x0 + xx]]
                 if g_mode != 0:  # the raw's gains (l3cli.lens.gainmaps), on the band's copy
                     yy = yi[y0 + i0 + k]
-                    row_gains(dst, twp, yy, yy % ph, g_mode, g_rows, g_diff, f_a, f_one,
-                              t_idx, t_frac, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc)
+                    row_gains(dst, twp, yy, yy % ph, g_mode, g_iv, g_fv, f_a, f_one,
+                              t_rows, t_base, t_cap, t_b, t_c, t_wb, sat_thr, g_r2, g_acc,
+                              g_f, f_map, m_y0, m_col, inner, xi, x0)
                 for xx in range(twp, twp + PAD):
                     dst[xx] = np.float32(0.0)
             ring_s = np.empty((S, nch, tw), dtype=np.float32)
@@ -277,9 +410,7 @@ def tile_kernel(S: int, PW: int):
             jxy = np.empty(tw, dtype=np.float32)
             bst = np.empty(tw, dtype=np.float32)
             crow = np.empty(ctx.shape[1], dtype=np.float32)
-            # display mode: a row's float outputs, then its encoding
-            rowf = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
-            lin = np.empty(tw * n_out if mode == MODE_DISPLAY else 1, dtype=np.float32)
+            sc = scratch(outs, tw)  # the entry's own (a display row's floats)
             for k in range(nbr):
                 slot = k % S
                 py = (y0 + i0 + k - r) % ph
@@ -369,11 +500,8 @@ def tile_kernel(S: int, PW: int):
                         b |= ring_b[(i + dy) % S, x]
                     satr[x] = b
                     spr[x] = spr[x] / (max(lev[x], np.float32(0.0)) + eps)  # now the contrast
-                if mode == MODE_FEATURES:
-                    for x in range(tw):
-                        out_lev[i0 + i, x0 + x] = lev[x]
-                        out_con[i0 + i, x0 + x] = spr[x]
-                        out_sat[i0 + i, x0 + x] = satr[x]
+                if not CLASSIFY:
+                    row_out(outs, sc, pb, i, i0 + i, x0, tw, W, S, lev, spr, satr, clsr)
                     continue
                 # level bin: a lookup on the float's leading bits, then at most two
                 # comparisons with the cut points of the bucket (see levels.level_lookup);
@@ -464,30 +592,6 @@ def tile_kernel(S: int, PW: int):
                             exb[x] = exb[x] * n_hl + np.int32(bst[x] >= hl_cnt)
                     for x in range(tw):
                         clsr[x] = clsr[x] * n_ext + exb[x]
-                o = ((i0 + i) * W + x0) * n_out
-                if mode == MODE_CLASSES:
-                    for x in range(tw):
-                        out_cls[i0 + i, x0 + x] = clsr[x]
-                elif mode == MODE_DISPLAY:  # render the row, then encode it while in cache
-                    if n_out <= 4:
-                        render_row4(pb, i, tw, S, clsr, K, rowf, 0, n_out)
-                    else:
-                        render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
-                    if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tone.code)
-                        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale,
-                                         ct_walk, out8, out16, enc_bits, o)
-                    elif ct_walk == 0:  # 16 bits: the composed codes interpolated
-                        curve_code16_row(rowf, tw, ct_thr, ct_lo, ct_scale, out16, o)
-                    else:
-                        if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
-                            curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
-                        encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp,
-                                   shift, lin, out8, out16, enc_bits, o)
-                elif n_out <= 4:
-                    render_row4(pb, i, tw, S, clsr, K, outf, o, n_out)
-                else:
-                    render_row_any(pb, i, tw, S, clsr, K, outf, o, n_out)
-                if mode == MODE_RENDER and cv_base.shape[1] > 1:  # learned tone curve
-                    curve_row(outf, o, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
+                row_out(outs, sc, pb, i, i0 + i, x0, tw, W, S, lev, spr, satr, clsr)
 
     return kernel

@@ -88,8 +88,9 @@ class GainField:
         ``(height, width)`` of the training raws.
     """
 
-    #: Which kind of field (``SplineField.radial`` is False): the tile kernel folds a
-    #: radial field into its band copy and the export evaluates it in the graph.
+    #: Which kind of field (``SplineField.radial`` is False): the tile kernel evaluates
+    #: a radial field's polynomial in its band copy (any other field: its gain map) and
+    #: the export evaluates it in the graph.
     radial = True
 
     centre: np.ndarray

@@ -21,19 +21,23 @@ them over the mosaic: :func:`mosaic_gains` gathers all three into one
 evaluates per pixel as it copies a tile's band from the mosaic
 (:mod:`l3cli.classify.tile_kernel`):
 
-* a DNG map as its grid interpolated along the columns once per image row
-  (float64, ``rows``: (layer, H, pw, points)) and each column's grid cell and
-  fraction (``col``, ``frac``), so a pixel's gain is one linear
-  interpolation between two values of its row; maps that touch different
-  CFA positions (a phone's four, one per Bayer position) share a layer;
-* the field as its polynomial in ``r² = a[y] + b[x]`` (float64, the same
-  operations as :func:`l3cli.lens.field.gain_map`);
+* a DNG map as its grid (float64) with each column's grid cell and fraction
+  and each row's: per tile the kernel interpolates the grid rows its band
+  needs at the tile's columns (one gather per column and grid row), then a
+  band row's gains are one linear interpolation between two of those rows,
+  contiguous along the row (a vector loop); maps that touch different CFA
+  positions (a phone's four, one per Bayer position) share a layer;
+* a radial field as its polynomial in ``r² = a[y] + b[x]`` (float64, the same
+  operations as :func:`l3cli.lens.field.gain_map`); any other field (a spline
+  grid, :mod:`l3cli.lens.grid`) as its gain map, the float32 gains the
+  pass multiplies by (:func:`l3cli.lens.field.gain_map`, computed once per field
+  and raw size), read along each band row;
 * the white balance as its (ph, pw) gains.
 
 The fold covers maps whose pitch divides the CFA period and whose area is the
 whole image (every phone and action camera writes these); any other map, and
 tables with a context guide (its block means are taken from the corrected
-mosaic), and spline-grid fields (:mod:`l3cli.lens.grid`), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
+mosaic), fall back to the passes over the mosaic (:meth:`MosaicGains.apply`),
 with the same result.
 """
 
@@ -178,12 +182,14 @@ def _check_shape(dng: Any, shape: tuple[int, ...], name: Any) -> None:
 #: The tile kernel's gain arguments when there are none (the order of
 #: :meth:`MosaicGains.kernel_args`).
 NO_GAINS = (0, np.zeros((0, 1, 1), np.int64), np.zeros((0, 1, 1), _F64),
-            np.zeros((0, 1, 1), np.float32), np.zeros((0, 1, 1), _F64),
-            np.zeros((0, 1, 1), _F64), np.zeros(1, _F64), np.zeros(1, _F64),
-            np.zeros((1, 1, 1), _F64), False, np.ones((1, 1), np.float32))
+            np.zeros((0, 1, 1), np.float32), np.zeros((0, 1, 1, 1), _F64),
+            np.zeros((0, 1, 1, 1), _F64), np.zeros((0, 1), np.int64), np.zeros((0, 1), _F64),
+            np.zeros(1, _F64), np.zeros(1, _F64), np.zeros((1, 1, 1), _F64), False,
+            np.ones((1, 1), np.float32), np.ones((1, 1), np.float32), 0, 0)
 
-#: ``kernel_args()[0]`` bits: DNG maps, the learned field, white balance.
-DNG, FIELD, WB = 1, 2, 4
+#: ``kernel_args()[0]`` bits: DNG maps, the learned radial field, white balance, a
+#: learned field as its gain map (a spline-grid field).
+DNG, FIELD, WB, MAP = 1, 2, 4, 8
 
 
 @dataclass(eq=False)
@@ -242,23 +248,27 @@ class MosaicGains:
         return mosaic
 
     def kernel_args(self) -> tuple:
-        """The tile kernel's gain arguments: ``(mode, idx, frac, cap, rows, diffs, a, b,
-        coeffs, floor_one, wb)`` (:data:`NO_GAINS` for none), laid out so that the
+        """The tile kernel's gain arguments: ``(mode, idx, frac, cap, grid, gdiff, iv, fv,
+        a, b, coeffs, floor_one, wb)`` (:data:`NO_GAINS` for none), laid out so that the
         kernel reads each column's values contiguously along a band row.
 
-        ``mode``: bits :data:`DNG`, :data:`FIELD`, :data:`WB`. DNG map layers:
-        ``rows`` float64 (layers, H, M): per image row, the grid of the map at
-        each column phase interpolated along the map's rows (entry
-        ``j * pw + px``: grid column ``j``, column phase ``px``; the last entry
-        1), ``diffs`` the differences to the next grid column (the last 0);
-        ``idx`` int64, ``frac`` float64 and ``cap`` float32 (layers, ph, W):
-        per row phase and column, the entry of ``rows`` and the fraction to the
-        next grid column (the gain is ``rows[idx] + frac * diffs[idx]``), and
-        the clip (1; infinity where the layer has no map). The field: ``a``
+        ``mode``: bits :data:`DNG`, :data:`FIELD`, :data:`WB`. DNG map layers, per
+        row phase: ``grid`` float64 (layers, ph, rows, M) the grid of the map at each
+        column phase (entry ``j * pw + px``: grid column ``j``, column phase ``px``;
+        the last entry 1: no map), ``gdiff`` the differences to the next grid
+        column (the last 0); ``idx`` int64, ``frac`` float64 and ``cap`` float32
+        (layers, ph, W): per row phase and column, the entry of ``grid`` and the
+        fraction to the next grid column, and the clip (1; infinity where the
+        layer has no map); ``iv`` int64 and ``fv`` float64 (layers, H): per image
+        row its grid row and the fraction to the next (the maps of a layer that
+        share a row phase share their vertical grid). The field: ``a``
         (H,) and ``b`` (W,) float64 squared offsets from its centre, ``coeffs``
         float64 (ph, k, W) its polynomial per row phase and column,
         ``floor_one`` every field gain on the mosaic is at least 1 (its clipping
         rule). ``wb`` float32 (ph, W): the white-balance gain per row phase and
+        column. ``gmap``, ``my``, ``mx``: a field that is not radial (mode bit
+        :data:`MAP`) as its float32 gain map on the full raw and where the mosaic
+        starts on it (``floor_one`` its rule, as the radial field's); the
         column. Built once per instance.
         """
         args = self.__dict__.get("_args")
@@ -272,21 +282,26 @@ class MosaicGains:
 
 def _kernel_args(g: MosaicGains) -> tuple:
     mode = 0
-    idx, frac, cap, rows, diffs, a, b, coeffs, floor_one, wb = NO_GAINS[1:]
+    idx, frac, cap, grid, gdiff, iv, fv, a, b, coeffs, floor_one, wb, gmap, my, mx = (
+        NO_GAINS[1:])
     ph, pw = g.cfa.period
     w = g.shape[1]
     if g.dng is not None:
         mode |= DNG
-        idx, frac, cap, rows, diffs = _build_layers(g.dng, g.cfa, g.shape)
-    if g.field is not None:
+        idx, frac, cap, grid, gdiff, iv, fv = _build_layers(g.dng, g.cfa, g.shape)
+    if g.field is not None and g.field.radial:
         mode |= FIELD
         a, b, coeffs, floor_one = _field_args(g)
+    elif g.field is not None:
+        mode |= MAP
+        gmap, my, mx, floor_one = _map_args(g)
     if g.wb is not None:
         mode |= WB
         wb = np.empty((ph, w), np.float32)
         for py in range(ph):
             wb[py] = np.resize(np.asarray(g.wb, np.float32)[py], w)  # column phase x % pw
-    return (mode, idx, frac, cap, rows, diffs, a, b, coeffs, bool(floor_one), wb)
+    return (mode, idx, frac, cap, grid, gdiff, iv, fv, a, b, coeffs, bool(floor_one), wb,
+            gmap, int(my), int(mx))
 
 
 def _pieces(dng: Any, cfa: Any) -> list[tuple[Any, dict[tuple[int, int], int]]] | None:
@@ -328,34 +343,46 @@ def _build_layers(dng: Any, cfa: Any, shape: tuple[int, int]) -> tuple:
     if pieces is None:
         raise ValueError("these DNG gain maps cannot be folded into the kernel")
     # a map goes into the first layer after every earlier map that touches one of its
-    # positions: a pixel meets its maps in their order, each clipped at 1
+    # positions (a pixel meets its maps in their order, each clipped at 1) and whose maps
+    # on the row phases it touches have its vertical grid (a band row's grid rows and
+    # fraction are one per layer and row phase)
     last: dict[tuple[int, int], int] = {}
+    geometry: dict[tuple[int, int], tuple] = {}  # (layer, row phase) -> vertical grid
     layer_of = []
-    for _, at in pieces:
+    for gm, at in pieces:
+        geo = (gm.origin_v, gm.spacing_v, max(gm.points_v, 1))
         k = 1 + max((last.get(p, -1) for p in at), default=-1)
+        while any(geometry.get((k, py), geo) != geo for py, _ in at):
+            k += 1
         layer_of.append(k)
         for p in at:
             last[p] = k
+            geometry[(k, p[0])] = geo
     n_layers = 1 + max(layer_of, default=-1)
     m = max(max(gm.points_h, 2) for gm, _ in pieces) * pw + 1  # + the no-map entry
+    n_i = max(max(gm.points_v, 2) for gm, _ in pieces)
     idx = np.full((n_layers, ph, w), m - 1, np.int64)
     frac = np.zeros((n_layers, ph, w), _F64)
     cap = np.full((n_layers, ph, w), np.inf, np.float32)
-    rows = np.ones((n_layers, h, m), _F64)
-    diffs = np.zeros((n_layers, h, m), _F64)
+    grid = np.ones((n_layers, ph, n_i, m), _F64)
+    gdiff = np.zeros((n_layers, ph, n_i, m), _F64)
+    iv = np.zeros((n_layers, h), np.int64)
+    fv = np.zeros((n_layers, h), _F64)
     ys, xs = np.arange(h), np.arange(w)
     for (gm, at), k in zip(pieces, layer_of, strict=True):
         cf, ci = _interp_weights((xs + 0.5) / w, gm.origin_h, gm.spacing_h, gm.points_h)
-        av = _interp_matrix((ys + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
+        rf, ri = _interp_weights((ys + 0.5) / h, gm.origin_v, gm.spacing_v, gm.points_v)
         for (py, px), plane in at.items():
-            r = av[py::ph] @ _grid(gm, plane)  # (rows of the phase, grid columns)
-            n = r.shape[1]
-            rows[k, py::ph, px:n * pw:pw] = r
-            diffs[k, py::ph, px:(n - 1) * pw:pw] = r[:, 1:] - r[:, :-1]
+            g = _grid(gm, plane)  # (grid rows, grid columns)
+            ni, n = g.shape
+            grid[k, py, :ni, px:n * pw:pw] = g
+            gdiff[k, py, :ni, px:(n - 1) * pw:pw] = g[:, 1:] - g[:, :-1]
             idx[k, py, px::pw] = ci[px::pw] * pw + px
             frac[k, py, px::pw] = cf[px::pw]
             cap[k, py, px::pw] = 1.0
-    return idx, frac, cap, rows, diffs
+            iv[k, py::ph] = ri[py::ph]
+            fv[k, py::ph] = rf[py::ph]
+    return idx, frac, cap, grid, gdiff, iv, fv
 
 
 @functools.lru_cache(maxsize=8)
@@ -416,6 +443,21 @@ def _field_args(g: MosaicGains) -> tuple:
     return a, b, coeffs, floor_one
 
 
+def _map_args(g: MosaicGains) -> tuple:
+    """A field that is not radial (:mod:`l3cli.lens.grid`) as the gain map of its full
+    raw (:func:`l3cli.lens.field.gain_map`: the float32 gains the pass multiplies by,
+    computed once per field and size), where the mosaic starts on it, and whether every
+    gain on the mosaic is at least 1 (:func:`l3cli.lens.field.correct_mosaic`'s test)."""
+    from l3cli.lens.field import gain_map
+
+    h, w = g.shape
+    full = tuple(g.full_shape) if g.full_shape is not None else (h, w)
+    y0, x0 = g.origin
+    gmap = gain_map(g.field, full, g.cfa.period)
+    floor_one = float(gmap[y0:y0 + h, x0:x0 + w].min()) >= 1.0
+    return gmap, y0, x0, floor_one
+
+
 def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
                  saturation: float = 1.0, fold: bool = True) -> MosaicGains | None:
     """The gains of ``raw``'s mosaic before classification: its pending DNG maps, the
@@ -444,8 +486,6 @@ def mosaic_gains(raw: Any, *, field: Any = None, wb: np.ndarray | None = None,
                         "%dx%d raws; applying it in coordinates relative to the frame",
                         raw.path or "raw", full[1], full[0], field.size[1], field.size[0])
     foldable = fold and (dng is None or foldable_maps(dng, raw.cfa))
-    if field is not None and not field.radial:
-        foldable = False  # a spline-grid field (l3cli.lens.grid): applied as a pass
     return MosaicGains(shape, raw.cfa, dng, field, full, origin,
                        None if wb is None else np.asarray(wb, np.float32), float(saturation),
                        foldable, raw.path or "raw")

@@ -117,7 +117,9 @@ class SplineField:
         ``(height, width)`` of the training raws (the frame the grid spans).
     """
 
-    #: Not a radial field (:attr:`l3cli.lens.field.GainField.radial`): rendered by a pass.
+    #: Not a radial field (:attr:`l3cli.lens.field.GainField.radial`): the tile kernel reads
+    #: its gain map in the band copy (:mod:`l3cli.lens.gainmaps`); the export evaluates it
+    #: in the graph (:func:`l3cli.export.stages.shading`).
     radial = False
 
     grid: np.ndarray

@@ -232,17 +232,31 @@ def test_bad_definitions():
 
 
 def test_kernel_tables_follow_the_kernel_arguments():
-    """KernelTables is the documented layout of the kernel's definition arguments."""
+    """KernelTables, ContextGuide and the gains are the documented layouts of the tuples
+    the kernel's entry points unpack, in their order; every entry point takes the same
+    arguments but its outputs."""
     import inspect
+    import re
 
     from l3cli.classify.features import ContextGuide
     from l3cli.classify.kernel import KernelTables, kernel_tables
-    from l3cli.classify.tile_kernel import tile_kernel
+    from l3cli.classify.tile_kernel import ENTRIES, tile_kernel
+    from l3cli.lens.gainmaps import NO_GAINS
 
-    names = list(inspect.signature(tile_kernel(5, 2).py_func).parameters)
-    assert names[names.index("tc") + 1 : names.index("ctx")] == list(KernelTables._fields)
-    # then the image's context guide (ctx = its grid)
-    assert len(names[names.index("ctx") : names.index("mode")]) == len(ContextGuide._fields)
+    src = inspect.getsource(tile_kernel)
+
+    def unpacked(name: str) -> list[str]:
+        m = re.search(r"^\s*\(?([\w,\s]+?)\)?\s*=\s*" + name + r"$", src, re.M)
+        assert m is not None, name
+        return [v.strip() for v in m.group(1).split(",")]
+
+    assert unpacked("tables") == list(KernelTables._fields)
+    assert len(unpacked("guide")) == len(ContextGuide._fields)
+    assert len(unpacked("gains")) == len(NO_GAINS)
+    for entry in ENTRIES:
+        names = list(inspect.signature(tile_kernel(5, 2, entry).py_func).parameters)
+        assert names == ["mosaic", "yi", "xi", "y0", "nrows", "tc", "tables", "guide",
+                         "gains", "outs", "t_lo", "t_hi"]
     t = kernel_tables(ClassDefinition.build("RGGB", level_cuts=[0.01, 0.1]))
     assert t.n_sat == 8 and t.group.tolist() == [0, 1, 2, 3] and t.idx_pattern.shape == (2, 2)
 

@@ -198,6 +198,33 @@ def test_fold_equals_the_gains_applied_first(tmp_path):
         np.testing.assert_array_equal(part, got[rows[0]:rows[1]])
 
 
+def test_maps_of_different_vertical_grids_fold_as_the_specification(tmp_path):
+    """A raw three tiles tall whose per-position maps have different vertical grids
+    (points, origin, spacing; two of them on the same row phase): each tile's band is
+    interpolated between the grid rows its rows lie between, so the folded render equals
+    the DNG GainMap written out independently, to 1e-6 relative."""
+    h, w = 150, 72
+    rng = np.random.default_rng(9)
+    dn = rng.integers(64, 4000, (h, w)).astype(np.uint16)
+    maps = []
+    for (top, left), (pv, p_h, ov) in zip([(0, 0), (0, 1), (1, 0), (1, 1)],
+                                         [(9, 5, 0.0), (4, 5, 0.1), (2, 3, 0.0), (6, 7, -0.05)],
+                                         strict=True):
+        g = (1.0 + 0.8 * rng.random((pv, p_h, 1))).astype(np.float32)
+        maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, pv, p_h, 0.9 / (pv - 1),
+                            1 / (p_h - 1), ov, 0.0, g))
+    path = make_dng(tmp_path / "gm.dng", dn, black=64, white=4000,
+                    opcode_list2=encode_gain_maps(maps))
+    raw = read_raw(path)
+    plain = read_raw(make_dng(tmp_path / "plain.dng", dn, black=64, white=4000))
+    ks = prepare_kernels(_table(), raw)
+    assert ks.folded
+    got = render_mosaic(ks, ks.prepare_mosaic(raw.mosaic))
+    want = _ref_dng(plain.mosaic, maps)
+    assert np.abs(want - plain.mosaic).max() > 0.05
+    np.testing.assert_allclose(got[:, :, 1], want, rtol=1e-6, atol=1e-7)
+
+
 def test_unusual_maps_and_context_tables_take_the_mosaic_pass(tmp_path):
     """A map the kernel cannot fold (every third row; a part of the image) and a table
     with a context guide (its block means read the corrected mosaic) multiply the mosaic
@@ -292,3 +319,31 @@ def test_field_on_a_crop_is_placed_on_its_full_raw(tmp_path, field):
     assert ks.folded
     got = render_mosaic(ks, ks.prepare_mosaic(np.ascontiguousarray(crop.mosaic)))[:, :, 0]
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("lift", [True, False])
+def test_spline_field_folds_as_its_pass(tmp_path, lift):
+    """A spline-grid field (l3cli.lens.grid) is folded into the band copy as its gain
+    map: a 5x5 kernel (the same in every class) renders a GainMap DNG, and a crop of a
+    plain one (placed on its full raw), as the mosaic corrected first by the passes (DNG
+    maps, the field's correct_mosaic, white balance) through a plain kernel set, within
+    sum |taps| x 1e-6, for both of the field's clipping rules (every gain >= 1; some
+    below 1)."""
+    from l3cli.lens.grid import SplineField
+
+    rng = np.random.default_rng(4)
+    kernel = np.abs(rng.normal(size=(26, 3))).astype(np.float32) / 10
+    grid = 1 + 0.5 * rng.random((4, 5, 6)) if lift else 0.7 + 0.6 * rng.random((4, 5, 6))
+    t = _table(kernel, wb=True)
+    t.shading = SplineField(grid, (H, W))
+    gm = read_raw(_dng(tmp_path, "gm.dng", list2=phone_gain_maps(H, W, points=(5, 7))))
+    crop = read_raw(_dng(tmp_path, "plain.dng")).crop(2, 4, H - 6, W - 10)
+    for raw in (gm, crop):
+        ks = prepare_kernels(t, raw)
+        assert ks.folded and ks.gains.field is t.shading
+        assert ks.gains.kernel_args()[11] == lift  # which of the field's rules it takes
+        mosaic = np.ascontiguousarray(raw.mosaic)
+        want = render_mosaic(KernelSet.plain(t), ks.corrected_mosaic(mosaic))
+        got = render_mosaic(ks, ks.prepare_mosaic(mosaic))
+        np.testing.assert_allclose(got, want, rtol=0,
+                                   atol=float(np.abs(kernel).sum(0).max()) * 1e-6)
