@@ -33,6 +33,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # kernel sets; the metrics; a camera's description (its TOML, validated)
     ("model", ("classify", "render_rows", "table", "tonecurve", "tonecode", "whitebalance",
                "conditions", "kernelset", "metrics", "multiscale", "multiscale_kernel",
+               "multiscale_layout",
                "shading", "camera", "illumination", "model", "features",
                "gainmaps", "shading_grid", "shading_fit")),
     # inputs: training pairs, registration, previews, simulation
