@@ -74,22 +74,24 @@ def _code(v, base, slope, first, last, inverse):  # pragma: no cover - compiled
     at the value's bucket ends (the value's float32 bits shifted right by
     :data:`l3cli.multiscale.CODE_SHIFT`), the formula itself beyond the table."""
     a = abs(v)
-    if inverse:
-        if a <= np.float32(0.04045):
-            return np.float32(np.copysign(a / np.float32(12.92), v))
-    elif a <= np.float32(0.0031308):
-        return np.float32(np.copysign(np.float32(12.92) * a, v))
     bits = np.uint32(np.float32(a).view(np.uint32))
     b = np.int64(bits >> np.uint32(14))
-    if b > last:  # far above white: the formula (rare)
+    if b > last:  # far above white (or NaN): the formula (rare)
         if inverse:
             o = ((a + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4)
         else:
             o = np.float32(1.055) * a ** np.float32(1 / 2.4) - np.float32(0.055)
         return np.float32(np.copysign(o, v))
+    # both the line and the linear segment, then a select (no branch on the value: see
+    # _direct_code); below the table's first bucket the line is not used (index 0)
     start = np.uint32(bits & np.uint32(0xFFFFC000)).view(np.float32)
-    k = b - first
-    return np.float32(np.copysign(base[k] + slope[k] * (a - start), v))
+    k = max(b - first, 0)
+    t = base[k] + slope[k] * (a - start)
+    if inverse:
+        o = a / np.float32(12.92) if a <= np.float32(0.04045) else t
+    else:
+        o = np.float32(12.92) * a if a <= np.float32(0.0031308) else t
+    return np.float32(np.copysign(o, v))
 
 
 @_loop
