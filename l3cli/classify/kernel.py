@@ -53,7 +53,7 @@ from l3cli.lens.gainmaps import NO_GAINS
 
 __all__ = ["KERNEL_SOURCES", "MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER",
            "KernelTables", "kernel_tables", "check_mosaic", "band_rows", "run_tiles",
-           "classify", "patch_features", "tile_threads"]
+           "classify", "patch_features", "run_split", "tile_threads"]
 
 #: Tile ranges per thread of one kernel call (the threads take them in turn).
 _CHUNKS_PER_THREAD = 4
@@ -159,7 +159,7 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_workers)
 
 
-def _run_split(fn: Any, args: tuple, n_tiles: int) -> None:
+def run_split(fn: Any, args: tuple, n_tiles: int) -> None:
     """``fn(*args, t_lo, t_hi)`` over tiles ``0..n_tiles``, in ranges shared by the threads
     (``fn``: the compiled kernel, resolved once for the call)."""
     k = min(tile_threads(), n_tiles)
@@ -282,7 +282,7 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     args = (mosaic, yi, xi, y0, y1 - y0, tc, tuple(kernel_tables(definition)), guide,
             tuple(gains) if gains is not None else NO_GAINS, outs)
     # resolved once (argument types, loaded code), not once per range
-    _run_split(_kernel(S, pw, _ENTRY[mode]).function(*args, 0, n_tiles), args, n_tiles)
+    run_split(_kernel(S, pw, _ENTRY[mode]).function(*args, 0, n_tiles), args, n_tiles)
 
 
 def classify(mosaic: np.ndarray, definition: ClassDefinition, *,

@@ -11,7 +11,7 @@
   code path for training and rendering, so both see the same bands and classes.
 * :func:`half_means`: the 2 x 2 block means of the pyramid the coarse low-passes
   start from.
-* :func:`gauss_image`: the stage's Gaussian, ``scipy.ndimage.gaussian_filter(img,
+* :func:`gauss_rows`: the stage's Gaussian, ``scipy.ndimage.gaussian_filter(img,
   (s, s, 0), mode="reflect")``'s order of operations (``correlate1d`` of a
   symmetric kernel: per output ``w[0] * x[0]``, then ``(x[-j] + x[j]) * w[j]``
   added from the outermost tap in, axis 0 first) in float32, vectorised along
@@ -28,13 +28,17 @@ import numba as nb
 import numpy as np
 
 from l3cli.io.encode_rows import encode_row
-from l3cli.startup import lean_cache
+from l3cli.multiscale._layout import MODE_FEATURES, MODE_FLOAT
 
-__all__ = ["class_rows", "code_rows", "gauss_image", "half_means",
+__all__ = ["class_rows", "code_rows", "gauss_rows", "half_means",
            "stage_rows", "upsample_cols"]
 
-#: What :func:`stage_rows` writes: the feature maps, the float output, display integers.
-MODE_FEATURES, MODE_FLOAT, MODE_DISPLAY = 0, 1, 2
+#: The loops below that the caller runs: compiled without numba's cache (the caller
+#: stores their machine code, :mod:`l3cli.kernel_store`), without the GIL, each on a
+#: range of rows (or bands) so that l3's threads share an image
+#: (:func:`l3cli.classify.kernel.run_split`); ``error_model="numpy"``: no division
+#: checks (no divisor here is zero).
+_loop = nb.njit(nogil=True, error_model="numpy")
 
 
 @nb.njit(inline="always")
@@ -70,41 +74,42 @@ def _code(v, base, slope, first, last, inverse):  # pragma: no cover - compiled
     at the value's bucket ends (the value's float32 bits shifted right by
     :data:`l3cli.multiscale.stage.CODE_SHIFT`), the formula itself beyond the table."""
     a = abs(v)
-    if inverse:
-        if a <= np.float32(0.04045):
-            return np.float32(np.copysign(a / np.float32(12.92), v))
-    elif a <= np.float32(0.0031308):
-        return np.float32(np.copysign(np.float32(12.92) * a, v))
     bits = np.uint32(np.float32(a).view(np.uint32))
     b = np.int64(bits >> np.uint32(14))
-    if b > last:  # far above white: the formula (rare)
+    if b > last:  # far above white (or NaN): the formula (rare)
         if inverse:
             o = ((a + np.float32(0.055)) / np.float32(1.055)) ** np.float32(2.4)
         else:
             o = np.float32(1.055) * a ** np.float32(1 / 2.4) - np.float32(0.055)
         return np.float32(np.copysign(o, v))
+    # both the line and the linear segment, then a select (no branch on the value: see
+    # _direct_code); below the table's first bucket the line is not used (index 0)
     start = np.uint32(bits & np.uint32(0xFFFFC000)).view(np.float32)
-    k = b - first
-    return np.float32(np.copysign(base[k] + slope[k] * (a - start), v))
+    k = max(b - first, 0)
+    t = base[k] + slope[k] * (a - start)
+    if inverse:
+        o = a / np.float32(12.92) if a <= np.float32(0.04045) else t
+    else:
+        o = np.float32(12.92) * a if a <= np.float32(0.0031308) else t
+    return np.float32(np.copysign(o, v))
 
 
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def code_rows(src, dst, base, slope, first, last, inverse):  # pragma: no cover - compiled
-    """The stage's coding (:func:`_code`) of ``src`` (H, L) float32 into ``dst``."""
-    h, n = src.shape
-    for y in nb.prange(h):
+@_loop
+def code_rows(src, dst, base, slope, first, last, inverse, lo, hi):  # pragma: no cover
+    """The stage's coding (:func:`_code`) of rows ``lo..hi`` of ``src`` (H, L) float32
+    into ``dst``."""
+    n = src.shape[1]
+    for y in range(lo, hi):
         for k in range(n):
             dst[y, k] = _code(src[y, k], base, slope, first, last, inverse)
 
 
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def class_rows(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
-               energy_cuts: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
-    """The coarse class (:func:`_class_of`) of every pixel into ``out`` (H, W) int32."""
-    h, w = lev.shape
-    for y in nb.prange(h):
+@_loop
+def class_rows(lev, en, level_cuts, energy_cuts, out, lo, hi):  # pragma: no cover - compiled
+    """The coarse class (:func:`_class_of`) of the pixels of rows ``lo..hi`` into ``out``
+    (H, W) int32."""
+    w = lev.shape[1]
+    for y in range(lo, hi):
         for x in range(w):
             out[y, x] = _class_of(lev[y, x], en[y, x], level_cuts, energy_cuts)
 
@@ -155,22 +160,24 @@ def _horizontal(row, wd, c, w, pad, d):  # pragma: no cover - compiled
             d[k] += (pad[lo + np.uint64(k)] + pad[hi + np.uint64(k)]) * wj
 
 
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def gauss_image(src, w, tmp, dst):  # pragma: no cover - compiled
-    """The separable Gaussian of each channel of ``src`` (H, W, C) float32 into ``dst``:
-    along axis 0 (:func:`_vertical`) into ``tmp``, then along axis 1 (:func:`_horizontal`);
-    ``w`` float32 (r + 1,): the centre tap and the taps at distance 1..r."""
+@_loop
+def gauss_rows(src, w, tmp, dst, horizontal, lo, hi):  # pragma: no cover - compiled
+    """One pass of the separable Gaussian of each channel of ``src`` (H, W, C) float32,
+    rows ``lo..hi``: along axis 0 (:func:`_vertical`) into ``tmp``, or (``horizontal``,
+    once every row of ``tmp`` is done) along axis 1 (:func:`_horizontal`) from ``tmp``
+    into ``dst``; ``w`` float32 (r + 1,): the centre tap and the taps at distance 1..r."""
     h, wd, c = src.shape
     n = wd * c
-    s2 = src.reshape(h, n)
     t2 = tmp.reshape(h, n)
-    d2 = dst.reshape(h, n)
-    for y in nb.prange(h):
-        _vertical(s2, y, w, t2[y])
-    for y in nb.prange(h):
+    if horizontal:
+        d2 = dst.reshape(h, n)
         pad = np.empty((wd + 2 * w.shape[0]) * c, dtype=np.float32)
-        _horizontal(t2[y], wd, c, w, pad, d2[y])
+        for y in range(lo, hi):
+            _horizontal(t2[y], wd, c, w, pad, d2[y])
+    else:
+        s2 = src.reshape(h, n)
+        for y in range(lo, hi):
+            _vertical(s2, y, w, t2[y])
 
 
 @nb.njit(inline="always")
@@ -192,16 +199,15 @@ def _upsample_row(wide, f, y, d):  # pragma: no cover - compiled
         d[k] = t0 * a[k] + t * b[k]
 
 
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def upsample_cols(lo, cx0, cx1, ctx, out):  # pragma: no cover - compiled
-    """The bilinear upsampling of ``lo`` (h, w, C) along its columns into ``out``
-    (h, W, C): column ``x`` from the columns ``cx0[x]``, ``cx1[x]`` with weights
-    ``1 - ctx[x]``, ``ctx[x]`` (float32)."""
-    hl, _, c = lo.shape
+@_loop
+def upsample_cols(low, cx0, cx1, ctx, out, lo, hi):  # pragma: no cover - compiled
+    """The bilinear upsampling of rows ``lo..hi`` of ``low`` (h, w, C) along its columns
+    into ``out`` (h, W, C): column ``x`` from the columns ``cx0[x]``, ``cx1[x]`` with
+    weights ``1 - ctx[x]``, ``ctx[x]`` (float32)."""
+    c = low.shape[2]
     wd = cx0.shape[0]
-    for i in nb.prange(hl):
-        r = lo[i]
+    for i in range(lo, hi):
+        r = low[i]
         o = out[i]
         for x in range(wd):
             p = cx0[x]
@@ -216,7 +222,7 @@ def upsample_cols(lo, cx0, cx1, ctx, out):  # pragma: no cover - compiled
 def _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, j, yy, pad, vrow,
                d):  # pragma: no cover - compiled
     """Row ``yy`` of scale ``j``'s low-pass into ``d`` (W * C,): the full-resolution
-    Gaussian (:func:`gauss_image`'s arithmetic) or the bilinear upsampling of its
+    Gaussian (:func:`gauss_rows`'s arithmetic) or the bilinear upsampling of its
     low-resolution low-pass (:func:`_upsample_row`)."""
     if fac[j] == 1:
         wj = taps[j, :rads[j] + 1]
@@ -231,38 +237,37 @@ def _direct_code(v, cell_code, uthr):  # pragma: no cover - compiled
     """The 8-bit display code of a blended value ``v`` in the stage's coding: the code
     at the start of its cell of ``1 / (len(cell_code) - 1)`` (``cell_code``), one more
     where ``v`` reaches the next threshold (``uthr``: the smallest value of each code;
-    no cell holds two). NaN and values below 0 give 0, values from 1 up the last cell's."""
-    if not v > np.float32(0.0):
-        return np.uint8(0)
-    top = cell_code.shape[0] - 1
-    cell = np.int64(min(v, np.float32(1.0)) * np.float32(top))
-    q = np.int64(cell_code[cell])
-    if q < 255:
-        q += np.int64(v >= uthr[q + 1])
+    no cell holds two). NaN and values below 0 give 0, values from 1 up the last cell's.
+    Selects, no branches: compiled serially, the branches cost ~35 ns a value (random
+    data), the selects ~4."""
+    c = v if v > np.float32(0.0) else np.float32(0.0)  # NaN: 0 (and below uthr[1])
+    c = c if c < np.float32(1.0) else np.float32(1.0)
+    q = np.int64(cell_code[np.int64(c * np.float32(cell_code.shape[0] - 1))])
+    nxt = q + 1 if q < 255 else 255
+    q += np.int64(v >= uthr[nxt]) if q < 255 else 0
     return np.uint8(q)
 
 
-@lean_cache
-@nb.njit(cache=True, parallel=True)
+@_loop
 def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend,
                coded, base, slope, first, last, mode, stack, coarse, lev, en, outf,
                use_matrix, m, thr, buckets, interp, shift, out8, out16, bits,
-               direct, cell_code, uthr, band_rows, n_chunks):  # pragma: no cover - compiled
+               direct, cell_code, uthr, band_rows, b_lo, b_hi):  # pragma: no cover - compiled
     """The stage on ``u`` (H, W, C) float32, the render in the stage's coding.
 
     ``wides``: the coarse scales' low-passes at reduced resolution, upsampled along
     their columns (:func:`upsample_cols`), one flat float32 array of (h_j, W, C)
     blocks in scale order (scales with ``fac[j] > 1``);
     ``taps`` (n_scales, r_max + 1) float32 and ``rads`` (n_scales,): the
-    full-resolution scales' kernels (``fac[j] == 1``: :func:`gauss_image`'s taps,
+    full-resolution scales' kernels (``fac[j] == 1``: :func:`gauss_rows`'s taps,
     ``rads[j] + 1`` of them); ``e_taps``: the energy's low-pass;
     ``mode``: :data:`MODE_FEATURES` fills ``stack``
     (H, W, n_scales C), ``coarse`` (H, W, C), ``lev``, ``en`` (H, W);
     :data:`MODE_FLOAT` the decoded blend into ``outf`` (H, W, C);
     :data:`MODE_DISPLAY` its display integers into ``out8`` / ``out16`` (flat)
     through :func:`l3cli.io.encode_rows.encode_row` with the encoder's parameters.
-    Bands of ``band_rows`` rows, in ``n_chunks`` runs of bands in parallel (each with
-    its own temporaries).
+    Bands ``b_lo..b_hi`` of ``band_rows`` rows (a call's temporaries serve its bands;
+    calls on other bands may run at the same time).
     ``coded``: the stage works in the sRGB coding, whose inverse (:func:`_code` with the
     table ``base``, ``slope``, ``first``, ``last``) the blend is decoded by.
     ``direct``: 8-bit display codes straight from the blend (the decoding and the
@@ -285,168 +290,162 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                 g *= 2
             hls[j] = hl
         offs[j + 1] = offs[j] + hls[j] * n
-    n_bands = (h + band_rows - 1) // band_rows
-    n_chunks = max(1, min(n_bands, n_chunks))
     nl = level_cuts.shape[0]
     ne = energy_cuts.shape[1]
     cf = np.float32(c)
     cu = np.uint64(c)
     bf = blend.reshape(-1)  # class k, band value r, channel ch at (k * R + r) * C + ch
     ecf = energy_cuts.reshape(-1)
-    for ck in nb.prange(n_chunks):
-        span = band_rows + 2 * re
-        cc = np.empty((span, n), dtype=np.float32)  # the coarsest low-pass, halo included
-        lp = np.empty((ns, n), dtype=np.float32)  # the finer low-passes of one row
-        st = np.empty((ns, n), dtype=np.float32)  # one row's bands, band by band
-        e_rows = np.empty((span, wd), dtype=np.float32)
-        vrow = np.empty(n, dtype=np.float32)
-        pad = np.empty((wd + 2 * max(taps.shape[1], e_taps.shape[0])) * c, dtype=np.float32)
-        e_col = np.empty(wd, dtype=np.float32)
-        e_out = np.empty(wd, dtype=np.float32)
-        orow = np.empty(n, dtype=np.float32)
-        lin = np.empty(n, dtype=np.float32)
-        lvr = np.empty(wd, dtype=np.float32)
-        cls = np.empty(wd, dtype=np.int64)
-        b_lo = ck * n_bands // n_chunks
-        b_hi = (ck + 1) * n_bands // n_chunks
-        for bi in range(b_lo, b_hi):
-            y0 = bi * band_rows
-            y1 = min(h, y0 + band_rows)
-            a0 = y0 - re
-            for k in range(y1 - y0 + 2 * re):  # the coarsest low-pass and the energy
-                yy = _reflect(a0 + k, h)
-                ck_row = cc[k]
-                _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, ns - 1, yy, pad, vrow,
-                           ck_row)
-                ur = u2[yy]
-                er = e_rows[k]
-                for x in range(wd):  # unsigned indices: no wrap-around code per value
+    span = band_rows + 2 * re
+    cc = np.empty((span, n), dtype=np.float32)  # the coarsest low-pass, halo included
+    lp = np.empty((ns, n), dtype=np.float32)  # the finer low-passes of one row
+    st = np.empty((ns, n), dtype=np.float32)  # one row's bands, band by band
+    e_rows = np.empty((span, wd), dtype=np.float32)
+    vrow = np.empty(n, dtype=np.float32)
+    pad = np.empty((wd + 2 * max(taps.shape[1], e_taps.shape[0])) * c, dtype=np.float32)
+    e_col = np.empty(wd, dtype=np.float32)
+    e_out = np.empty(wd, dtype=np.float32)
+    orow = np.empty(n, dtype=np.float32)
+    lin = np.empty(n, dtype=np.float32)
+    lvr = np.empty(wd, dtype=np.float32)
+    cls = np.empty(wd, dtype=np.int64)
+    for bi in range(b_lo, b_hi):
+        y0 = bi * band_rows
+        y1 = min(h, y0 + band_rows)
+        a0 = y0 - re
+        for k in range(y1 - y0 + 2 * re):  # the coarsest low-pass and the energy
+            yy = _reflect(a0 + k, h)
+            ck_row = cc[k]
+            _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, ns - 1, yy, pad, vrow,
+                       ck_row)
+            ur = u2[yy]
+            er = e_rows[k]
+            for x in range(wd):  # unsigned indices: no wrap-around code per value
+                b0 = np.uint64(x) * cu
+                sq = np.float32(0.0)
+                for ch in range(c):
+                    dv = ur[b0 + np.uint64(ch)] - ck_row[b0 + np.uint64(ch)]
+                    sq += dv * dv
+                er[x] = sq / cf
+        for y in range(y0, y1):
+            k = y - a0
+            w0 = e_taps[0]  # the energy: its low-pass along axis 0, then axis 1
+            for x in range(wd):
+                e_col[x] = e_rows[k, x] * w0
+            for j in range(re, 0, -1):
+                wj = e_taps[j]
+                a = e_rows[k - j]
+                b = e_rows[k + j]
+                for x in range(wd):
+                    e_col[x] += (a[x] + b[x]) * wj
+            _horizontal(e_col, wd, 1, e_taps, pad, e_out)
+            ur = u2[y]
+            crow = cc[k]
+            for j in range(ns - 1):
+                _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, j, y, pad, vrow,
+                           lp[j])
+            for j in range(ns):  # the bands: finer minus coarser low-pass
+                fin = ur if j == 0 else lp[j - 1]
+                crs = crow if j == ns - 1 else lp[j]
+                sr = st[j]
+                for q in range(n):
+                    sr[q] = fin[q] - crs[q]
+            for x in range(wd):  # the level and the energy
+                b0 = np.uint64(x) * cu
+                sv = crow[b0]
+                for ch in range(1, c):
+                    sv += crow[b0 + np.uint64(ch)]
+                lvr[x] = sv / cf
+                ev = e_out[x]
+                e_out[x] = np.sqrt(ev if ev > np.float32(0.0) else np.float32(0.0))
+            if mode == MODE_FEATURES:
+                for x in range(wd):
                     b0 = np.uint64(x) * cu
-                    sq = np.float32(0.0)
+                    lev[y, x] = lvr[x]
+                    en[y, x] = e_out[x]
+                    for j in range(ns):
+                        for ch in range(c):
+                            stack[y, x, j * c + ch] = st[j, b0 + np.uint64(ch)]
                     for ch in range(c):
-                        dv = ur[b0 + np.uint64(ch)] - ck_row[b0 + np.uint64(ch)]
-                        sq += dv * dv
-                    er[x] = sq / cf
-            for y in range(y0, y1):
-                k = y - a0
-                w0 = e_taps[0]  # the energy: its low-pass along axis 0, then axis 1
+                        coarse[y, x, ch] = crow[b0 + np.uint64(ch)]
+                continue
+            for x in range(wd):  # the class (_class_of, as counts: the cuts increase)
+                cls[x] = 0
+            for i in range(nl):
+                cut = level_cuts[i]
                 for x in range(wd):
-                    e_col[x] = e_rows[k, x] * w0
-                for j in range(re, 0, -1):
-                    wj = e_taps[j]
-                    a = e_rows[k - j]
-                    b = e_rows[k + j]
-                    for x in range(wd):
-                        e_col[x] += (a[x] + b[x]) * wj
-                _horizontal(e_col, wd, 1, e_taps, pad, e_out)
-                ur = u2[y]
-                crow = cc[k]
-                for j in range(ns - 1):
-                    _scale_row(u2, wides, offs, hls, wd, c, fac, taps, rads, j, y, pad, vrow,
-                               lp[j])
-                for j in range(ns):  # the bands: finer minus coarser low-pass
-                    fin = ur if j == 0 else lp[j - 1]
-                    crs = crow if j == ns - 1 else lp[j]
-                    sr = st[j]
-                    for q in range(n):
-                        sr[q] = fin[q] - crs[q]
-                for x in range(wd):  # the level and the energy
-                    b0 = np.uint64(x) * cu
-                    sv = crow[b0]
-                    for ch in range(1, c):
-                        sv += crow[b0 + np.uint64(ch)]
-                    lvr[x] = sv / cf
-                    ev = e_out[x]
-                    e_out[x] = np.sqrt(ev if ev > np.float32(0.0) else np.float32(0.0))
-                if mode == MODE_FEATURES:
-                    for x in range(wd):
-                        b0 = np.uint64(x) * cu
-                        lev[y, x] = lvr[x]
-                        en[y, x] = e_out[x]
-                        for j in range(ns):
-                            for ch in range(c):
-                                stack[y, x, j * c + ch] = st[j, b0 + np.uint64(ch)]
-                        for ch in range(c):
-                            coarse[y, x, ch] = crow[b0 + np.uint64(ch)]
-                    continue
-                for x in range(wd):  # the class (_class_of, as counts: the cuts increase)
-                    cls[x] = 0
-                for i in range(nl):
-                    cut = level_cuts[i]
-                    for x in range(wd):
-                        cls[x] += np.int64(cut <= lvr[x])
-                for x in range(wd):
-                    lb = np.uint64(cls[x])
-                    eb = lb * np.uint64(ne + 1)
-                    row = lb * np.uint64(ne)
-                    ev = e_out[x]
-                    for i in range(ne):
-                        eb += np.uint64(ev >= ecf[row + np.uint64(i)])
-                    cls[x] = np.int64(eb)
-                for x in range(wd):  # the blend of the pixel's class
-                    b0 = np.uint64(x) * cu
-                    ab = np.uint64(cls[x]) * np.uint64(ns * c * c)
-                    if c == 3:  # the same sums, the band values loaded once
-                        i1 = b0 + np.uint64(1)
-                        i2 = b0 + np.uint64(2)
-                        s0 = crow[b0]
-                        s1 = crow[i1]
-                        s2 = crow[i2]
-                        for j in range(ns):
-                            sj = st[j]
-                            for ch in range(3):
-                                v = sj[b0 + np.uint64(ch)]
-                                q = ab + np.uint64((j * 3 + ch) * 3)
-                                s0 += v * bf[q]
-                                s1 += v * bf[q + np.uint64(1)]
-                                s2 += v * bf[q + np.uint64(2)]
-                        orow[b0] = s0
-                        orow[i1] = s1
-                        orow[i2] = s2
-                    else:
-                        for ch in range(c):
-                            sv = crow[b0 + np.uint64(ch)]
-                            for j in range(ns):
-                                for i in range(c):
-                                    q = ab + np.uint64(((j * c + i) * c) + ch)
-                                    sv += st[j, b0 + np.uint64(i)] * bf[q]
-                            orow[b0 + np.uint64(ch)] = sv
-                if mode == MODE_FEATURES:
-                    continue
-                if direct:
-                    o8 = np.uint64(y * n)
-                    for q in range(n):
-                        out8[o8 + np.uint64(q)] = _direct_code(orow[q], cell_code, uthr)
-                    continue
-                if coded:
-                    for q in range(n):
-                        lin[q] = _code(orow[q], base, slope, first, last, True)
+                    cls[x] += np.int64(cut <= lvr[x])
+            for x in range(wd):
+                lb = np.uint64(cls[x])
+                eb = lb * np.uint64(ne + 1)
+                row = lb * np.uint64(ne)
+                ev = e_out[x]
+                for i in range(ne):
+                    eb += np.uint64(ev >= ecf[row + np.uint64(i)])
+                cls[x] = np.int64(eb)
+            for x in range(wd):  # the blend of the pixel's class
+                b0 = np.uint64(x) * cu
+                ab = np.uint64(cls[x]) * np.uint64(ns * c * c)
+                if c == 3:  # the same sums, the band values loaded once
+                    i1 = b0 + np.uint64(1)
+                    i2 = b0 + np.uint64(2)
+                    s0 = crow[b0]
+                    s1 = crow[i1]
+                    s2 = crow[i2]
+                    for j in range(ns):
+                        sj = st[j]
+                        for ch in range(3):
+                            v = sj[b0 + np.uint64(ch)]
+                            q = ab + np.uint64((j * 3 + ch) * 3)
+                            s0 += v * bf[q]
+                            s1 += v * bf[q + np.uint64(1)]
+                            s2 += v * bf[q + np.uint64(2)]
+                    orow[b0] = s0
+                    orow[i1] = s1
+                    orow[i2] = s2
                 else:
-                    for q in range(n):
-                        lin[q] = orow[q]
-                if mode == MODE_FLOAT:
-                    o = outf[y].reshape(n)
-                    for q in range(n):
-                        o[q] = lin[q]
-                else:
-                    encode_row(lin, n, use_matrix, m, thr, buckets, interp, shift, orow,
-                               out8, out16, bits, y * n)
+                    for ch in range(c):
+                        sv = crow[b0 + np.uint64(ch)]
+                        for j in range(ns):
+                            for i in range(c):
+                                q = ab + np.uint64(((j * c + i) * c) + ch)
+                                sv += st[j, b0 + np.uint64(i)] * bf[q]
+                        orow[b0 + np.uint64(ch)] = sv
+            if mode == MODE_FEATURES:
+                continue
+            if direct:
+                o8 = np.uint64(y * n)
+                for q in range(n):
+                    out8[o8 + np.uint64(q)] = _direct_code(orow[q], cell_code, uthr)
+                continue
+            if coded:
+                for q in range(n):
+                    lin[q] = _code(orow[q], base, slope, first, last, True)
+            else:
+                for q in range(n):
+                    lin[q] = orow[q]
+            if mode == MODE_FLOAT:
+                o = outf[y].reshape(n)
+                for q in range(n):
+                    o[q] = lin[q]
+            else:
+                encode_row(lin, n, use_matrix, m, thr, buckets, interp, shift, orow,
+                           out8, out16, bits, y * n)
 
 
-@lean_cache
-@nb.njit(cache=True, parallel=True)
-def half_means(src: np.ndarray, dst: np.ndarray) -> None:  # pragma: no cover - compiled
-    """The mean of each 2 x 2 block of ``src`` (H, W, C) float32 into ``dst``
-    (ceil(H / 2), ceil(W / 2), C): per block ``(a + b) + (c + d)`` over its rows' sums
+@_loop
+def half_means(src, dst, lo, hi):  # pragma: no cover - compiled
+    """The mean of each 2 x 2 block of block rows ``lo..hi`` of ``src`` (H, W, C) float32
+    into ``dst`` (ceil(H / 2), ceil(W / 2), C): per block ``(a + b) + (c + d)`` over its rows' sums
     (``a + c``, ``b + d``, float32), divided by its pixel count (blocks at the far
     edges are cut short: 2 or 1 pixels)."""
     h, w, c = src.shape
-    hl, wl = dst.shape[0], dst.shape[1]
+    wl = dst.shape[1]
     n = w * c
-    for by in nb.prange(hl):
+    rs = np.empty(n, dtype=np.float32)
+    for by in range(lo, hi):
         y0 = 2 * by
         r0 = src[y0].reshape(n)
-        rs = np.empty(n, dtype=np.float32)
         if y0 + 1 < h:
             r1 = src[y0 + 1].reshape(n)
             for k in range(n):

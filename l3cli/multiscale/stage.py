@@ -52,11 +52,14 @@ the table as the optional ``multiscale_*`` keys (:meth:`Multiscale.to_arrays`,
 from __future__ import annotations
 
 import functools
+import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from l3cli.errors import TableError
+from l3cli.multiscale._layout import MODE_DISPLAY, MODE_FEATURES, MODE_FLOAT
 from l3cli.tablekeys import optional_group
 
 __all__ = ["CODE_SHIFT", "MULTISCALE_RULE", "TRANSFERS", "Multiscale", "apply",
@@ -143,13 +146,42 @@ def decode(u: np.ndarray, transfer: str) -> np.ndarray:
 
 
 def _transfer(v: np.ndarray, *, inverse: bool, out: np.ndarray | None = None) -> np.ndarray:
-    from l3cli.multiscale._loops import code_rows
-
     src = np.asarray(v, order="C")  # (ascontiguousarray would make a 0-d array 1-d)
     out = np.empty_like(src) if out is None else out
     rows = src.shape[0] if src.ndim > 1 else 1
-    code_rows(src.reshape(rows, -1), out.reshape(rows, -1), *code_table(inverse), inverse)
+    _split("code_rows", (src.reshape(rows, -1), out.reshape(rows, -1), *code_table(inverse),
+                         inverse), rows)
     return out
+
+
+#: The source files the stage's machine code comes from (:mod:`l3cli.kernel_store`).
+_HERE = Path(__file__).resolve().parent
+KERNEL_SOURCES = tuple(str(p) for p in (
+    _HERE / "_loops.py", _HERE / "_layout.py", _HERE.parent / "io" / "encode_rows.py"))
+
+
+@functools.cache
+def _stored(name: str):
+    """The stage's loop ``name`` (:mod:`l3cli.multiscale._loops`): its stored machine code
+    when there is some for the arguments' types, else numba's, then stored."""
+    from l3cli.kernel_store import Stored
+
+    def dispatcher():
+        from l3cli.multiscale import _loops
+
+        return getattr(_loops, name)
+
+    return Stored(f"multiscale-{name.replace('_', '-')}", KERNEL_SOURCES, dispatcher)
+
+
+def _split(name: str, args: tuple, n: int) -> None:
+    """The loop ``name`` on ``args`` over rows (or bands) ``0..n``, shared by l3's threads
+    (:func:`l3cli.classify.kernel.run_split`)."""
+    if n <= 0:
+        return
+    from l3cli.classify.kernel import run_split
+
+    run_split(_stored(name).function(*args, 0, n), args, n)
 
 
 def factor(sigma: float) -> int:
@@ -190,17 +222,17 @@ def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
     Borders are mirrored (``scipy.ndimage``'s ``"reflect"``), the support is
     :data:`TRUNCATE` standard deviations: ``scipy.ndimage.gaussian_filter(image,
     (sigma, sigma, 0), mode="reflect", truncate=TRUNCATE)``'s taps and order of
-    operations in float32 (:func:`l3cli.multiscale._loops.gauss_image`; within float32
+    operations in float32 (:func:`l3cli.multiscale._loops.gauss_rows`; within float32
     rounding of scipy's float64 sums, tested).
     """
-    from l3cli.multiscale._loops import gauss_image
-
     img = np.ascontiguousarray(image, dtype=np.float32)
     if img.ndim != 3:
         raise ValueError(f"lowpass takes (H, W, C) images, got shape {img.shape}")
     out = np.empty_like(img)
     if img.size:
-        gauss_image(img, gauss_taps(sigma).astype(np.float32), np.empty_like(img), out)
+        taps, tmp = gauss_taps(sigma).astype(np.float32), np.empty_like(img)
+        for horizontal in (False, True):  # every row along axis 0 first
+            _split("gauss_rows", (img, taps, tmp, out, horizontal), img.shape[0])
     return out
 
 
@@ -213,15 +245,14 @@ def classes(lev: np.ndarray, en: np.ndarray, level_cuts: np.ndarray,
     cut falls in the bin above it (float32 comparisons;
     :func:`l3cli.multiscale._loops.class_rows`, one parallel pass).
     """
-    from l3cli.multiscale._loops import class_rows
-
     lev2 = np.ascontiguousarray(lev, dtype=np.float32)
     shape = lev2.shape
     lev2 = lev2.reshape(shape[0] if lev2.ndim > 1 else 1, -1)
     out = np.empty(lev2.shape, dtype=np.int32)
-    class_rows(lev2, np.ascontiguousarray(en, dtype=np.float32).reshape(lev2.shape),
-               np.ascontiguousarray(level_cuts, dtype=np.float32),
-               np.ascontiguousarray(energy_cuts, dtype=np.float32), out)
+    _split("class_rows", (lev2, np.ascontiguousarray(en, dtype=np.float32).reshape(lev2.shape),
+                          np.ascontiguousarray(level_cuts, dtype=np.float32),
+                          np.ascontiguousarray(energy_cuts, dtype=np.float32), out),
+           lev2.shape[0])
     return out.reshape(shape)
 
 
@@ -327,13 +358,10 @@ class Multiscale:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The table keys of the stage."""
-        return {"multiscale_rule": np.array(MULTISCALE_RULE),
-                "multiscale_sigmas": self.sigmas,
+        return {"multiscale_rule": np.array(MULTISCALE_RULE), "multiscale_sigmas": self.sigmas,
                 "multiscale_level_cuts": self.level_cuts,
-                "multiscale_energy_cuts": self.energy_cuts,
-                "multiscale_blend": self.blend,
-                "multiscale_counts": self.counts,
-                "multiscale_transfer": np.array(self.transfer)}
+                "multiscale_energy_cuts": self.energy_cuts, "multiscale_blend": self.blend,
+                "multiscale_counts": self.counts, "multiscale_transfer": np.array(self.transfer)}
 
     @classmethod
     def from_arrays(cls, arrs: dict) -> Multiscale | None:
@@ -351,8 +379,6 @@ class Multiscale:
         if rule is not None and rule.dtype.kind == "U" and str(rule) == OLD_RULE:
             # the same stage, fitted on full-resolution low-passes: still loads, renders
             # with this rule's (8-bit codes move by one at about 1 % of pixels, measured)
-            import logging
-
             logging.getLogger(__name__).warning(
                 "the table's multi-scale stage was fitted with rule %r; rendered with %r "
                 "(a few codes move by one; retrain with --multiscale for an exact match)",
@@ -387,20 +413,14 @@ def radius(sigma: float) -> int:
     return int(TRUNCATE * float(sigma) + 0.5)
 
 
-_F32 = np.zeros((1, 1, 1), np.float32)
-_F32_2 = np.zeros((1, 1), np.float32)
-_U8 = np.zeros(1, np.uint8)
-_U16 = np.zeros(1, np.uint16)
+_F32, _F32_2 = np.zeros((1, 1, 1), np.float32), np.zeros((1, 1), np.float32)
+_U8, _U16 = np.zeros(1, np.uint8), np.zeros(1, np.uint16)
 
 
 def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, **outs) -> None:
     """:func:`l3cli.multiscale._loops.stage_rows` on ``u`` (H, W, C) float32 in the stage's
     coding: the pyramid of 2 x 2 block means, the coarse scales' low-resolution
     Gaussians and their upsampling along the columns first."""
-    import numba
-
-    from l3cli.multiscale._loops import half_means, stage_rows, upsample_cols
-
     h, w, c = u.shape
     sigmas = np.asarray(sigmas, dtype=np.float64)
     ns = sigmas.size
@@ -411,7 +431,7 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
         below = pyramid[f // 2]
         pyramid[f] = np.empty(((below.shape[0] + 1) // 2, (below.shape[1] + 1) // 2, c),
                               np.float32)
-        half_means(below, pyramid[f])
+        _split("half_means", (below, pyramid[f]), pyramid[f].shape[0])
         f *= 2
     from l3cli import buffers
 
@@ -433,8 +453,8 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
         ctx = (num - i0 * 2 * f).astype(np.float32) / np.float32(2 * f)
         wide = wides[at:at + sizes[j]].reshape(lo.shape[0], w, c)
         at += sizes[j]
-        upsample_cols(lo, np.clip(i0, 0, lo.shape[1] - 1), np.clip(i0 + 1, 0, lo.shape[1] - 1),
-                      ctx, wide)
+        _split("upsample_cols", (lo, np.clip(i0, 0, lo.shape[1] - 1),
+                                 np.clip(i0 + 1, 0, lo.shape[1] - 1), ctx, wide), lo.shape[0])
     e_taps = gauss_taps(sigmas[0]).astype(np.float32)
     if stage is not None:
         lc = stage.level_cuts.astype(np.float32)
@@ -452,13 +472,14 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
     direct = bool(outs.get("direct", False))
     cell_code, uthr = direct_table() if direct else (np.zeros(2, np.uint8),
                                                       np.zeros(2, np.float32))
-    stage_rows(u, wides, fac, taps, rads, e_taps, lc, ec, blend, coded,
-               *code_table(True), mode,
-               outs.get("stack", _F32), outs.get("coarse", _F32), outs.get("lev", _F32_2),
-               outs.get("en", _F32_2), outs.get("outf", _F32), *params,
-               out.reshape(-1) if out is not None and bits == 8 else _U8,
-               out.reshape(-1) if out is not None and bits == 16 else _U16, bits,
-               direct, cell_code, uthr, BAND_ROWS, 4 * numba.get_num_threads())
+    band_rows = int(BAND_ROWS)
+    _split("stage_rows", (
+        u, wides, fac, taps, rads, e_taps, lc, ec, blend, coded, *code_table(True), mode,
+        outs.get("stack", _F32), outs.get("coarse", _F32), outs.get("lev", _F32_2),
+        outs.get("en", _F32_2), outs.get("outf", _F32), *params,
+        out.reshape(-1) if out is not None and bits == 8 else _U8,
+        out.reshape(-1) if out is not None and bits == 16 else _U16, bits,
+        direct, cell_code, uthr, band_rows), -(-h // band_rows))
     buffers.release(wides)
 
 
@@ -516,8 +537,6 @@ def feature_maps(u: np.ndarray, sigmas) -> tuple[np.ndarray, np.ndarray, np.ndar
     lev = np.empty((h, w), np.float32)
     en = np.empty((h, w), np.float32)
     if u.size:
-        from l3cli.multiscale._loops import MODE_FEATURES
-
         _run(sigmas, u, MODE_FEATURES, stack=stack, coarse=coarse, lev=lev, en=en)
     return stack, coarse, lev, en
 
@@ -535,8 +554,6 @@ def _coded(stage: Multiscale, y: np.ndarray, inplace: bool) -> np.ndarray:
 def apply_stage(stage: Multiscale, y: np.ndarray, *, inplace: bool = False) -> np.ndarray:
     """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new
     array; ``inplace``: ``y``'s memory is used for its coding)."""
-    from l3cli.multiscale._loops import MODE_FLOAT
-
     u = _coded(stage, y, inplace)
     out = np.empty_like(u)
     if u.size:
@@ -550,7 +567,6 @@ def apply_display(stage: Multiscale, y: np.ndarray, space: str, bits: int, *,
     integers of :func:`apply_stage`'s output, row by row as it is blended: no float
     output is held). ``lab`` tables take the float output and ``display_encode``."""
     from l3cli.io.encode import display_encode, display_params
-    from l3cli.multiscale._loops import MODE_DISPLAY
 
     params = display_params(space, stage.n_out, bits)
     if params is None:
