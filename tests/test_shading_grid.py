@@ -189,7 +189,7 @@ def test_standin_camera_one_shot_learns_its_lens(tmp_path):
 def test_textured_blocks_weigh_less():
     """Blocks on texture, where a camera's non-linear steps (noise reduction, sharpening on
     the encoded image) move a block's mean, bend the field where the scene puts them: here
-    most blocks are textured, and their R renders up to 4 % brighter toward the top of the
+    most blocks are textured, and their R renders up to 8 % brighter toward the top of the
     frame than the block model says (too smooth a bias for the robust weights to reject).
     Weighed by their render's local contrast (``texture``), the field stays within 0.5 % of
     the lens per colour; every block alike, it is over 1 % off."""
@@ -202,7 +202,7 @@ def test_textured_blocks_weigh_less():
         textured = rng.random(s.v.size) < 0.6
         texture = np.where(textured, 20 * TEXTURE_SCALE, 0.1 * TEXTURE_SCALE)
         t = s.target.copy()
-        t[textured, 0] *= 1.0 + 0.02 * (1.0 - s.v[textured] / np.abs(s.v).max())
+        t[textured, 0] *= 1.0 + 0.04 * (1.0 - s.v[textured] / np.abs(s.v).max())
         biased.append(BlockSamples(s.v, s.u, s.raw, t, texture))
         plain.append(BlockSamples(s.v, s.u, s.raw, t))
     weighed, rec = fit_field(biased, cfa, SIZE, orders=(2,))
