@@ -30,7 +30,14 @@ import numpy as np
 
 from l3cli.errors import TableError
 from l3cli.lens.field import SHADING_RULE, GainField, normalised_coords
-from l3cli.lens.grid import SPLINE_RULE, SplineField, fit_spline, frame_extent, spline_basis
+from l3cli.lens.grid import (
+    SPLINE_RULE,
+    SplineField,
+    block_weights,
+    fit_spline,
+    frame_extent,
+    spline_basis,
+)
 
 __all__ = ["BlockSamples", "block_samples", "fit_field", "models", "heldout_folds",
            "spatial_folds", "ORDERS", "SPLINE_INTERVALS"]
@@ -51,12 +58,14 @@ TILES = 2
 
 @dataclass
 class BlockSamples:
-    """One image's blocks: normalised centres, per-channel raw means, target means."""
+    """One image's blocks: normalised centres, per-channel raw means, target means, and the
+    render's local contrast (None: every block weighs alike; :func:`block_samples`)."""
 
     v: np.ndarray  # float64 (n,)
     u: np.ndarray  # float64 (n,)
     raw: np.ndarray  # float64 (n, n_channels)
     target: np.ndarray  # float64 (n, 3) linear
+    texture: np.ndarray | None = None  # float64 (n,)
 
 
 def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.ndarray | None,
@@ -67,8 +76,13 @@ def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.nda
 
     Blocks (``block`` pixels, a whole number of CFA periods) count when every
     pixel may train (``mask``), no raw pixel reaches 0.9 x ``saturation`` and
-    every channel's mean is above ``floor``.
+    every channel's mean is above ``floor``. A block's ``texture`` is the mean over
+    its pixels of the target's local contrast (the standard deviation of the mean of
+    its channels over 3 x 3 pixels, over their mean + 0.02), which
+    :func:`l3cli.lens.grid.block_weights` weighs by.
     """
+    from scipy.ndimage import uniform_filter
+
     ph, pw = cfa.period
     by = max(ph, block // ph * ph)
     bx = max(pw, block // pw * pw)
@@ -82,6 +96,11 @@ def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.nda
     means = np.stack([(m * (cidx == c)[None, :, None, :]).sum(axis=(1, 3)) / (cidx == c).sum()
                       for c in range(len(chans))], axis=-1)  # (ny, nx, n_ch)
     t = np.asarray(target[:hh, :ww], dtype=np.float64).reshape(ny, by, nx, bx, -1).mean(axis=(1, 3))
+    y = np.asarray(target[:hh, :ww], dtype=np.float64).mean(axis=-1)
+    y = np.where(np.isfinite(y), y, 0.0)
+    mu = uniform_filter(y, 3, mode="reflect")
+    sd = np.sqrt(np.maximum(uniform_filter(y * y, 3, mode="reflect") - mu * mu, 0.0))
+    texture = (sd / (np.abs(mu) + 0.02)).reshape(ny, by, nx, bx).mean(axis=(1, 3))
     ok = m.max(axis=(1, 3)) < 0.9 * saturation
     ok &= np.all(means > floor, axis=-1) & np.all(np.isfinite(t), axis=-1)
     if mask is not None:
@@ -91,14 +110,14 @@ def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.nda
     vc = v[y0:y0 + hh].reshape(ny, by).mean(axis=1)
     uc = u[x0:x0 + ww].reshape(nx, bx).mean(axis=1)
     vv, uu = np.meshgrid(vc, uc, indexing="ij")
-    return BlockSamples(vv[ok], uu[ok], means[ok], t[ok])
+    return BlockSamples(vv[ok], uu[ok], means[ok], t[ok], texture[ok])
 
 
 def _design(s: BlockSamples, centre: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
     """Powers r^2 .. r^(2 order) of the blocks (n, order) and their residual weights (n,)."""
     r2 = (s.v - centre[0]) ** 2 + (s.u - centre[1]) ** 2
     powers = np.stack([r2 ** (k + 1) for k in range(order)], axis=1)
-    return powers, 1.0 / (s.target.mean(axis=1) + 0.05)  # relative residuals
+    return powers, block_weights(s)
 
 
 def _projected(samples: Sequence[BlockSamples], centre: np.ndarray, a: np.ndarray
@@ -158,7 +177,7 @@ def _fit_model(model: tuple, samples: Sequence[BlockSamples], size: tuple[int, i
 
 def _gain_sse(s: BlockSamples, g: np.ndarray | None) -> float:
     """Weighted SSE of blocks with gains ``g`` (None: no field), their matrix fitted."""
-    wt = 1.0 / (s.target.mean(axis=1) + 0.05)
+    wt = block_weights(s)
     z = (s.raw if g is None else s.raw * g) * wt[:, None]
     y = s.target * wt[:, None]
     mt, *_ = np.linalg.lstsq(z, y, rcond=None)
@@ -166,7 +185,8 @@ def _gain_sse(s: BlockSamples, g: np.ndarray | None) -> float:
 
 
 def _subset(s: BlockSamples, keep: np.ndarray) -> BlockSamples:
-    return BlockSamples(s.v[keep], s.u[keep], s.raw[keep], s.target[keep])
+    return BlockSamples(s.v[keep], s.u[keep], s.raw[keep], s.target[keep],
+                        None if s.texture is None else s.texture[keep])
 
 
 def spatial_folds(s: BlockSamples, tiles: int = TILES) -> list[np.ndarray]:

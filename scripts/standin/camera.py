@@ -3,7 +3,8 @@
 
     scripts/standin/camera.py OUT_DIR [RAW_OR_FOLDER ...] [--holdout RAW_OR_FOLDER ...]
                               [--crop HxW]
-    scripts/standin/camera.py check TABLE.npz    # the table's field against the truth
+    scripts/standin/camera.py OUT_DIR --seed N   # another lens (centres, strengths, shapes)
+    scripts/standin/camera.py check TABLE.npz [--truth OUT_DIR/truth.json]
 
 Without raws it takes the bundled frames (``examples/infinite_isp/frames`` for
 training, ``holdout`` for evaluation only); any raw ``l3cli.io.raw.read_raw``
@@ -69,15 +70,30 @@ TONE_S = 2.2
 SCALE_BITS = 16
 
 
-def illumination(height: int, width: int, cfa) -> np.ndarray:
-    """The lens's relative illumination of each pixel (float64 (H, W), at most 1)."""
+def random_lens(seed: int) -> dict:
+    """Another lens of the same family for ``seed`` (0: :data:`LENS`): per colour, the
+    centre within 0.2 of the image centre on each axis, strength k from 0.12 to 0.45
+    (a corner at 0.72 .. 0.40 of the centre's illumination), ellipticity within 0.25, so
+    that a fit is never tuned to one field."""
+    if not seed:
+        return LENS
+    rng = np.random.default_rng(seed)
+    return {c: {"centre": tuple(float(x) for x in rng.uniform(-0.2, 0.2, 2).round(3)),
+                "k": round(float(rng.uniform(0.12, 0.45)), 3),
+                "e": round(float(rng.uniform(-0.25, 0.25)), 3)} for c in "RGB"}
+
+
+def illumination(height: int, width: int, cfa, lens: dict | None = None) -> np.ndarray:
+    """The lens's relative illumination of each pixel (float64 (H, W), at most 1);
+    ``lens`` as :data:`LENS` (the default)."""
     from l3cli.lens.field import normalised_coords
 
+    lens = LENS if lens is None else lens
     v, u = normalised_coords(height, width)
     out = np.empty((height, width))
     chan = cfa.channel_map(height, width)
     for c, name in enumerate(cfa.channels):
-        p = LENS[name]
+        p = lens[name]
         dv = v[:, None] - p["centre"][0]
         du = u[None, :] - p["centre"][1]
         r2 = (1 + p["e"]) * dv ** 2 + (1 - p["e"]) * du ** 2
@@ -86,11 +102,11 @@ def illumination(height: int, width: int, cfa) -> np.ndarray:
     return out
 
 
-def field_error(gains: np.ndarray, cfa) -> dict[str, float]:
+def field_error(gains: np.ndarray, cfa, lens: dict | None = None) -> dict[str, float]:
     """Rms relative error per colour of a per-pixel correction ``gains`` (H, W) against
     the truth ``1 / illumination``, each colour's scale removed (the kernels absorb it)."""
     h, w = gains.shape
-    q = np.asarray(gains, dtype=np.float64) * illumination(h, w, cfa)
+    q = np.asarray(gains, dtype=np.float64) * illumination(h, w, cfa, lens)
     chan = cfa.channel_map(h, w)
     out = {}
     for c, name in enumerate(cfa.channels):
@@ -139,7 +155,8 @@ def render(mosaic: np.ndarray, cfa) -> np.ndarray:
     return np.round(np.clip(toned, 0, 1) * 255).astype(np.uint8)
 
 
-def make_one(raw_path: Path, out: Path, part: str, crop: tuple[int, int] | None) -> str:
+def make_one(raw_path: Path, out: Path, part: str, crop: tuple[int, int] | None,
+             lens: dict | None = None) -> str:
     """Write the shaded raw, the control raw and the render of one source raw."""
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
@@ -155,7 +172,7 @@ def make_one(raw_path: Path, out: Path, part: str, crop: tuple[int, int] | None)
     clipped = m >= 1.0
     white = 2 ** SCALE_BITS - 1
     stem = raw_path.name.split(".")[0]
-    shaded = np.where(clipped, 1.0, m * illumination(*m.shape, raw.cfa))
+    shaded = np.where(clipped, 1.0, m * illumination(*m.shape, raw.cfa, lens))
     for kind, values in (("shaded", shaded), ("control", m)):
         folder = out / kind / part
         folder.mkdir(parents=True, exist_ok=True)
@@ -172,8 +189,9 @@ def _raws(args: list[str]) -> list[Path]:
     return [Path(p) for p in raw_files([Path(a) for a in args])[0]]
 
 
-def check(table_path: str) -> dict[str, float] | None:
-    """Print the rms error per colour of a table's learned field against the truth."""
+def check(table_path: str, lens: dict | None = None) -> dict[str, float] | None:
+    """Print the rms error per colour of a table's learned field against the truth
+    (``lens``: a ``truth.json``'s, default :data:`LENS`)."""
     from l3cli.lens.field import gain_map
     from l3cli.table import load_table
 
@@ -183,7 +201,7 @@ def check(table_path: str) -> dict[str, float] | None:
         print(f"{table_path}: no gain field")
         return None
     cfa = table.definition.cfa
-    err = field_error(gain_map(field, field.size, cfa.period), cfa)
+    err = field_error(gain_map(field, field.size, cfa.period), cfa, lens)
     print(f"{table_path}: {type(field).__name__} "
           + ", ".join(f"{c} {100 * e:.3f} %" for c, e in err.items()) + " rms")
     return err
@@ -192,25 +210,33 @@ def check(table_path: str) -> dict[str, float] | None:
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["check"]:
-        for t in argv[1:]:
-            check(t)
+        ap = argparse.ArgumentParser(description="the tables' fields against the truth")
+        ap.add_argument("tables", nargs="+")
+        ap.add_argument("--truth", default=None, help="OUT_DIR/truth.json (default: LENS)")
+        a = ap.parse_args(argv[1:])
+        lens = json.loads(Path(a.truth).read_text())["lens"] if a.truth else None
+        for t in a.tables:
+            check(t, lens)
         return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out")
     ap.add_argument("raws", nargs="*")
     ap.add_argument("--holdout", nargs="*", default=None)
     ap.add_argument("--crop", default=None, help="central crop HxW (even)")
+    ap.add_argument("--seed", type=int, default=0,
+                    help="another lens of the family (random_lens); 0: LENS")
     a = ap.parse_args(argv)
     out = Path(a.out)
     train = _raws(a.raws) if a.raws else sorted((SOURCE / "frames").glob("*.tif"))
     hold = (_raws(a.holdout) if a.holdout is not None
             else [] if a.raws else sorted((SOURCE / "holdout").glob("*.tif")))
     crop = tuple(int(x) for x in a.crop.lower().split("x")) if a.crop else None
+    lens = random_lens(a.seed)
     for part, paths in (("frames", train), ("holdout", hold)):
         for p in paths:
-            make_one(p, out, part, crop)
+            make_one(p, out, part, crop, lens)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "truth.json").write_text(json.dumps({"lens": LENS, "wb_gains": WB_GAINS,
+    (out / "truth.json").write_text(json.dumps({"lens": lens, "seed": a.seed, "wb_gains": WB_GAINS,
                                                 "matrix": MATRIX.tolist()}, indent=1) + "\n")
 
 
