@@ -109,10 +109,10 @@ def main() -> None:
         return
     import rawpy
 
-    from l3cli.classify.kernel import tile_threads
     from l3cli.io.raw import write_raw
     from l3cli.render import render_display, render_mosaic
     from l3cli.table import save_table
+    from l3cli.threads import tile_threads
 
     w, h = (int(v) for v in a.size.split("x"))
     mosaic = synthetic_mosaic(h, w)

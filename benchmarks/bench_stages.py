@@ -79,11 +79,11 @@ def main() -> None:
         print(f"(skipped: {a.dng} is not here; it is in the shared data set)")
         return
     from l3cli.classify import classify
-    from l3cli.classify.kernel import tile_threads
     from l3cli.io.encode import display_encode
     from l3cli.io.image import write_image
     from l3cli.io.raw import read_raw
     from l3cli.render import render_display, render_mosaic
+    from l3cli.threads import tile_threads
 
     raw = read_raw(a.dng)
     m = raw.mosaic

@@ -25,7 +25,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # no l3 concepts: errors, option defaults, process start-up, stored machine
     # code, progress, buffer pools, the CFA, colour spaces, spectra, map-reduce
     ("base", ("l3cli", "errors", "defaults", "startup", "kernel_store", "progress", "buffers",
-              "cfa", "colourspace", "spectral", "parallel", "figures", "tablekeys")),
+              "cfa", "colourspace", "spectral", "parallel", "threads", "figures", "tablekeys")),
     # files: raws, images, metadata, display encoding, manifests, atomic writes
     ("io", ("io",)),
     # the L3 model: classes, the tile kernel, render rows, the table, tone

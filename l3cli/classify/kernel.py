@@ -26,9 +26,6 @@ then stores it: a render's start-up does not pay for importing numba.
 from __future__ import annotations
 
 import functools
-import os
-import queue
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -50,13 +47,11 @@ from l3cli.classify.layout import (
 )
 from l3cli.classify.mosaic import band_rows, check_mosaic
 from l3cli.lens.gainmaps import NO_GAINS
+from l3cli.threads import run_split, tile_threads
 
 __all__ = ["KERNEL_SOURCES", "MODE_CLASSES", "MODE_DISPLAY", "MODE_FEATURES", "MODE_RENDER",
            "KernelTables", "kernel_tables", "check_mosaic", "band_rows", "run_tiles",
            "classify", "patch_features", "run_split", "tile_threads"]
-
-#: Tile ranges per thread of one kernel call (the threads take them in turn).
-_CHUNKS_PER_THREAD = 4
 
 _HERE = Path(__file__).resolve().parent
 #: The source files the tile kernel's machine code comes from: the kernel, its
@@ -64,17 +59,6 @@ _HERE = Path(__file__).resolve().parent
 KERNEL_SOURCES = tuple(str(p) for p in (
     _HERE / "tile_kernel.py", _HERE / "layout.py", _HERE.parent / "render_rows.py",
     _HERE.parent / "io" / "encode_rows.py"))
-
-
-def tile_threads() -> int:
-    """Threads that share an image's tiles: ``NUMBA_NUM_THREADS`` when set, else the
-    CPUs this process may run on (:func:`l3cli.parallel.cpu_count`)."""
-    from l3cli.parallel import cpu_count
-
-    try:
-        return max(1, int(os.environ["NUMBA_NUM_THREADS"]))
-    except (KeyError, ValueError):
-        return cpu_count()
 
 
 #: The tile kernel's entry point of each mode (:data:`l3cli.classify.tile_kernel.ENTRIES`).
@@ -100,85 +84,6 @@ def _kernel(S: int, PW: int, entry: str) -> Any:
         return slp_vectorize()
 
     return Stored(f"tile-{entry}-{S}-{PW}", KERNEL_SOURCES, dispatcher, context=compiling)
-
-
-class _Batch:
-    """The tile ranges of one kernel call: how many are left, the first error."""
-
-    def __init__(self, n: int) -> None:
-        self.left = n
-        self.error: BaseException | None = None
-        self.cancelled = False
-        self.lock = threading.Lock()
-        self.done = threading.Event()
-
-    def finish(self, error: BaseException | None) -> None:
-        with self.lock:
-            if error is not None and self.error is None:
-                self.error = error
-            self.left -= 1
-            if self.left == 0:
-                self.done.set()
-
-
-# The threads are l3's own daemon threads, not a ThreadPoolExecutor's: an executor's
-# threads are not daemons, and a live one makes startup.exit_now fall back to the
-# interpreter's full teardown.
-_work: queue.SimpleQueue = queue.SimpleQueue()
-_workers: list[threading.Thread] = []
-_workers_lock = threading.Lock()
-
-
-def _worker() -> None:
-    while True:
-        fn, args, batch = _work.get()
-        error = None
-        if not batch.cancelled:
-            try:
-                fn(*args)
-            except BaseException as exc:  # noqa: BLE001 - handed to the caller
-                error = exc
-        batch.finish(error)
-
-
-def _ensure_workers(n: int) -> None:
-    with _workers_lock:
-        while len(_workers) < n:  # daemon threads: they never hold up the exit
-            t = threading.Thread(target=_worker, name=f"l3-tiles-{len(_workers)}", daemon=True)
-            t.start()
-            _workers.append(t)
-
-
-def _forget_workers() -> None:  # a forked child has none of its parent's threads
-    global _work
-    _workers.clear()
-    _work = queue.SimpleQueue()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_workers)
-
-
-def run_split(fn: Any, args: tuple, n_tiles: int) -> None:
-    """``fn(*args, t_lo, t_hi)`` over tiles ``0..n_tiles``, in ranges shared by the threads
-    (``fn``: the compiled kernel, resolved once for the call)."""
-    k = min(tile_threads(), n_tiles)
-    if k <= 1:
-        fn(*args, 0, n_tiles)
-        return
-    bounds = np.linspace(0, n_tiles, min(n_tiles, _CHUNKS_PER_THREAD * k) + 1).astype(int)
-    ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
-    _ensure_workers(k)
-    batch = _Batch(len(ranges))
-    for lo, hi in ranges:
-        _work.put((fn, (*args, lo, hi), batch))
-    try:
-        batch.done.wait()
-    except BaseException:
-        batch.cancelled = True  # ranges not yet started are skipped
-        raise
-    if batch.error is not None:
-        raise batch.error
 
 
 _NO_F32 = np.zeros((1, 1), dtype=np.float32)

@@ -36,7 +36,7 @@ __all__ = ["class_rows", "code_rows", "gauss_rows", "half_means",
 #: The loops below that the caller runs: compiled without numba's cache (the caller
 #: stores their machine code, :mod:`l3cli.kernel_store`), without the GIL, each on a
 #: range of rows (or bands) so that l3's threads share an image
-#: (:func:`l3cli.classify.kernel.run_split`); ``error_model="numpy"``: no division
+#: (:func:`l3cli.threads.run_split`); ``error_model="numpy"``: no division
 #: checks (no divisor here is zero).
 _loop = nb.njit(nogil=True, error_model="numpy")
 

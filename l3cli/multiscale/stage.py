@@ -176,10 +176,10 @@ def _stored(name: str):
 
 def _split(name: str, args: tuple, n: int) -> None:
     """The loop ``name`` on ``args`` over rows (or bands) ``0..n``, shared by l3's threads
-    (:func:`l3cli.classify.kernel.run_split`)."""
+    (:func:`l3cli.threads.run_split`)."""
     if n <= 0:
         return
-    from l3cli.classify.kernel import run_split
+    from l3cli.threads import run_split
 
     run_split(_stored(name).function(*args, 0, n), args, n)
 

@@ -149,8 +149,8 @@ def test_a_fresh_process_renders_from_stored_code_without_numba(tmp_path, table_
 @pytest.mark.parametrize("threads", ["1", "3"])
 def test_tile_threads_do_not_change_a_render(tmp_path, table_path, monkeypatch, threads):  # noqa: F811
     """Threads share an image's tiles: any number of them renders the same pixels."""
-    from l3cli.classify.kernel import tile_threads
     from l3cli.render import render_mosaic, table_for_task
+    from l3cli.threads import tile_threads
 
     mosaic = np.random.default_rng(2).random((150, 1100), dtype=np.float32)  # 3 x 3 tiles
     t = table_for_task(table_path)
