@@ -81,6 +81,17 @@ def cluster():
     dlog.setLevel(logging.ERROR)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=":0", silence_logs=logging.ERROR,
-                      env={"NUMBA_NUM_THREADS": "1"}) as c:
+                      env={"NUMBA_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}) as c:
         yield c.scheduler_address
     dlog.setLevel(old)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def one_blas_thread():
+    """One BLAS thread per pytest process: ``make test`` runs a worker per core, and a
+    second BLAS thread would only wait for a core (a spinning OpenBLAS thread made a
+    lens-shading fit's small solves 10x slower). Results do not depend on it."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield

@@ -148,3 +148,20 @@ def test_every_train_flag_is_a_parameter_of_the_library():
                                                                  "workers", "scheduler"}
     assert flags <= fields, flags - fields
     assert fields - flags == {"tune_grid"}  # the CLI's --config [train.tune] table
+
+
+def test_an_asked_for_lens_field_that_is_not_kept_is_said(tmp_path, runner):
+    """``shading=True`` on unshaded pairs: the field does not help and is not kept; the
+    user who asked for it is told (Python: a note naming the parameter; the command
+    line: its flag), and the table is written without one."""
+    folder = tune_pairs(tmp_path / "p", {"a": (5, 1.0), "b": (6, 1.0)})
+    notes = []
+    table = l3cli.train(folder, shading=True, tune=False, patch=3, levels=4,
+                        note=notes.append)
+    assert table.shading is None
+    said = [n for n in notes if n.parameter == "shading"]
+    assert len(said) == 1 and "no lens-shading field kept" in said[0].named("shading")
+    res = runner.invoke(cli, ["train", str(folder), "-o", str(tmp_path / "t.npz"), "--shading",
+                              "--no-tune", "--patch", "3", "--levels", "4"])
+    assert res.exit_code == 0, res.output
+    assert "--shading: no lens-shading field kept" in res.output

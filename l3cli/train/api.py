@@ -350,4 +350,8 @@ def _train_pairs(pairs: list[Pair], request: TrainRequest, *, workers, scheduler
         from l3cli.multiscale.fit import attach_multiscale
 
         attach_multiscale(table, pairs, seed=opts.seed, show_progress=show_progress)
+    if request.shading and getattr(table, "shading", None) is None:  # asked for, not kept
+        why = (table.provenance.get("shading") or {}).get("reason") or "not learned"
+        note(Note(f"{{name}}: no lens-shading field kept ({why}); the table has none",
+                  "shading"))
     return table
