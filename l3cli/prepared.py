@@ -54,6 +54,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Prepared", "check_fits", "plain", "prepare", "render_raw"]
 
+
 @dataclasses.dataclass(frozen=True)
 class Prepared:
     """A raw prepared for a table (:func:`prepare`): what :meth:`render` runs.
