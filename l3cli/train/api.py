@@ -350,8 +350,10 @@ def _train_pairs(pairs: list[Pair], request: TrainRequest, *, workers, scheduler
         from l3cli.multiscale.fit import attach_multiscale
 
         attach_multiscale(table, pairs, seed=opts.seed, show_progress=show_progress)
-    if request.shading and getattr(table, "shading", None) is None:  # asked for, not kept
-        why = (table.provenance.get("shading") or {}).get("reason") or "not learned"
+    record = table.provenance.get("shading") or {}
+    if request.shading and getattr(table, "shading", None) is None and not record.get(
+            "unusable"):  # asked for and not kept (an unusable fit has had its warning)
+        why = record.get("reason") or "not learned"
         note(Note(f"{{name}}: no lens-shading field kept ({why}); the table has none",
                   "shading"))
     return table
