@@ -322,10 +322,42 @@ def save(name: str, sources: Sequence[str | os.PathLike], types_: str, dispatche
     return None
 
 
+@contextlib.contextmanager
+def compiling(name: str, sources: Sequence[str | os.PathLike], types_: str):
+    """Held while this process compiles kernel ``name`` for ``types_``: an exclusive
+    ``flock`` on a lock file in the first writable store folder, so that processes
+    starting together (pytest or dask workers, a folder's renders) compile each
+    kernel once, the others then loading its stored code. The operating system
+    releases the lock of a process that dies; where no folder is writable or
+    ``fcntl`` is missing, nothing is held."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        yield
+        return
+    key = hashlib.sha256(f"{name} {_digest(sources)} {types_}".encode()).hexdigest()[:24]
+    fd = None
+    for folder in store_dirs():
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            fd = os.open(folder / f".lock-{key}", os.O_RDWR | os.O_CREAT | os.O_NONBLOCK, 0o644)
+            break
+        except OSError:
+            continue
+    if fd is None:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def _prune(folder: Path) -> None:
     """Remove stored code not loaded for :data:`PRUNE_DAYS` (older sources, other numbas)."""
     old = time.time() - PRUNE_DAYS * 86400
-    for path in folder.glob("*.bin"):
+    for path in [*folder.glob("*.bin"), *folder.glob(".lock-*")]:
         with contextlib.suppress(OSError):
             if path.stat().st_mtime < old:
                 path.unlink()
@@ -376,17 +408,24 @@ class Stored:
                 if fn is None:
                     if not compile:
                         return None
-                    log.info("compiling %s for this machine (once: its code is stored for "
-                             "later runs)", self.name)
-                    from l3cli.startup import preload_scipy_blas
-
-                    preload_scipy_blas()  # numba's first use, without scipy.linalg's __init__
-                    fn = self._dispatcher()
-                    sig = tuple(fn.typeof_pyval(a) for a in args)
-                    with self._context():
-                        fn.compile(sig)
-                    save(self.name, self.sources, key, fn, args)
+                    with compiling(self.name, self.sources, key):
+                        # another process may have compiled it while this one waited
+                        fn = load(self.name, self.sources, key) or self._compile(key, args)
                 self._fns[key] = fn
+        return fn
+
+    def _compile(self, key: str, args: tuple) -> Callable:
+        """numba's dispatcher compiled for ``args``' types, its code stored."""
+        log.info("compiling %s for this machine (once: its code is stored for later runs)",
+                 self.name)
+        from l3cli.startup import preload_scipy_blas
+
+        preload_scipy_blas()  # numba's first use, without scipy.linalg's __init__
+        fn = self._dispatcher()
+        sig = tuple(fn.typeof_pyval(a) for a in args)
+        with self._context():
+            fn.compile(sig)
+        save(self.name, self.sources, key, fn, args)
         return fn
 
     def stored(self) -> bool:

@@ -180,3 +180,36 @@ def test_l3_render_imports_no_numba(tmp_path, table_path, fmt):  # noqa: F811
         lines.append(out.stdout.strip().splitlines()[-1])
     assert lines[-1] == "NUMBA False"
     assert len(list((tmp_path / "out").iterdir())) == 2
+
+
+def test_one_process_compiles_a_kernel_at_a_time(tmp_path, monkeypatch):
+    """While one process compiles kernel X for some types (holds ``compiling``), another
+    cannot take the same lock (it would wait, then load the stored code); a different
+    kernel's lock is free, and the lock is released on leaving."""
+    import fcntl
+    import os
+
+    from l3cli import kernel_store
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    src = tmp_path / "k.py"
+    src.write_text("x = 1\n")
+
+    def held_elsewhere(name: str, types_: str) -> bool:
+        lock = next((tmp_path / "l3cli-kernels").glob(".lock-*"), None)
+        assert lock is not None
+        key = kernel_store.hashlib.sha256(
+            f"{name} {kernel_store._digest([src])} {types_}".encode()).hexdigest()[:24]
+        fd = os.open(tmp_path / "l3cli-kernels" / f".lock-{key}", os.O_RDWR | os.O_CREAT)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        finally:
+            os.close(fd)  # (a lock taken here is released with the descriptor)
+        return False
+
+    with kernel_store.compiling("k", [src], "f32"):
+        assert held_elsewhere("k", "f32")
+        assert not held_elsewhere("k", "f64")
+    assert not held_elsewhere("k", "f32")
