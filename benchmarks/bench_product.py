@@ -266,6 +266,20 @@ def uncompressed_dng(dng: Path, path: Path, w: int = 4000, h: int = 3000) -> Pat
                      color_matrix=cam if np.any(cam) else None)
 
 
+def _libraw_mosaic(path: Path) -> tuple[np.ndarray, int, int, str, tuple[float, ...]]:
+    """A DNG's mosaic as LibRaw reads it, with its black and white levels, CFA spec and
+    as-shot neutral: what a copy of its pixels in another raw kind needs."""
+    import rawpy
+
+    with rawpy.imread(str(path)) as raw:
+        m = raw.raw_image_visible.copy()
+        black = int(round(float(np.mean(raw.black_level_per_channel))))
+        white = int(raw.white_level)
+        wb = np.asarray(raw.camera_whitebalance[:3], np.float64)
+        spec = "".join("RGBG"[c] for c in raw.raw_pattern.ravel())
+    return m, black, white, spec, tuple(wb[1] / wb)
+
+
 def raw_kinds(unc: Path, folder: Path, copies: int) -> dict[str, tuple[list[str], list[str]]]:
     """The other raw kinds users have, made from the uncompressed DNG's mosaic (the same
     pixels, levels and white): ``{kind: (l3's files, the peer's files)}``.
@@ -276,19 +290,11 @@ def raw_kinds(unc: Path, folder: Path, copies: int) -> dict[str, tuple[list[str]
     * headerless dump (``.raw`` + ``.raw.toml``, 16-bit little-endian): LibRaw cannot read
       those, so the peer reads the uncompressed DNG of the same pixels.
     """
-    import rawpy
-
     sys.path.insert(0, str(REPO / "tests"))
     from dngmake import make_dng
 
-    with rawpy.imread(str(unc)) as raw:
-        m = raw.raw_image_visible.copy()
-        black = int(round(float(np.mean(raw.black_level_per_channel))))
-        white = int(raw.white_level)
-        wb = np.asarray(raw.camera_whitebalance[:3], np.float64)
-        spec = "".join("RGBG"[c] for c in raw.raw_pattern.ravel())
+    m, black, white, spec, neutral = _libraw_mosaic(unc)
     pattern = tuple("RGB".index(c) for c in spec)
-    neutral = tuple(wb[1] / wb)
     kinds: dict[str, tuple[list[str], list[str]]] = {}
 
     def copies_of(first: Path) -> list[str]:
@@ -367,17 +373,9 @@ def gainmap_dngs(folder: Path, copies: int, dng: Path | None = None, w: int = 40
 
     folder.mkdir(parents=True, exist_ok=True)
     if dng is not None and dng.exists():
-        import rawpy
-
         unc = uncompressed_dng(dng, folder / "unc.dng", w, h)
-        with rawpy.imread(str(unc)) as raw:
-            m = raw.raw_image_visible.copy()
-            black = int(round(float(np.mean(raw.black_level_per_channel))))
-            white = int(raw.white_level)
-            wb = np.asarray(raw.camera_whitebalance[:3], np.float64)
-            spec = "".join("RGBG"[c] for c in raw.raw_pattern.ravel())
+        m, black, white, spec, neutral = _libraw_mosaic(unc)
         unc.unlink()
-        neutral = tuple(wb[1] / wb)
     else:
         from bench_render import synthetic_mosaic
 
