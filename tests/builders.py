@@ -255,18 +255,11 @@ def write_dng_with_opcodes(path, dn, opcode_list2: bytes | None):
 
 
 def phone_gain_maps(h, w):
-    """Four GainMaps, one per Bayer position (as phones write them), 5x7 points each."""
-    from l3cli.io.dng_opcodes import GainMap
+    """Four GainMaps, one per Bayer position (as phones write them), 5x7 points each:
+    :func:`tests.dngmake.phone_gain_maps` at ``points=(5, 7)``."""
+    from tests.dngmake import phone_gain_maps as maps
 
-    rng = np.random.default_rng(7)
-    maps = []
-    for top, left in [(0, 0), (0, 1), (1, 0), (1, 1)]:
-        v = np.linspace(0, 1, 5)[:, None] - 0.5
-        u = np.linspace(0, 1, 7)[None, :] - 0.5
-        g = 1 + (1.2 + 0.3 * rng.random()) * (v ** 2 + u ** 2)
-        maps.append(GainMap(top, left, h, w, 0, 1, 2, 2, 5, 7, 0.25, 1 / 6, 0.0, 0.0,
-                            g[:, :, None].astype(np.float32)))
-    return maps
+    return maps(h, w, points=(5, 7))
 
 
 def mosaic_raw(mosaic, spec="RGGB", path=None):
