@@ -99,6 +99,15 @@ _NO_GUIDE = tuple(ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2,
                                np.zeros(1, np.float32)))
 
 
+def _plain(value: Any) -> Any:
+    """An input array as the kernel's one compiled kind (C-contiguous, aligned, writable),
+    copied only when it is not; anything else as it is. Numba compiles a kernel anew
+    for a read-only or unaligned array (a memory map, a cached gain map), ~20 s."""
+    if isinstance(value, np.ndarray):
+        return np.require(value, requirements=("C", "A", "W"))
+    return value
+
+
 def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
               rows: tuple[int, int] | None = None, out_cls: np.ndarray | None = None,
               out_features: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
@@ -170,22 +179,23 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     elif mode == MODE_RENDER:
         if out is None or kernels is None:
             raise ValueError("render mode needs kernels and a float32 out")
-        outs = (kernels, n_out, out.reshape(-1), *curve)
+        outs = (_plain(kernels), n_out, out.reshape(-1), *map(_plain, curve))
     elif mode == MODE_DISPLAY:
         if (out is None or kernels is None or display is None
                 or out.dtype not in (np.uint8, np.uint16)):
             raise ValueError("display mode needs a uint8/uint16 out and the encoder's parameters")
         bits = 8 if out.dtype == np.uint8 else 16
-        outs = (kernels, n_out, out.reshape(-1), *curve, *display, bits,
-                *(codes if codes is not None else _NO_CODES))
+        outs = (_plain(kernels), n_out, out.reshape(-1), *map(_plain, curve),
+                *map(_plain, display), bits,
+                *map(_plain, codes if codes is not None else _NO_CODES))
     else:
         raise ValueError(f"no tile kernel mode {mode}")
     guide = _NO_GUIDE
     if definition.context_block and mode != MODE_FEATURES:
         guide = tuple(context_guide(mosaic, definition.cfa, definition.context_block))
     n_tiles = -(-(y1 - y0) // TILE_ROWS) * -(-w // tc)
-    args = (mosaic, yi, xi, y0, y1 - y0, tc, tuple(kernel_tables(definition)), guide,
-            tuple(gains) if gains is not None else NO_GAINS, outs)
+    args = (_plain(mosaic), yi, xi, y0, y1 - y0, tc, tuple(kernel_tables(definition)), guide,
+            tuple(map(_plain, gains)) if gains is not None else NO_GAINS, outs)
     # resolved once (argument types, loaded code), not once per range
     run_split(_kernel(S, pw, _ENTRY[mode]).function(*args, 0, n_tiles), args, n_tiles)
 
