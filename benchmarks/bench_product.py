@@ -192,6 +192,17 @@ def shading_field(size: tuple[int, int]):
     return GainField([0.03, -0.02], coeffs, size)
 
 
+def spline_field(size: tuple[int, int]):
+    """A learned lens-shading field of the other kind ``l3 train`` keeps: a cubic B-spline
+    grid per Bayer position (4x6 intervals, corners lifted ~1.6x), for raws of ``size``."""
+    from l3cli.lens.grid import SplineField
+
+    yy = np.linspace(-1, 1, 7)[:, None]
+    xx = np.linspace(-1, 1, 9)[None, :]
+    grid = np.stack([1.0 + k * (yy ** 2 + xx ** 2) / 2 for k in (1.2, 1.0, 1.0, 1.4)])
+    return SplineField(grid, size)
+
+
 def multiscale_stage():
     """A multi-scale stage of the default sigmas (1, 3, 9), 3 levels x 2 energies, sRGB
     coded, identity blend (its cost does not depend on the values)."""
@@ -229,6 +240,8 @@ def feature_tables(size: tuple[int, int] = (2176, 4128)) -> dict:
               "+ highlight bins 2": _relayout(base, highlight_bins=2),
               "+ lens shading (gain field)": dataclasses.replace(base,
                                                                  shading=shading_field(size)),
+              "+ lens shading (spline grid)": dataclasses.replace(base,
+                                                                  shading=spline_field(size)),
               "+ multi-scale stage (3 scales)": dataclasses.replace(
                   base, multiscale=multiscale_stage())}
     return tables
