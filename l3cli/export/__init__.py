@@ -205,12 +205,12 @@ def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
         kernels = stages.condition_kernels(g, table, value)
     else:
         kernels = table.kernels
-    taps, bias = stages.kernel_parts(g, kernels, d.patch, table.n_out)
+    rows = stages.kernel_rows(g, kernels, d.patch, table.n_out)
     post = _post_stages(table, output, bits, gains)
     n_pixel = next((k for k, (per_pixel, _) in enumerate(post) if not per_pixel), len(post))
 
     def band(b, padded, classes):  # the kernels and the per-pixel stages of one band
-        img = stages.affine(b, padded, classes, taps, bias, d.patch, table.n_out)
+        img = stages.affine(b, padded, classes, rows, d.patch, table.n_out)
         for _, stage in post[:n_pixel]:
             img = stage(b, img)
         return img

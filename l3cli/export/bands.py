@@ -25,7 +25,7 @@ from l3cli.classify import ClassDefinition
 from l3cli.export.classify import Patterns, band_classes
 from l3cli.export.graph import Graph
 
-__all__ = ["BAND_ROWS", "render_bands"]
+__all__ = ["BAND_ROWS", "SUB_ROWS", "render_bands"]
 
 #: Rows per iteration of the band loop (rounded up to whole CFA periods): a 4000-pixel-wide
 #: band of 16 rows holds about 38 MB of gathered coefficients at patch 7, 3 outputs. Fewer
@@ -33,6 +33,10 @@ __all__ = ["BAND_ROWS", "render_bands"]
 #: patch 7) and pay the ~260 nodes' overhead more often: 16 was the fastest of 8, 16 and 32
 #: (``docs/export.md``, Speed).
 BAND_ROWS = 16
+#: Rows of a band the kernels render at a time (an inner ``Loop``; a divisor of the band):
+#: their temporaries (588 bytes a pixel of gathered coefficients at patch 7, 3 outputs)
+#: stay in the cache.
+SUB_ROWS = 1
 
 #: ``body(graph, padded_band, classes) -> image``: builds one band's image (N, C, h, w)
 #: in the loop's body graph from its padded mosaic (N, 1, h + 2r, w + 2r) and its
@@ -50,7 +54,7 @@ def _pad_bottom(g: Graph, x: str, rows: str) -> str:
 
 def render_bands(g: Graph, d: ClassDefinition, mosaic: str, body: Body, *, n_out: int,
                  elem_type: int = TensorProto.FLOAT, guide: str | None = None,
-                 rows: int = BAND_ROWS) -> str:
+                 rows: int = BAND_ROWS, sub_rows: int = SUB_ROWS) -> str:
     """(N, ``n_out``, H, W): ``body``'s image of every band of the (N, 1, H, W) ``mosaic``.
 
     ``guide`` (N, 1, H, W): the context guide of the whole frame
@@ -59,7 +63,8 @@ def render_bands(g: Graph, d: ClassDefinition, mosaic: str, body: Body, *, n_out
     i64 = np.int64
     r = d.patch // 2
     ph, pw = d.cfa.period
-    band = -(-rows // ph) * ph  # the band's first row keeps the frame's CFA phase
+    step = np.lcm(ph, sub_rows)  # the band's first row keeps the frame's CFA phase
+    band = int(-(-rows // step) * step)
     padded = g.pad_mirror(mosaic, r, (ph, pw))
     hw = g.dims(mosaic)
     h = g.op("Squeeze", g.slice(hw, [0], [1], [0]), g.const([0], i64))
@@ -82,14 +87,33 @@ def render_bands(g: Graph, d: ClassDefinition, mosaic: str, body: Body, *, n_out
     if guide is not None:
         part_guide = b.op("Slice", guide, y0, b.op("Add", y0, b.const([band], i64)),
                           b.const([2], i64))
-    img = body(b, part, band_classes(b, d, part, maps, part_guide))
+    img = _sub_bands(b, part, band_classes(b, d, part, maps, part_guide), body,
+                     band=band, r=r, sub=sub_rows, n_out=n_out, elem_type=elem_type)
     b.outputs.append(helper.make_tensor_value_info("band_cond_out", TensorProto.BOOL, []))
     b.nodes.append(helper.make_node("Identity", ["band_cond"], ["band_cond_out"]))
-    b.add_output(img, "band_img", elem_type, ["N", n_out, band, "W"])
-    scan = g.op("Loop", n_bands, "", body=b.subgraph("bands"))  # (n_bands, N, C, band, W)
-    joined = g.op("Transpose", scan, perm=[1, 2, 0, 3, 4])
+    b.add_output(img, "band_img", elem_type, [band // sub_rows, "N", n_out, sub_rows, "W"])
+    scan = g.op("Loop", n_bands, "", body=b.subgraph("bands"))  # (n_bands, n_sub, N, C, sub, W)
+    joined = g.op("Transpose", scan, perm=[2, 3, 0, 1, 4, 5])
     shape = g.op("Concat", g.slice(g.op("Shape", mosaic), [0], [1], [0]),
                  g.const([n_out, -1], i64), w, axis=0)
     joined = g.op("Reshape", joined, shape)
     return g.op("Slice", joined, g.const([0], i64), g.op("Unsqueeze", h, g.const([0], i64)),
                 g.const([2], i64))
+
+
+def _sub_bands(b: Graph, part: str, classes: str, body: Body, *, band: int, r: int, sub: int,
+               n_out: int, elem_type: int) -> str:
+    """(band // sub, N, n_out, sub, W): ``body``'s image of a band, ``sub`` rows at a time
+    (an inner ``Loop``), from the band's padded mosaic ``part`` and its ``classes``."""
+    i64 = np.int64
+    c = Graph(prefix=f"{b._name('rows')}_")
+    j = c.add_input(c._name("j"), TensorProto.INT64, [])
+    cond = c.add_input(c._name("cond"), TensorProto.BOOL, [])
+    y0 = c.op("Unsqueeze", c.op("Mul", j, c.const(sub, i64)), c.const([0], i64))
+    rows = c.op("Slice", part, y0, c.op("Add", y0, c.const([sub + 2 * r], i64)),
+                c.const([2], i64))
+    cls = c.op("Slice", classes, y0, c.op("Add", y0, c.const([sub], i64)), c.const([2], i64))
+    img = body(c, rows, cls)
+    c.add_output(cond, c._name("cond_out"), TensorProto.BOOL, [])
+    c.add_output(img, c._name("img"), elem_type, ["N", n_out, sub, "W"])
+    return b.op("Loop", b.const(band // sub, i64), "", body=c.subgraph("rows"))
