@@ -58,7 +58,8 @@ class Graph:
            **attrs) -> str:
         """Add one node; returns its output name (the first, with ``n_out`` > 1 all)."""
         outs = [self._name(hint or op_type.lower()) for _ in range(n_out)]
-        self.nodes.append(self._helper.make_node(op_type, list(inputs), outs, **attrs))
+        self.nodes.append(self._helper.make_node(op_type, list(inputs), outs, name=outs[0],
+                                                 **attrs))  # named: profiles say which
         return outs[0] if n_out == 1 else outs
 
     def add_input(self, name: str, elem_type: int, shape: list) -> str:

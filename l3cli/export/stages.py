@@ -79,46 +79,40 @@ def kernel_rows(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int) -> 
                 g.const([0, n_out * (q + 1)], i64))
 
 
-def _offsets(g: Graph, like: str, axis: int, span: int) -> str:
-    """int64 (n, span): ``i + d`` for ``i`` below the size of ``like`` along ``axis`` and
-    ``d`` below ``span`` (a window's indices into the padded rows or columns)."""
-    i64 = np.int64
-    n = g.op("Squeeze", g.slice(g.op("Shape", like), [axis], [axis + 1], [0]),
-             g.const([0], i64))
-    i = g.op("Range", g.const(0, i64), n, g.const(1, i64))
-    return g.op("Add", g.op("Unsqueeze", i, g.const([1], i64)),
-                g.const(np.arange(span, dtype=i64)[None]))
+def ones_row(g: Graph, like: str) -> str:
+    """float32 (N, 1, 1, W) ones for the (N, C, H, W) ``like`` (:func:`affine`'s constant
+    terms' plane)."""
+    shape = g.op("Concat", g.op("Shape", like, end=1), g.const([1, 1], np.int64),
+                 g.op("Shape", like, start=3), axis=0)
+    return g.op("Expand", g.const(np.ones((1, 1, 1, 1), np.float32)), shape)
 
 
-def affine(g: Graph, padded: str, classes: str, kernels: str, patch: int, n_out: int) -> str:
-    """The affine kernel of each pixel's class on its patch: float32 (N, n_out, h, w).
+def affine(g: Graph, rows: str, classes: str, kernels: str, ones: str, patch: int,
+           n_out: int) -> str:
+    """The affine kernel of each pixel's class on its patch, for one output row: float32
+    (N, n_out, 1, w).
 
-    ``padded`` (N, 1, h + 2r, w + 2r) holds the patches of the (N, 1, h, w) int64
-    ``classes``; ``kernels`` is :func:`kernel_rows`. The patches are laid out plane by
-    plane first: the S padded rows of each output row (a ``Gather`` of whole rows), then
-    S ``Slice`` nodes cutting them, one per column offset, joined with a plane of ones (the
-    constant term's) into (N, h, q + 1, w); one ``Transpose`` turns that into a row per
-    pixel. Each pixel's row of coefficients is one ``Gather`` (a contiguous row), and
-    their products one batched ``MatMul`` of (n_out, q + 1) by (q + 1, 1) per pixel. The
-    band loop (:mod:`l3cli.export.bands`) calls this a row at a time, so that the 600
-    bytes of coefficients and patch a pixel stay in the cache between the nodes.
+    ``rows`` (N, 1, S, w + 2r): the padded rows of the patches of the row's (N, 1, 1, w)
+    int64 ``classes``; ``kernels``: :func:`kernel_rows`; ``ones``: :func:`ones_row`. The
+    row's patches are laid out plane by plane first: S ``Slice`` nodes cut the rows at
+    each column offset, and joined with the plane of ones (the constant term's) they
+    make (N, 1, q + 1, w); one ``Transpose`` turns that into a row per pixel. Each
+    pixel's row of coefficients is one ``Gather`` (a contiguous row), and their products
+    one batched ``MatMul`` of (n_out, q + 1) by (q + 1, 1) per pixel. A row at a time,
+    the 600 bytes a pixel of coefficients and patch (patch 7, 3 outputs) stay in the
+    cache between the nodes (:mod:`l3cli.export.bands`).
     """
     i64 = np.int64
     s, q = patch, patch * patch
-    cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, h, w)
-    rows = g.op("Gather", padded, _offsets(g, classes, 2, s), axis=2)  # (N, 1, h, S, w + 2r)
-    w = g.op("Shape", classes, start=3, end=4)
-    cols = [g.op("Slice", rows, g.const([dx], i64), g.op("Add", w, g.const([dx], i64)),
-                 g.const([4], i64)) for dx in range(s)]  # (N, 1, h, S, w) each
-    one_shape = g.op("Concat", g.op("Shape", rows, end=3), g.const([1], i64), w, axis=0)
-    ones = g.op("Expand", g.const(np.ones((1, 1, 1, 1, 1), np.float32)), one_shape)
-    planes = g.op("Squeeze", g.op("Concat", *cols, ones, axis=3), g.const([1], i64))
-    pat = g.op("Unsqueeze", g.op("Transpose", planes, perm=[0, 1, 3, 2]),
-               g.const([4], i64))  # (N, h, w, q + 1, 1)
+    planes = [g.window(rows, dx, s, 3) for dx in range(s)]  # (N, 1, S, w) each
+    pat = g.op("Reshape", g.op("Concat", *planes, ones, axis=2), g.const([0, q + 1, -1], i64))
+    pat = g.op("Unsqueeze", g.op("Transpose", pat, perm=[0, 2, 1]),
+               g.const([3], i64))  # (N, w, q + 1, 1)
+    cls = g.op("Reshape", classes, g.const([0, -1], i64))  # (N, w)
     coef = g.op("Reshape", g.op("Gather", kernels, cls, axis=0),
-                g.const([0, 0, 0, n_out, q + 1], i64))  # (N, h, w, n_out, q + 1)
-    out = g.op("Squeeze", g.op("MatMul", coef, pat), g.const([4], i64))  # (N, h, w, n_out)
-    return g.op("Transpose", out, perm=[0, 3, 1, 2])
+                g.const([0, 0, n_out, q + 1], i64))  # (N, w, n_out, q + 1)
+    out = g.op("Reshape", g.op("MatMul", coef, pat), g.const([0, 0, n_out], i64))  # (N, w, C)
+    return g.op("Unsqueeze", g.op("Transpose", out, perm=[0, 2, 1]), g.const([2], i64))
 
 
 def tone_curve(g: Graph, x: str, lut: np.ndarray, lo_hi: np.ndarray) -> str:
