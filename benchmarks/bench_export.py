@@ -65,7 +65,7 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def child(which: str, size: str, repeat: int, out: str) -> dict:
+def child(which: str, size: str, repeat: int, out: str, threads: int | None = None) -> dict:
     """One renderer's run in this (child) process: times, peak RSS; output saved to ``out``."""
     from bench_render import synthetic_mosaic
 
@@ -96,13 +96,16 @@ def child(which: str, size: str, repeat: int, out: str) -> dict:
 
             sess = strip_session(model)
         else:
-            sess = ort.InferenceSession(model, providers=["CPUExecutionProvider"])
+            so = ort.SessionOptions()
+            if threads:
+                so.intra_op_num_threads = threads
+            sess = ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
         info["session_s"] = time.perf_counter() - t0
         feed = {"mosaic": mosaic[None, None]}
 
         def run():
             if which == "strips":
-                return run_strips(sess, mosaic[None, None])
+                return run_strips(sess, mosaic[None, None], threads=threads)
             return sess.run(None, feed)[0]
         img = run()  # warm-up
     best_wall = best_cpu = float("inf")
@@ -121,11 +124,15 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="4000x3000")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=None,
+                    help="threads of every renderer (l3: NUMBA_NUM_THREADS; ONNX Runtime: "
+                         "intra-op threads of the one session, strips of run_strips); "
+                         "default: l3's and ONNX Runtime's defaults, a strip per core")
     ap.add_argument("--child", choices=("l3", "onnx", "strips"), help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        print(json.dumps(child(args.child, args.size, args.repeat, args.out)))
+        print(json.dumps(child(args.child, args.size, args.repeat, args.out, args.threads)))
         return 0
     try:
         import onnxruntime  # noqa: F401
@@ -136,9 +143,13 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for which in ("l3", "onnx", "strips"):
             out = os.path.join(tmp, f"{which}.npy")
-            proc = subprocess.run([sys.executable, __file__, "--child", which, "--size",
-                                   args.size, "--repeat", str(args.repeat), "--out", out],
-                                  capture_output=True, text=True, check=True)
+            cmd = [sys.executable, __file__, "--child", which, "--size", args.size,
+                   "--repeat", str(args.repeat), "--out", out]
+            env = dict(os.environ)
+            if args.threads:
+                cmd += ["--threads", str(args.threads)]
+                env["NUMBA_NUM_THREADS"] = str(args.threads)
+            proc = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
             res[which] = json.loads(proc.stdout.strip().splitlines()[-1])
         want = np.load(os.path.join(tmp, "l3.npy"))
         diff = max(float(np.abs(np.load(os.path.join(tmp, f"{k}.npy")) - want).max())
@@ -149,13 +160,15 @@ def main() -> int:
     print(f"{w}x{h} ({mp:.1f} MP) RGGB mosaic, patch 7, 2304 classes, tone curve; onnxruntime "
           f"{o['ort']}; model {o['model_mb']:.1f} MB (built in {o['build_s']:.2f} s, session "
           f"made in {o['session_s']:.2f} s); best of {args.repeat}; {os.cpu_count()} cores, "
+          f"threads {args.threads or 'default'}, "
           f"load average {os.getloadavg()[0]:.1f}")
     print()
     print("| renderer (own process) | wall s | CPU s | MP/s | peak RSS MB | wall vs l3 | CPU vs l3 |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for name, r in (("l3 render_mosaic (numba tile kernel)", l3),
                     ("ONNX Runtime CPU, exported model, one sess.run", o),
-                    (f"ONNX Runtime CPU, run_strips ({os.cpu_count()} threads)", res["strips"])):
+                    (f"ONNX Runtime CPU, run_strips ({args.threads or os.cpu_count()} threads)",
+                     res["strips"])):
         print(f"| {name} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | {mp / r['wall_s']:.1f} | "
               f"{r['peak_rss_mb']:.0f} | {r['wall_s'] / l3['wall_s']:.1f}x | "
               f"{r['cpu_s'] / l3['cpu_s']:.1f}x |")

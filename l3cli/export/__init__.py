@@ -205,12 +205,16 @@ def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
         kernels = stages.condition_kernels(g, table, value)
     else:
         kernels = table.kernels
-    taps, bias = stages.kernel_parts(g, kernels, d.patch, table.n_out)
+    rows = stages.kernel_rows(g, kernels, d.patch, table.n_out)
     post = _post_stages(table, output, bits, gains)
     n_pixel = next((k for k, (per_pixel, _) in enumerate(post) if not per_pixel), len(post))
 
-    def band(b, padded, classes):  # the kernels and the per-pixel stages of one band
-        img = stages.affine(b, padded, classes, taps, bias, d.patch, table.n_out)
+    ones = stages.ones_row(g, mosaic)
+
+    def row(b, padded, classes):  # the kernels on one output row
+        return stages.affine(b, padded, classes, rows, ones, d.patch, table.n_out)
+
+    def pixels(b, img):  # the per-pixel stages of one band
         for _, stage in post[:n_pixel]:
             img = stage(b, img)
         return img
@@ -219,7 +223,7 @@ def build_model(table: TransformTable, *, output: str = "linear", bits: int = 8,
     elem = TensorProto.FLOAT
     if output == "display":
         elem = TensorProto.UINT8 if bits == 8 else TensorProto.UINT16
-    img = render_bands(g, d, mosaic, band, n_out=table.n_out,
+    img = render_bands(g, d, mosaic, row, pixels, n_out=table.n_out,
                        elem_type=elem if display_in_band else TensorProto.FLOAT,
                        guide=context_guide(g, d, mosaic) if d.context_block else None)
     for _, stage in post[n_pixel:]:  # stages that need the whole image

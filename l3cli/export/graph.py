@@ -58,7 +58,8 @@ class Graph:
            **attrs) -> str:
         """Add one node; returns its output name (the first, with ``n_out`` > 1 all)."""
         outs = [self._name(hint or op_type.lower()) for _ in range(n_out)]
-        self.nodes.append(self._helper.make_node(op_type, list(inputs), outs, **attrs))
+        self.nodes.append(self._helper.make_node(op_type, list(inputs), outs, name=outs[0],
+                                                 **attrs))  # named: profiles say which
         return outs[0] if n_out == 1 else outs
 
     def add_input(self, name: str, elem_type: int, shape: list) -> str:
@@ -176,4 +177,9 @@ class Graph:
         h = self.op("Squeeze", self.slice(hw, [0], [1], [0]), self.const([0], np.int64))
         w = self.op("Squeeze", self.slice(hw, [1], [2], [0]), self.const([0], np.int64))
         rows = self.op("Gather", x, self.mirror_indices(h, r, period[0]), axis=2)
-        return self.op("Gather", rows, self.mirror_indices(w, r, period[1]), axis=3)
+        # the columns: only the 2r outside the frame gathered (a Gather along the last axis
+        # copies value by value), the frame's own joined to them
+        cols = self.mirror_indices(w, r, period[1])
+        left = self.op("Gather", rows, self.slice(cols, [0], [r], [0]), axis=3)
+        right = self.op("Gather", rows, self.slice(cols, [-r], [_END], [0]), axis=3)
+        return self.op("Concat", left, rows, right, axis=3)

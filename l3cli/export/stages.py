@@ -16,7 +16,7 @@ from onnx import TensorProto
 from l3cli.export.graph import Graph
 
 __all__ = ["apply_gains", "adaptation", "affine", "condition_kernels", "display",
-           "kernel_parts", "shading", "tone_curve"]
+           "kernel_rows", "shading", "tone_curve"]
 
 F32, F64, I64 = TensorProto.FLOAT, TensorProto.DOUBLE, TensorProto.INT64
 _RGB = ("R", "G", "B")
@@ -59,70 +59,67 @@ def condition_kernels(g: Graph, table, value: str) -> str:
     return g.cast(k, F32)
 
 
-def kernel_parts(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int
-                 ) -> tuple[str, str]:
+def kernel_rows(g: Graph, kernels: str | np.ndarray, patch: int, n_out: int) -> str:
     """The per-class kernels (n_classes, q + 1, n_out), a table's array or a graph tensor,
-    as the two tensors :func:`affine` gathers rows of: the taps (n_classes, n_out * q),
-    each output's taps column by column (``dx`` major, ``dy`` minor: the order in which
-    :func:`affine` gathers a patch), and the constant terms (n_classes, n_out)."""
+    as the rows :func:`affine` gathers: (n_classes, n_out * (q + 1)), each output's taps
+    column by column (``dx`` major, ``dy`` minor: the order in which :func:`affine` lays
+    out a patch) followed by its constant term."""
     s, q = patch, patch * patch
     if isinstance(kernels, np.ndarray):
         n = kernels.shape[0]
-        taps = kernels[:, :q, :].reshape(n, s, s, n_out).transpose(0, 3, 2, 1)
-        return (g.const(np.ascontiguousarray(taps).reshape(n, n_out * q), hint="kernel_taps"),
-                g.const(np.ascontiguousarray(kernels[:, q, :]), hint="kernel_bias"))
+        taps = kernels[:, :q, :].reshape(n, s, s, n_out).transpose(0, 3, 2, 1).reshape(n, n_out, q)
+        rows = np.concatenate([taps, kernels[:, q, :, None]], axis=2)
+        return g.const(np.ascontiguousarray(rows).reshape(n, n_out * (q + 1)), hint="kernel_rows")
     i64 = np.int64
     taps = g.op("Reshape", g.slice(kernels, [0], [q], [1]), g.const([0, s, s, n_out], i64))
     taps = g.op("Reshape", g.op("Transpose", taps, perm=[0, 3, 2, 1]),
-                g.const([0, n_out * q], i64))
-    bias = g.op("Squeeze", g.slice(kernels, [q], [q + 1], [1]), g.const([1], i64))
-    return taps, bias
+                g.const([0, n_out, q], i64))
+    bias = g.op("Transpose", g.slice(kernels, [q], [q + 1], [1]), perm=[0, 2, 1])
+    return g.op("Reshape", g.op("Concat", taps, bias, axis=2),
+                g.const([0, n_out * (q + 1)], i64))
 
 
-def _offsets(g: Graph, like: str, axis: int, span: int) -> str:
-    """int64 (n, span): ``i + d`` for ``i`` below the size of ``like`` along ``axis`` and
-    ``d`` below ``span`` (a window's indices into the padded rows or columns)."""
-    i64 = np.int64
-    n = g.op("Squeeze", g.slice(g.op("Shape", like), [axis], [axis + 1], [0]),
-             g.const([0], i64))
-    i = g.op("Range", g.const(0, i64), n, g.const(1, i64))
-    return g.op("Add", g.op("Unsqueeze", i, g.const([1], i64)),
-                g.const(np.arange(span, dtype=i64)[None]))
+def ones_row(g: Graph, like: str) -> str:
+    """float32 (N, 1, 1, W) ones for the (N, C, H, W) ``like`` (:func:`affine`'s constant
+    terms' plane)."""
+    shape = g.op("Concat", g.op("Shape", like, end=1), g.const([1, 1], np.int64),
+                 g.op("Shape", like, start=3), axis=0)
+    return g.op("Expand", g.const(np.ones((1, 1, 1, 1), np.float32)), shape)
 
 
-def affine(g: Graph, padded: str, classes: str, taps: str, bias: str, patch: int,
+def affine(g: Graph, rows: str, classes: str, kernels: str, ones: str, patch: int,
            n_out: int) -> str:
-    """The affine kernel of each pixel's class on its patch: float32 (N, n_out, h, w).
+    """The affine kernel of each pixel's class on its patch, for one output row: float32
+    (N, n_out, 1, w).
 
-    ``padded`` (N, 1, h + 2r, w + 2r) holds the patches of the (N, 1, h, w) int64
-    ``classes``; ``taps`` and ``bias`` are :func:`kernel_parts`. Each pixel's patch is
-    gathered as a row (N, h, w, q) in three copies: the S padded rows of each output
-    row (a ``Gather`` of whole rows), those turned to put each column's S values side by
-    side (a ``Transpose`` of S values a pixel), and the S columns of each pixel (a
-    ``Gather`` of S-value blocks): column-major, as :func:`kernel_parts` orders the
-    taps. Each pixel's row of coefficients is one ``Gather`` (a contiguous row per
-    pixel), and their products one batched ``MatMul`` of (n_out, q) by (q, 1) per pixel:
-    pixel-major, so that no per-tap plane of the whole band is gathered element by
-    element.
+    ``rows`` (N, 1, S, w + 2r): the padded rows of the patches of the row's (N, 1, 1, w)
+    int64 ``classes``; ``kernels``: :func:`kernel_rows`; ``ones``: :func:`ones_row`. The
+    row's patches are laid out plane by plane first: S ``Slice`` nodes cut the rows at
+    each column offset, and joined with the plane of ones (the constant term's) they
+    make (N, 1, q + 1, w); one ``Transpose`` turns that into a row per pixel. Each
+    pixel's row of coefficients is one ``Gather`` (a contiguous row), and their products
+    one batched ``MatMul`` of (n_out, q + 1) by (q + 1, 1) per pixel. A row at a time,
+    the 600 bytes a pixel of coefficients and patch (patch 7, 3 outputs) stay in the
+    cache between the nodes (:mod:`l3cli.export.bands`).
     """
     i64 = np.int64
     s, q = patch, patch * patch
-    cls = g.op("Squeeze", classes, g.const([1], i64))  # (N, h, w)
-    rows = g.op("Gather", padded, _offsets(g, classes, 2, s), axis=2)  # (N, 1, h, S, w + 2r)
-    cols = g.op("Transpose", rows, perm=[0, 1, 2, 4, 3])  # (N, 1, h, w + 2r, S)
-    pat = g.op("Gather", cols, _offsets(g, classes, 3, s), axis=3)  # (N, 1, h, w, S, S)
-    pat = g.op("Reshape", g.op("Squeeze", pat, g.const([1], i64)),
-               g.const([0, 0, 0, q, 1], i64))  # (N, h, w, q, 1)
-    coef = g.op("Reshape", g.op("Gather", taps, cls, axis=0),
-                g.const([0, 0, 0, n_out, q], i64))  # (N, h, w, n_out, q)
-    out = g.op("Squeeze", g.op("MatMul", coef, pat), g.const([4], i64))  # (N, h, w, n_out)
-    out = g.op("Add", out, g.op("Gather", bias, cls, axis=0))
-    return g.op("Transpose", out, perm=[0, 3, 1, 2])
+    planes = [g.window(rows, dx, s, 3) for dx in range(s)]  # (N, 1, S, w) each
+    pat = g.op("Reshape", g.op("Concat", *planes, ones, axis=2), g.const([0, q + 1, -1], i64))
+    pat = g.op("Unsqueeze", g.op("Transpose", pat, perm=[0, 2, 1]),
+               g.const([3], i64))  # (N, w, q + 1, 1)
+    cls = g.op("Reshape", classes, g.const([0, -1], i64))  # (N, w)
+    coef = g.op("Reshape", g.op("Gather", kernels, cls, axis=0),
+                g.const([0, 0, n_out, q + 1], i64))  # (N, w, n_out, q + 1)
+    out = g.op("Reshape", g.op("MatMul", coef, pat), g.const([0, 0, n_out], i64))  # (N, w, C)
+    return g.op("Unsqueeze", g.op("Transpose", out, perm=[0, 2, 1]), g.const([2], i64))
 
 
 def tone_curve(g: Graph, x: str, lut: np.ndarray, lo_hi: np.ndarray) -> str:
     """:func:`l3cli.tone.curve.curve_row` on (N, C, H, W) ``x``: per channel, linear
-    interpolation in the look-up table, the end entries outside its range."""
+    interpolation in the look-up table, the end entries outside its range. The entries
+    are looked up by ``GatherElements`` on the flattened indices (a ``Gather`` copies each
+    scalar with a call of its own: several times slower in ONNX Runtime)."""
     from l3cli.tone.curve import curve_arrays
 
     base, slope, lo, step_inv = curve_arrays(lut, lo_hi)
@@ -134,8 +131,11 @@ def tone_curve(g: Graph, x: str, lut: np.ndarray, lo_hi: np.ndarray) -> str:
     i = g.op("Floor", t)
     flat = g.op("Add", g.cast(i, I64),
                 g.const((np.arange(n_out, dtype=np.int64) * n1).reshape(col)))
-    b = g.op("Gather", g.const(base.reshape(-1), hint="curve_base"), flat, axis=0)
-    s = g.op("Gather", g.const(slope.reshape(-1), hint="curve_slope"), flat, axis=0)
+    flat = g.op("Reshape", flat, g.const([1, -1], np.int64))
+    shape = g.op("Shape", x)
+    b, s = (g.op("Reshape", g.op("GatherElements", g.const(v.reshape(1, -1), hint=hint), flat,
+                                 axis=1), shape)
+            for v, hint in ((base, "curve_base"), (slope, "curve_slope")))
     return g.op("Add", b, g.op("Mul", g.op("Sub", t, i), s))
 
 
