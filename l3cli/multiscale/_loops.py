@@ -115,22 +115,57 @@ def class_rows(lev, en, level_cuts, energy_cuts, out, lo, hi):  # pragma: no cov
 
 
 @nb.njit(inline="always")
+def _taps(d, s0, w0, a1, b1, w1, a2, b2, w2, a3, b3, w3, g, first, n):  # pragma: no cover
+    """Up to three symmetric taps (``g``) of a low-pass added to ``d`` in one pass, the
+    outermost first: ``((d + (a1 + b1) w1) + (a2 + b2) w2) + (a3 + b3) w3``, with ``d``
+    starting at ``s0 w0`` when ``first`` (the order of :func:`_vertical`'s sums)."""
+    if first:
+        if g == 3:
+            for k in range(n):
+                d[k] = ((s0[k] * w0 + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2) + (
+                    a3[k] + b3[k]) * w3
+        elif g == 2:
+            for k in range(n):
+                d[k] = (s0[k] * w0 + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2
+        elif g == 1:
+            for k in range(n):
+                d[k] = s0[k] * w0 + (a1[k] + b1[k]) * w1
+        else:
+            for k in range(n):
+                d[k] = s0[k] * w0
+    elif g == 3:
+        for k in range(n):
+            d[k] = ((d[k] + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2) + (
+                a3[k] + b3[k]) * w3
+    elif g == 2:
+        for k in range(n):
+            d[k] = (d[k] + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2
+    else:
+        for k in range(n):
+            d[k] = d[k] + (a1[k] + b1[k]) * w1
+
+
+@nb.njit(inline="always")
 def _vertical(u, y, w, d):  # pragma: no cover - compiled
     """Row ``y`` of the low-pass along axis 0 of ``u`` (H, L) into ``d`` (L,), float32:
     ``w[0] x[y]``, then ``(x[y - j] + x[y + j]) w[j]`` added from the outermost tap in
-    (rows reflected at the ends, scipy's ``"reflect"``)."""
+    (rows reflected at the ends, scipy's ``"reflect"``), three taps a pass (:func:`_taps`)."""
     h, n = u.shape
-    r = w.shape[0] - 1
+    j = w.shape[0] - 1
     s0 = u[y]
-    w0 = w[0]
-    for k in range(n):
-        d[k] = s0[k] * w0
-    for j in range(r, 0, -1):
-        a = u[_reflect(y - j, h)]
-        b = u[_reflect(y + j, h)]
-        wj = w[j]
-        for k in range(n):
-            d[k] += (a[k] + b[k]) * wj
+    first = True
+    while first or j > 0:
+        g = min(j, 3)
+        a1 = u[_reflect(y - j, h)]
+        b1 = u[_reflect(y + j, h)]
+        a2 = u[_reflect(y - max(j - 1, 0), h)]
+        b2 = u[_reflect(y + max(j - 1, 0), h)]
+        a3 = u[_reflect(y - max(j - 2, 0), h)]
+        b3 = u[_reflect(y + max(j - 2, 0), h)]
+        _taps(d, s0, w[0], a1, b1, w[j], a2, b2, w[max(j - 1, 0)], a3, b3, w[max(j - 2, 0)],
+              g, first, n)
+        first = False
+        j -= g
 
 
 @nb.njit(inline="always")
@@ -140,24 +175,28 @@ def _horizontal(row, wd, c, w, pad, d):  # pragma: no cover - compiled
     scratch of at least (wd + 2 r) * c)."""
     r = w.shape[0] - 1
     n = wd * c
-    rc = np.uint64(r * c)  # unsigned offsets: no wrap-around code per value
+    rc = r * c
     for k in range(n):
-        pad[rc + np.uint64(k)] = row[k]
+        pad[rc + k] = row[k]
     for x in range(1, r + 1):  # the reflected ends
         sl = _reflect(-x, wd)
         sr = _reflect(wd - 1 + x, wd)
         for ch in range(c):
             pad[(r - x) * c + ch] = row[sl * c + ch]
             pad[(r + wd - 1 + x) * c + ch] = row[sr * c + ch]
-    w0 = w[0]
-    for k in range(n):
-        d[k] = pad[rc + np.uint64(k)] * w0
-    for j in range(r, 0, -1):
-        lo = rc - np.uint64(j * c)
-        hi = rc + np.uint64(j * c)
-        wj = w[j]
-        for k in range(n):
-            d[k] += (pad[lo + np.uint64(k)] + pad[hi + np.uint64(k)]) * wj
+    s0 = pad[rc:rc + n]
+    j = r
+    first = True
+    while first or j > 0:
+        g = min(j, 3)
+        j2 = max(j - 1, 0)
+        j3 = max(j - 2, 0)
+        _taps(d, s0, w[0], pad[rc - j * c:rc - j * c + n], pad[rc + j * c:rc + j * c + n], w[j],
+              pad[rc - j2 * c:rc - j2 * c + n], pad[rc + j2 * c:rc + j2 * c + n], w[j2],
+              pad[rc - j3 * c:rc - j3 * c + n], pad[rc + j3 * c:rc + j3 * c + n], w[j3],
+              g, first, n)
+        first = False
+        j -= g
 
 
 @_loop
