@@ -473,20 +473,31 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
 
 
 @_loop
-def half_means(src, dst, lo, hi):  # pragma: no cover - compiled
+def half_means(src, dst, coded, code, base, slope, first, last, lo, hi):  # pragma: no cover
     """The mean of each 2 x 2 block of block rows ``lo..hi`` of ``src`` (H, W, C) float32
     into ``dst`` (ceil(H / 2), ceil(W / 2), C): per block ``(a + b) + (c + d)`` over its rows' sums
     (``a + c``, ``b + d``, float32), divided by its pixel count (blocks at the far
-    edges are cut short: 2 or 1 pixels)."""
+    edges are cut short: 2 or 1 pixels). ``code``: the block rows' rows of ``src`` are
+    first coded (:func:`_code` with the table ``base``, ``slope``, ``first``, ``last``)
+    into ``coded`` (H, W, C; may be ``src`` itself) and the means are those of the coded
+    values: the stage's coding and its first pyramid level in one pass."""
     h, w, c = src.shape
     wl = dst.shape[1]
     n = w * c
     rs = np.empty(n, dtype=np.float32)
     for by in range(lo, hi):
         y0 = 2 * by
-        r0 = src[y0].reshape(n)
+        if code:
+            for yy in range(y0, min(y0 + 2, h)):
+                srow = src[yy].reshape(n)
+                crow = coded[yy].reshape(n)
+                for k in range(n):
+                    crow[k] = _code(srow[k], base, slope, first, last, False)
+            r0 = coded[y0].reshape(n)
+        else:
+            r0 = src[y0].reshape(n)
         if y0 + 1 < h:
-            r1 = src[y0 + 1].reshape(n)
+            r1 = coded[y0 + 1].reshape(n) if code else src[y0 + 1].reshape(n)
             for k in range(n):
                 rs[k] = r0[k] + r1[k]
         else:
