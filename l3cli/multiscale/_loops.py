@@ -359,13 +359,20 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                        ck_row)
             ur = u2[yy]
             er = e_rows[k]
-            for x in range(wd):  # unsigned indices: no wrap-around code per value
-                b0 = np.uint64(x) * cu
-                sq = np.float32(0.0)
-                for ch in range(c):
-                    dv = ur[b0 + np.uint64(ch)] - ck_row[b0 + np.uint64(ch)]
-                    sq += dv * dv
-                er[x] = sq / cf
+            if c == 3:  # the same sums, unrolled (the loop vectorises)
+                for x in range(wd):
+                    d0 = ur[3 * x] - ck_row[3 * x]
+                    d1 = ur[3 * x + 1] - ck_row[3 * x + 1]
+                    d2 = ur[3 * x + 2] - ck_row[3 * x + 2]
+                    er[x] = ((d0 * d0 + d1 * d1) + d2 * d2) / cf
+            else:
+                for x in range(wd):  # unsigned indices: no wrap-around code per value
+                    b0 = np.uint64(x) * cu
+                    sq = np.float32(0.0)
+                    for ch in range(c):
+                        dv = ur[b0 + np.uint64(ch)] - ck_row[b0 + np.uint64(ch)]
+                        sq += dv * dv
+                    er[x] = sq / cf
         for y in range(y0, y1):
             k = y - a0
             w0 = e_taps[0]  # the energy: its low-pass along axis 0, then axis 1
@@ -389,12 +396,17 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                 sr = st[j]
                 for q in range(n):
                     sr[q] = fin[q] - crs[q]
-            for x in range(wd):  # the level and the energy
-                b0 = np.uint64(x) * cu
-                sv = crow[b0]
-                for ch in range(1, c):
-                    sv += crow[b0 + np.uint64(ch)]
-                lvr[x] = sv / cf
+            if c == 3:  # the level: the same sums, unrolled
+                for x in range(wd):
+                    lvr[x] = ((crow[3 * x] + crow[3 * x + 1]) + crow[3 * x + 2]) / cf
+            else:
+                for x in range(wd):
+                    b0 = np.uint64(x) * cu
+                    sv = crow[b0]
+                    for ch in range(1, c):
+                        sv += crow[b0 + np.uint64(ch)]
+                    lvr[x] = sv / cf
+            for x in range(wd):  # the energy
                 ev = e_out[x]
                 e_out[x] = np.sqrt(ev if ev > np.float32(0.0) else np.float32(0.0))
             if mode == MODE_FEATURES:
