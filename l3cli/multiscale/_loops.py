@@ -10,7 +10,7 @@
   (:func:`l3cli.io.encode_rows.encode_row`) while the row is in cache: one
   code path for training and rendering, so both see the same bands and classes.
 * :func:`half_means`: the 2 x 2 block means of the pyramid the coarse low-passes
-  start from.
+  start from (the first level's pass codes the render's rows as it reads them).
 * :func:`gauss_rows`: the stage's Gaussian, ``scipy.ndimage.gaussian_filter(img,
   (s, s, 0), mode="reflect")``'s order of operations (``correlate1d`` of a
   symmetric kernel: per output ``w[0] * x[0]``, then ``(x[-j] + x[j]) * w[j]``
