@@ -142,9 +142,15 @@ def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
     img = np.ascontiguousarray(image, dtype=np.float32)
     if img.ndim != 3:
         raise ValueError(f"lowpass takes (H, W, C) images, got shape {img.shape}")
-    out = np.empty_like(img)
+    return _lowpass_into(img, sigma, np.empty_like(img), np.empty_like(img))
+
+
+def _lowpass_into(img: np.ndarray, sigma: float, tmp: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """:func:`lowpass` of ``img`` (float32, C-contiguous) into ``out``, which may be ``img``
+    itself (the pass along axis 0 reads every row of ``img`` into ``tmp``, scratch of its
+    shape, before the pass along axis 1 writes ``out``)."""
     if img.size:
-        taps, tmp = gauss_taps(sigma).astype(np.float32), np.empty_like(img)
+        taps = gauss_taps(sigma).astype(np.float32)
         for horizontal in (False, True):  # every row along axis 0 first
             _split("gauss_rows", (img, taps, tmp, out, horizontal), img.shape[0])
     return out
@@ -359,6 +365,9 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None,
     sizes = [pyramid[int(f)].shape[0] * w * c if f > 1 else 0 for f in fac]
     wides = buffers.empty((max(1, sum(sizes)),), np.float32)  # recycled in a folder's render
     at = 0
+    # a low-pass overwrites its pyramid level when no later scale reads it (every level
+    # is made first); the low-passes share one scratch array
+    tmp = np.empty(max((pyramid[int(f)].size for f in fac if f > 1), default=0), np.float32)
     rads = np.zeros(ns, np.int64)
     taps = np.zeros((ns, max(radius(s) for s in sigmas) + 1), np.float32)
     for j, (s, f) in enumerate(zip(sigmas, fac, strict=True)):
@@ -368,7 +377,9 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None,
             rads[j] = t.size - 1
             continue
         f = int(f)
-        lo = lowpass(pyramid[f], low_sigma(s, f))
+        last = j == max(i for i in range(ns) if fac[i] == f)  # no later scale reads it
+        lo = _lowpass_into(pyramid[f], low_sigma(s, f), tmp[:pyramid[f].size].reshape(
+            pyramid[f].shape), pyramid[f] if last else np.empty_like(pyramid[f]))
         num = 2 * np.arange(w, dtype=np.int64) + 1 - f  # the column's place among blocks
         i0 = num // (2 * f)
         ctx = (num - i0 * 2 * f).astype(np.float32) / np.float32(2 * f)

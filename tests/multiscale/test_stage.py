@@ -11,7 +11,7 @@ import pytest
 from l3cli import defaults
 from l3cli.errors import TableError
 from l3cli.multiscale.fit import MultiscaleStats, accumulate, place_cuts, solve
-from l3cli.multiscale.stage import TRUNCATE, Multiscale, apply_stage, feature_maps
+from l3cli.multiscale.stage import TRUNCATE, Multiscale, apply_stage, factor, feature_maps
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -426,3 +426,15 @@ def test_srgb_stage_is_the_plain_stage_on_the_coded_render(sigmas):
     np.testing.assert_array_equal(y, kept)
     np.testing.assert_allclose(apply_stage(coded, y.copy(), inplace=True), want, rtol=1e-6,
                                atol=1e-7)
+
+
+def test_scales_of_one_block_size_each_lowpass_the_block_means():
+    """Two scales at the same reduced resolution (sigma 3 and 4.5: 2 x 2 blocks) each
+    low-pass the block means, not one the other's result: the coarsest low-pass is the
+    one the 4.5 scale alone gives."""
+    rng = np.random.default_rng(8)
+    y = rng.random((48, 40, 3), dtype=np.float32)
+    assert factor(3.0) == factor(4.5) == 2
+    _, both, _, _ = feature_maps(y, (1.0, 3.0, 4.5))
+    _, alone, _, _ = feature_maps(y, (1.0, 4.5))
+    np.testing.assert_allclose(both, alone, atol=1e-6, rtol=0)
