@@ -10,7 +10,7 @@
   (:func:`l3cli.io.encode_rows.encode_row`) while the row is in cache: one
   code path for training and rendering, so both see the same bands and classes.
 * :func:`half_means`: the 2 x 2 block means of the pyramid the coarse low-passes
-  start from.
+  start from (the first level's pass codes the render's rows as it reads them).
 * :func:`gauss_rows`: the stage's Gaussian, ``scipy.ndimage.gaussian_filter(img,
   (s, s, 0), mode="reflect")``'s order of operations (``correlate1d`` of a
   symmetric kernel: per output ``w[0] * x[0]``, then ``(x[-j] + x[j]) * w[j]``
@@ -115,22 +115,57 @@ def class_rows(lev, en, level_cuts, energy_cuts, out, lo, hi):  # pragma: no cov
 
 
 @nb.njit(inline="always")
+def _taps(d, s0, w0, a1, b1, w1, a2, b2, w2, a3, b3, w3, g, first, n):  # pragma: no cover
+    """Up to three symmetric taps (``g``) of a low-pass added to ``d`` in one pass, the
+    outermost first: ``((d + (a1 + b1) w1) + (a2 + b2) w2) + (a3 + b3) w3``, with ``d``
+    starting at ``s0 w0`` when ``first`` (the order of :func:`_vertical`'s sums)."""
+    if first:
+        if g == 3:
+            for k in range(n):
+                d[k] = ((s0[k] * w0 + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2) + (
+                    a3[k] + b3[k]) * w3
+        elif g == 2:
+            for k in range(n):
+                d[k] = (s0[k] * w0 + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2
+        elif g == 1:
+            for k in range(n):
+                d[k] = s0[k] * w0 + (a1[k] + b1[k]) * w1
+        else:
+            for k in range(n):
+                d[k] = s0[k] * w0
+    elif g == 3:
+        for k in range(n):
+            d[k] = ((d[k] + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2) + (
+                a3[k] + b3[k]) * w3
+    elif g == 2:
+        for k in range(n):
+            d[k] = (d[k] + (a1[k] + b1[k]) * w1) + (a2[k] + b2[k]) * w2
+    else:
+        for k in range(n):
+            d[k] = d[k] + (a1[k] + b1[k]) * w1
+
+
+@nb.njit(inline="always")
 def _vertical(u, y, w, d):  # pragma: no cover - compiled
     """Row ``y`` of the low-pass along axis 0 of ``u`` (H, L) into ``d`` (L,), float32:
     ``w[0] x[y]``, then ``(x[y - j] + x[y + j]) w[j]`` added from the outermost tap in
-    (rows reflected at the ends, scipy's ``"reflect"``)."""
+    (rows reflected at the ends, scipy's ``"reflect"``), three taps a pass (:func:`_taps`)."""
     h, n = u.shape
-    r = w.shape[0] - 1
+    j = w.shape[0] - 1
     s0 = u[y]
-    w0 = w[0]
-    for k in range(n):
-        d[k] = s0[k] * w0
-    for j in range(r, 0, -1):
-        a = u[_reflect(y - j, h)]
-        b = u[_reflect(y + j, h)]
-        wj = w[j]
-        for k in range(n):
-            d[k] += (a[k] + b[k]) * wj
+    first = True
+    while first or j > 0:
+        g = min(j, 3)
+        a1 = u[_reflect(y - j, h)]
+        b1 = u[_reflect(y + j, h)]
+        a2 = u[_reflect(y - max(j - 1, 0), h)]
+        b2 = u[_reflect(y + max(j - 1, 0), h)]
+        a3 = u[_reflect(y - max(j - 2, 0), h)]
+        b3 = u[_reflect(y + max(j - 2, 0), h)]
+        _taps(d, s0, w[0], a1, b1, w[j], a2, b2, w[max(j - 1, 0)], a3, b3, w[max(j - 2, 0)],
+              g, first, n)
+        first = False
+        j -= g
 
 
 @nb.njit(inline="always")
@@ -140,24 +175,28 @@ def _horizontal(row, wd, c, w, pad, d):  # pragma: no cover - compiled
     scratch of at least (wd + 2 r) * c)."""
     r = w.shape[0] - 1
     n = wd * c
-    rc = np.uint64(r * c)  # unsigned offsets: no wrap-around code per value
+    rc = r * c
     for k in range(n):
-        pad[rc + np.uint64(k)] = row[k]
+        pad[rc + k] = row[k]
     for x in range(1, r + 1):  # the reflected ends
         sl = _reflect(-x, wd)
         sr = _reflect(wd - 1 + x, wd)
         for ch in range(c):
             pad[(r - x) * c + ch] = row[sl * c + ch]
             pad[(r + wd - 1 + x) * c + ch] = row[sr * c + ch]
-    w0 = w[0]
-    for k in range(n):
-        d[k] = pad[rc + np.uint64(k)] * w0
-    for j in range(r, 0, -1):
-        lo = rc - np.uint64(j * c)
-        hi = rc + np.uint64(j * c)
-        wj = w[j]
-        for k in range(n):
-            d[k] += (pad[lo + np.uint64(k)] + pad[hi + np.uint64(k)]) * wj
+    s0 = pad[rc:rc + n]
+    j = r
+    first = True
+    while first or j > 0:
+        g = min(j, 3)
+        j2 = max(j - 1, 0)
+        j3 = max(j - 2, 0)
+        _taps(d, s0, w[0], pad[rc - j * c:rc - j * c + n], pad[rc + j * c:rc + j * c + n], w[j],
+              pad[rc - j2 * c:rc - j2 * c + n], pad[rc + j2 * c:rc + j2 * c + n], w[j2],
+              pad[rc - j3 * c:rc - j3 * c + n], pad[rc + j3 * c:rc + j3 * c + n], w[j3],
+              g, first, n)
+        first = False
+        j -= g
 
 
 @_loop
@@ -320,13 +359,20 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                        ck_row)
             ur = u2[yy]
             er = e_rows[k]
-            for x in range(wd):  # unsigned indices: no wrap-around code per value
-                b0 = np.uint64(x) * cu
-                sq = np.float32(0.0)
-                for ch in range(c):
-                    dv = ur[b0 + np.uint64(ch)] - ck_row[b0 + np.uint64(ch)]
-                    sq += dv * dv
-                er[x] = sq / cf
+            if c == 3:  # the same sums, unrolled (the loop vectorises)
+                for x in range(wd):
+                    d0 = ur[3 * x] - ck_row[3 * x]
+                    d1 = ur[3 * x + 1] - ck_row[3 * x + 1]
+                    d2 = ur[3 * x + 2] - ck_row[3 * x + 2]
+                    er[x] = ((d0 * d0 + d1 * d1) + d2 * d2) / cf
+            else:
+                for x in range(wd):  # unsigned indices: no wrap-around code per value
+                    b0 = np.uint64(x) * cu
+                    sq = np.float32(0.0)
+                    for ch in range(c):
+                        dv = ur[b0 + np.uint64(ch)] - ck_row[b0 + np.uint64(ch)]
+                        sq += dv * dv
+                    er[x] = sq / cf
         for y in range(y0, y1):
             k = y - a0
             w0 = e_taps[0]  # the energy: its low-pass along axis 0, then axis 1
@@ -350,12 +396,17 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
                 sr = st[j]
                 for q in range(n):
                     sr[q] = fin[q] - crs[q]
-            for x in range(wd):  # the level and the energy
-                b0 = np.uint64(x) * cu
-                sv = crow[b0]
-                for ch in range(1, c):
-                    sv += crow[b0 + np.uint64(ch)]
-                lvr[x] = sv / cf
+            if c == 3:  # the level: the same sums, unrolled
+                for x in range(wd):
+                    lvr[x] = ((crow[3 * x] + crow[3 * x + 1]) + crow[3 * x + 2]) / cf
+            else:
+                for x in range(wd):
+                    b0 = np.uint64(x) * cu
+                    sv = crow[b0]
+                    for ch in range(1, c):
+                        sv += crow[b0 + np.uint64(ch)]
+                    lvr[x] = sv / cf
+            for x in range(wd):  # the energy
                 ev = e_out[x]
                 e_out[x] = np.sqrt(ev if ev > np.float32(0.0) else np.float32(0.0))
             if mode == MODE_FEATURES:
@@ -434,20 +485,31 @@ def stage_rows(u, wides, fac, taps, rads, e_taps, level_cuts, energy_cuts, blend
 
 
 @_loop
-def half_means(src, dst, lo, hi):  # pragma: no cover - compiled
+def half_means(src, dst, coded, code, base, slope, first, last, lo, hi):  # pragma: no cover
     """The mean of each 2 x 2 block of block rows ``lo..hi`` of ``src`` (H, W, C) float32
     into ``dst`` (ceil(H / 2), ceil(W / 2), C): per block ``(a + b) + (c + d)`` over its rows' sums
     (``a + c``, ``b + d``, float32), divided by its pixel count (blocks at the far
-    edges are cut short: 2 or 1 pixels)."""
+    edges are cut short: 2 or 1 pixels). ``code``: the block rows' rows of ``src`` are
+    first coded (:func:`_code` with the table ``base``, ``slope``, ``first``, ``last``)
+    into ``coded`` (H, W, C; may be ``src`` itself) and the means are those of the coded
+    values: the stage's coding and its first pyramid level in one pass."""
     h, w, c = src.shape
     wl = dst.shape[1]
     n = w * c
     rs = np.empty(n, dtype=np.float32)
     for by in range(lo, hi):
         y0 = 2 * by
-        r0 = src[y0].reshape(n)
+        if code:
+            for yy in range(y0, min(y0 + 2, h)):
+                srow = src[yy].reshape(n)
+                crow = coded[yy].reshape(n)
+                for k in range(n):
+                    crow[k] = _code(srow[k], base, slope, first, last, False)
+            r0 = coded[y0].reshape(n)
+        else:
+            r0 = src[y0].reshape(n)
         if y0 + 1 < h:
-            r1 = src[y0 + 1].reshape(n)
+            r1 = coded[y0 + 1].reshape(n) if code else src[y0 + 1].reshape(n)
             for k in range(n):
                 rs[k] = r0[k] + r1[k]
         else:

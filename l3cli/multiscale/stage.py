@@ -51,15 +51,22 @@ the table as the optional ``multiscale_*`` keys (:meth:`Multiscale.to_arrays`,
 
 from __future__ import annotations
 
-import functools
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from l3cli.errors import TableError
+from l3cli.multiscale._exec import split as _split
 from l3cli.multiscale._layout import MODE_DISPLAY, MODE_FEATURES, MODE_FLOAT
+from l3cli.multiscale.coding import (
+    CODE_SHIFT,
+    code_table,
+    code_values,
+    decode,
+    direct_table,
+    encode,
+)
 from l3cli.tablekeys import optional_group
 
 __all__ = ["CODE_SHIFT", "MULTISCALE_RULE", "TRANSFERS", "Multiscale", "apply",
@@ -89,99 +96,6 @@ MAX_SCALES = 16
 #: |target| / |band|, hundreds or thousands, which this bound leaves to training.
 MAX_BLEND = 1e6
 _F32_MAX = float(np.finfo(np.float32).max)
-#: Bits of a float32 dropped to number a bucket of the coding's table: 512 per octave.
-CODE_SHIFT = 14
-#: The coding's table reaches this value; beyond it the formula is evaluated.
-CODE_TOP = 64.0
-
-
-def _iec(x: np.ndarray, inverse: bool) -> np.ndarray:
-    """The IEC 61966-2-1 sRGB curve (``inverse``: its inverse) in float64, ``x >= 0``."""
-    x = np.asarray(x, dtype=np.float64)
-    if inverse:
-        return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-
-
-@functools.cache
-def code_table(inverse: bool) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """The table of the stage's coding (``inverse``: of its inverse).
-
-    Above the curve's linear segment, a value ``v`` falls in the bucket
-    ``b = bits(v) >> CODE_SHIFT`` (512 per octave); its coding is
-    ``base[b - first] + slope[b - first] * (v - start_b)`` in float32, the line
-    through the IEC curve's values (float64) at the bucket's ends ``start_b``
-    and ``start_{b+1}``: within 2e-6 of the curve relative to the value.
-
-    Returns
-    -------
-    base, slope
-        float32 (last - first + 1,).
-    first, last
-        The buckets of the linear segment's end and of :data:`CODE_TOP`.
-    """
-    lo = np.float32(0.04045 if inverse else 0.0031308)
-    first = int(lo.view(np.uint32)) >> CODE_SHIFT
-    last = int(np.float32(CODE_TOP).view(np.uint32)) >> CODE_SHIFT
-    b = np.arange(first, last + 2, dtype=np.uint32)
-    starts = (b << np.uint32(CODE_SHIFT)).view(np.float32).astype(np.float64)
-    vals = _iec(starts, inverse)
-    slope = (vals[1:] - vals[:-1]) / (starts[1:] - starts[:-1])
-    return vals[:-1].astype(np.float32), slope.astype(np.float32), first, last
-
-
-def encode(v: np.ndarray, transfer: str) -> np.ndarray:
-    """The stage's coding of ``v`` (float32): for ``"srgb"`` the sRGB transfer curve
-    (IEC 61966-2-1) extended to an odd function on all reals, its linear segment exact
-    and above it from :func:`code_table` (:func:`l3cli.multiscale._loops.code_rows`);
-    ``v`` itself for ``"none"``."""
-    v = np.asarray(v, dtype=np.float32)
-    return v if transfer == "none" else _transfer(v, inverse=False)
-
-
-def decode(u: np.ndarray, transfer: str) -> np.ndarray:
-    """The inverse of :func:`encode` (the inverse curve, from its own table)."""
-    u = np.asarray(u, dtype=np.float32)
-    return u if transfer == "none" else _transfer(u, inverse=True)
-
-
-def _transfer(v: np.ndarray, *, inverse: bool, out: np.ndarray | None = None) -> np.ndarray:
-    src = np.asarray(v, order="C")  # (ascontiguousarray would make a 0-d array 1-d)
-    out = np.empty_like(src) if out is None else out
-    rows = src.shape[0] if src.ndim > 1 else 1
-    _split("code_rows", (src.reshape(rows, -1), out.reshape(rows, -1), *code_table(inverse),
-                         inverse), rows)
-    return out
-
-
-#: The source files the stage's machine code comes from (:mod:`l3cli.kernel_store`).
-_HERE = Path(__file__).resolve().parent
-KERNEL_SOURCES = tuple(str(p) for p in (
-    _HERE / "_loops.py", _HERE / "_layout.py", _HERE.parent / "io" / "encode_rows.py"))
-
-
-@functools.cache
-def _stored(name: str):
-    """The stage's loop ``name`` (:mod:`l3cli.multiscale._loops`): its stored machine code
-    when there is some for the arguments' types, else numba's, then stored."""
-    from l3cli.kernel_store import Stored
-
-    def dispatcher():
-        from l3cli.multiscale import _loops
-
-        return getattr(_loops, name)
-
-    return Stored(f"multiscale-{name.replace('_', '-')}", KERNEL_SOURCES, dispatcher)
-
-
-def _split(name: str, args: tuple, n: int) -> None:
-    """The loop ``name`` on ``args`` over rows (or bands) ``0..n``, shared by l3's threads
-    (:func:`l3cli.threads.run_split`)."""
-    if n <= 0:
-        return
-    from l3cli.threads import run_split
-
-    run_split(_stored(name).function(*args, 0, n), args, n)
 
 
 def factor(sigma: float) -> int:
@@ -228,9 +142,15 @@ def lowpass(image: np.ndarray, sigma: float) -> np.ndarray:
     img = np.ascontiguousarray(image, dtype=np.float32)
     if img.ndim != 3:
         raise ValueError(f"lowpass takes (H, W, C) images, got shape {img.shape}")
-    out = np.empty_like(img)
+    return _lowpass_into(img, sigma, np.empty_like(img), np.empty_like(img))
+
+
+def _lowpass_into(img: np.ndarray, sigma: float, tmp: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """:func:`lowpass` of ``img`` (float32, C-contiguous) into ``out``, which may be ``img``
+    itself (the pass along axis 0 reads every row of ``img`` into ``tmp``, scratch of its
+    shape, before the pass along axis 1 writes ``out``)."""
     if img.size:
-        taps, tmp = gauss_taps(sigma).astype(np.float32), np.empty_like(img)
+        taps = gauss_taps(sigma).astype(np.float32)
         for horizontal in (False, True):  # every row along axis 0 first
             _split("gauss_rows", (img, taps, tmp, out, horizontal), img.shape[0])
     return out
@@ -417,27 +337,37 @@ _F32, _F32_2 = np.zeros((1, 1, 1), np.float32), np.zeros((1, 1), np.float32)
 _U8, _U16 = np.zeros(1, np.uint8), np.zeros(1, np.uint16)
 
 
-def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, **outs) -> None:
+def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None,
+         src: np.ndarray | None = None, **outs) -> None:
     """:func:`l3cli.multiscale._loops.stage_rows` on ``u`` (H, W, C) float32 in the stage's
     coding: the pyramid of 2 x 2 block means, the coarse scales' low-resolution
-    Gaussians and their upsampling along the columns first."""
+    Gaussians and their upsampling along the columns first. ``src``: the render itself,
+    coded into ``u`` here (may be ``u``), in the pass that makes the pyramid's first
+    level."""
     h, w, c = u.shape
     sigmas = np.asarray(sigmas, dtype=np.float64)
     ns = sigmas.size
     fac = np.array([factor(s) for s in sigmas], dtype=np.int64)
+    if src is not None and fac.max() == 1:  # no pyramid: a pass of its own
+        code_values(src, inverse=False, out=u)
     pyramid = {1: u}  # f: the means of f x f blocks, each level from the one below
     f = 2
     while f <= fac.max():
         below = pyramid[f // 2]
         pyramid[f] = np.empty(((below.shape[0] + 1) // 2, (below.shape[1] + 1) // 2, c),
                               np.float32)
-        _split("half_means", (below, pyramid[f]), pyramid[f].shape[0])
+        code = src is not None and f == 2
+        _split("half_means", (src if code else below, pyramid[f], u, code,
+                              *code_table(False)), pyramid[f].shape[0])
         f *= 2
     from l3cli import buffers
 
     sizes = [pyramid[int(f)].shape[0] * w * c if f > 1 else 0 for f in fac]
     wides = buffers.empty((max(1, sum(sizes)),), np.float32)  # recycled in a folder's render
     at = 0
+    # a low-pass overwrites its pyramid level when no later scale reads it (every level
+    # is made first); the low-passes share one scratch array
+    tmp = np.empty(max((pyramid[int(f)].size for f in fac if f > 1), default=0), np.float32)
     rads = np.zeros(ns, np.int64)
     taps = np.zeros((ns, max(radius(s) for s in sigmas) + 1), np.float32)
     for j, (s, f) in enumerate(zip(sigmas, fac, strict=True)):
@@ -447,7 +377,9 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
             rads[j] = t.size - 1
             continue
         f = int(f)
-        lo = lowpass(pyramid[f], low_sigma(s, f))
+        last = j == max(i for i in range(ns) if fac[i] == f)  # no later scale reads it
+        lo = _lowpass_into(pyramid[f], low_sigma(s, f), tmp[:pyramid[f].size].reshape(
+            pyramid[f].shape), pyramid[f] if last else np.empty_like(pyramid[f]))
         num = 2 * np.arange(w, dtype=np.int64) + 1 - f  # the column's place among blocks
         i0 = num // (2 * f)
         ctx = (num - i0 * 2 * f).astype(np.float32) / np.float32(2 * f)
@@ -483,40 +415,6 @@ def _run(sigmas, u: np.ndarray, mode: int, *, stage: Multiscale | None = None, *
     buffers.release(wides)
 
 
-#: Cells of [0, 1] of the direct 8-bit look-up (:func:`direct_table`).
-DIRECT_CELLS = 1024
-
-
-@functools.cache
-def direct_table() -> tuple[np.ndarray, np.ndarray]:
-    """The 8-bit display code of a value in the sRGB coding, without decoding it.
-
-    ``uthr[k]``: the smallest float32 ``v`` whose :func:`decode` the display
-    encoder (:func:`l3cli.io.encode.srgb_thresholds`) gives code ``k`` or more
-    (bisection over float32 bit patterns; ``uthr[256] = inf``); ``cell_code[i]``:
-    the code of ``i / DIRECT_CELLS``. So ``code(v) = cell_code[cell] + (v >=
-    uthr[cell_code[cell] + 1])``, with no cell holding two thresholds (checked).
-    """
-    from l3cli.io.encode import srgb_thresholds
-
-    thr = srgb_thresholds(8, True)[0]
-    one = int(np.float32(1.0).view(np.int32))
-    lo = np.zeros(255, np.int64)  # bit patterns below each threshold ...
-    hi = np.full(255, one, np.int64)  # ... and reaching it (decode(1) = 1)
-    while np.any(hi - lo > 1):
-        mid = (lo + hi) // 2
-        ge = decode(mid.astype(np.int32).view(np.float32), "srgb") >= thr[1:256]
-        hi = np.where(ge, mid, hi)
-        lo = np.where(ge, lo, mid)
-    uthr = np.concatenate([[0.0], hi.astype(np.int32).view(np.float32), [np.inf]])
-    uthr = uthr.astype(np.float32)
-    starts = np.arange(DIRECT_CELLS + 1, dtype=np.float32) / np.float32(DIRECT_CELLS)
-    cell_code = (np.searchsorted(uthr[:256], starts, side="right") - 1).astype(np.uint8)
-    if np.any(np.diff(np.searchsorted(uthr, starts, side="left")) > 1):
-        raise RuntimeError("a cell of the direct 8-bit look-up holds two thresholds")
-    return cell_code, uthr
-
-
 def feature_maps(u: np.ndarray, sigmas) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The stage's features of ``u`` (H, W, C), the render in the stage's coding.
 
@@ -541,23 +439,24 @@ def feature_maps(u: np.ndarray, sigmas) -> tuple[np.ndarray, np.ndarray, np.ndar
     return stack, coarse, lev, en
 
 
-def _coded(stage: Multiscale, y: np.ndarray, inplace: bool) -> np.ndarray:
+def _checked(stage: Multiscale, y: np.ndarray, inplace: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``y`` (float32, C-contiguous) and the array its coding goes into (``y`` itself when
+    ``inplace`` or the stage blends the values as they are)."""
     y = np.ascontiguousarray(y, dtype=np.float32)
     if y.ndim != 3 or y.shape[2] != stage.n_out:
         raise ValueError(f"the multiscale stage takes (H, W, {stage.n_out}) images, "
                          f"got {y.shape}")
-    if stage.transfer == "none":
-        return y
-    return _transfer(y, inverse=False, out=y if inplace else None)
+    return y, y if inplace or stage.transfer == "none" else np.empty_like(y)
 
 
 def apply_stage(stage: Multiscale, y: np.ndarray, *, inplace: bool = False) -> np.ndarray:
     """``lp_n + sum_j A_{k,j} b_j`` for every pixel of ``y`` (float32 (H, W, C), a new
     array; ``inplace``: ``y``'s memory is used for its coding)."""
-    u = _coded(stage, y, inplace)
+    y, u = _checked(stage, y, inplace)
     out = np.empty_like(u)
     if u.size:
-        _run(stage.sigmas, u, MODE_FLOAT, stage=stage, outf=out)
+        _run(stage.sigmas, u, MODE_FLOAT, stage=stage, outf=out,
+             src=y if stage.transfer == "srgb" else None)
     return out
 
 
@@ -571,13 +470,13 @@ def apply_display(stage: Multiscale, y: np.ndarray, space: str, bits: int, *,
     params = display_params(space, stage.n_out, bits)
     if params is None:
         return display_encode(apply_stage(stage, y, inplace=inplace), space, bits)
-    u = _coded(stage, y, inplace)
+    y, u = _checked(stage, y, inplace)
     out = np.empty(u.shape, np.uint16 if bits == 16 else np.uint8)
     direct = (bits == 8 and stage.transfer == "srgb" and stage.n_out == 3
               and space == "linear-srgb")  # decoding and encoding: one look-up
     if u.size:
         _run(stage.sigmas, u, MODE_DISPLAY, stage=stage, params=tuple(params), bits=bits,
-             out=out, direct=direct)
+             out=out, direct=direct, src=y if stage.transfer == "srgb" else None)
     return out
 
 

@@ -11,7 +11,7 @@ import pytest
 from l3cli import defaults
 from l3cli.errors import TableError
 from l3cli.multiscale.fit import MultiscaleStats, accumulate, place_cuts, solve
-from l3cli.multiscale.stage import TRUNCATE, Multiscale, apply_stage, feature_maps
+from l3cli.multiscale.stage import TRUNCATE, Multiscale, apply_stage, factor, feature_maps
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -295,7 +295,8 @@ def test_lowpass_is_scipys_gaussian_filter(shape, sigma):
 
 
 def test_srgb_coding_is_odd_exact_on_its_linear_segment_and_the_formula_beyond_its_table():
-    from l3cli.multiscale.stage import CODE_TOP, decode, encode
+    from l3cli.multiscale.coding import CODE_TOP
+    from l3cli.multiscale.stage import decode, encode
 
     rng = np.random.default_rng(12)
     v = rng.normal(0, 2, 99_999).astype(np.float32)
@@ -401,3 +402,39 @@ def test_stage_classes_and_blend_are_the_numpy_rule():
     out = coarse + np.einsum("hwr,hwrc->hwc", stack.astype(np.float64), stage.blend[cls])
     np.testing.assert_allclose(apply_stage(stage, y), out, atol=1e-5)
     np.testing.assert_array_equal(stage.features(y)[2], cls)
+
+
+@pytest.mark.parametrize("sigmas", [(1.0, 4.0, 9.0), (0.8, 2.0)])
+def test_srgb_stage_is_the_plain_stage_on_the_coded_render(sigmas):
+    """A stage that blends in the sRGB coding codes the render in the pass that makes its
+    pyramid's first level (or, with no pyramid, in a pass of its own): its output is the
+    same stage's with no coding applied to the coded render, then decoded; ``y`` is left
+    as it was unless ``inplace``."""
+    from l3cli.multiscale.stage import decode, encode
+
+    rng = np.random.default_rng(5)
+    y = rng.random((37, 51, 3), dtype=np.float32) * 1.3 - 0.1  # odd sizes: cut blocks
+    y[3, 4] = 80.0  # beyond the coding's table
+    blend = rng.normal(0, 0.5, (6, 3 * len(sigmas), 3)).astype(np.float32)  # 2 x 3 classes
+    coded = Multiscale(np.array(sigmas), [0.4], np.array([[0.01, 0.05]] * 2), blend,
+                       np.ones(6, np.int64), "srgb")
+    plain = Multiscale(coded.sigmas, coded.level_cuts, coded.energy_cuts, coded.blend,
+                       coded.counts, "none")
+    want = decode(apply_stage(plain, encode(y, "srgb")), "srgb")
+    kept = y.copy()
+    np.testing.assert_allclose(apply_stage(coded, y), want, rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(y, kept)
+    np.testing.assert_allclose(apply_stage(coded, y.copy(), inplace=True), want, rtol=1e-6,
+                               atol=1e-7)
+
+
+def test_scales_of_one_block_size_each_lowpass_the_block_means():
+    """Two scales at the same reduced resolution (sigma 3 and 4.5: 2 x 2 blocks) each
+    low-pass the block means, not one the other's result: the coarsest low-pass is the
+    one the 4.5 scale alone gives."""
+    rng = np.random.default_rng(8)
+    y = rng.random((48, 40, 3), dtype=np.float32)
+    assert factor(3.0) == factor(4.5) == 2
+    _, both, _, _ = feature_maps(y, (1.0, 3.0, 4.5))
+    _, alone, _, _ = feature_maps(y, (1.0, 4.5))
+    np.testing.assert_allclose(both, alone, atol=1e-6, rtol=0)
