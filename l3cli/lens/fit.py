@@ -52,20 +52,32 @@ SPLINE_INTERVALS = (2, 3, 4, 6)
 #: non-linear steps), the same for every field, so a field closer to the truth by a third
 #: lowers it by well under 1 % (the stand-in camera, docs/training.md): 0.2 %.
 CHOICE_TOLERANCE = 0.002
+#: Side (pixels) of the neighbourhood over which a block's colour variation is measured
+#: (:func:`block_samples`' ``context``; :func:`l3cli.lens.grid.block_weights`): twice a
+#: wide noise reduction's reach (65 did no better on the stand-in camera).
+CONTEXT = 33
 #: Spatial folds of a single image (:func:`spatial_folds`): tiles per side, each held out.
-TILES = 2
+#: 3 x 3: quadrants (2 x 2) made every fold an extrapolation into a quarter of the frame,
+#: which a spline grid does poorly and a radial field well, so one shot kept the radial
+#: field, which cannot follow colours about different centres (issue 41, stand-in camera,
+#: Outdoor1_crop and Indoor1_crop: radial r^4, 1.4 / 3.1 / 4.5 % and 2.6 / 1.9 / 6.3 % G / R
+#: / B; with 3 x 3 tiles the 2 x 2 grid, 0.57 / 0.93 / 0.80 % and 0.20 / 0.18 / 0.89 %);
+#: the stand-in's unshaded control keeps no field either way.
+TILES = 3
 
 
 @dataclass
 class BlockSamples:
     """One image's blocks: normalised centres, per-channel raw means, target means, and the
-    render's local contrast (None: every block weighs alike; :func:`block_samples`)."""
+    render's local contrast and neighbourhood colour variation (None: every block weighs
+    alike; :func:`block_samples`)."""
 
     v: np.ndarray  # float64 (n,)
     u: np.ndarray  # float64 (n,)
     raw: np.ndarray  # float64 (n, n_channels)
     target: np.ndarray  # float64 (n, 3) linear
     texture: np.ndarray | None = None  # float64 (n,)
+    context: np.ndarray | None = None  # float64 (n,)
 
 
 def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.ndarray | None,
@@ -101,6 +113,8 @@ def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.nda
     mu = uniform_filter(y, 3, mode="reflect")
     sd = np.sqrt(np.maximum(uniform_filter(y * y, 3, mode="reflect") - mu * mu, 0.0))
     texture = (sd / (np.abs(mu) + 0.02)).reshape(ny, by, nx, bx).mean(axis=(1, 3))
+    context = _context(np.asarray(target[:hh, :ww], dtype=np.float64)).reshape(
+        ny, by, nx, bx).mean(axis=(1, 3))
     ok = m.max(axis=(1, 3)) < 0.9 * saturation
     ok &= np.all(means > floor, axis=-1) & np.all(np.isfinite(t), axis=-1)
     if mask is not None:
@@ -110,7 +124,19 @@ def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.nda
     vc = v[y0:y0 + hh].reshape(ny, by).mean(axis=1)
     uc = u[x0:x0 + ww].reshape(nx, bx).mean(axis=1)
     vv, uu = np.meshgrid(vc, uc, indexing="ij")
-    return BlockSamples(vv[ok], uu[ok], means[ok], t[ok], texture[ok])
+    return BlockSamples(vv[ok], uu[ok], means[ok], t[ok], texture[ok], context[ok])
+
+
+def _context(target: np.ndarray) -> np.ndarray:
+    """Each pixel's colour variation over its neighbourhood (:data:`CONTEXT` pixels a side):
+    per channel the standard deviation over the mean + 0.02, the largest of the channels."""
+    from scipy.ndimage import uniform_filter
+
+    t = np.where(np.isfinite(target), target, 0.0)
+    size = (CONTEXT, CONTEXT, 1)
+    mu = uniform_filter(t, size, mode="reflect")
+    sd = np.sqrt(np.maximum(uniform_filter(t * t, size, mode="reflect") - mu * mu, 0.0))
+    return (sd / (np.abs(mu) + 0.02)).max(axis=-1)
 
 
 def _design(s: BlockSamples, centre: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -186,16 +212,19 @@ def _gain_sse(s: BlockSamples, g: np.ndarray | None) -> float:
 
 def _subset(s: BlockSamples, keep: np.ndarray) -> BlockSamples:
     return BlockSamples(s.v[keep], s.u[keep], s.raw[keep], s.target[keep],
-                        None if s.texture is None else s.texture[keep])
+                        None if s.texture is None else s.texture[keep],
+                        None if s.context is None else s.context[keep])
 
 
-def spatial_folds(s: BlockSamples, tiles: int = TILES) -> list[np.ndarray]:
+def spatial_folds(s: BlockSamples, tiles: int | None = None) -> list[np.ndarray]:
     """Held-out blocks (bool masks) of the spatial folds of one image: its blocks fall in
-    ``tiles`` x ``tiles`` tiles over their extent (quadrants by default), each held out
+    ``tiles`` x ``tiles`` tiles over their extent (:data:`TILES` by default), each held out
     in turn. Large contiguous tiles, so that the scene does not carry over: a field
     fitted on interleaved small tiles learns the scene's own brightness across the
     frame from their neighbours (measured: a field was "kept" on unshaded single shots),
-    whereas a lens's fall-off carries over to a whole held-out quadrant."""
+    whereas a lens's fall-off carries over to a whole held-out tile."""
+    tiles = TILES if tiles is None else tiles
+
     def tile(x: np.ndarray) -> np.ndarray:
         lo, hi = float(x.min()), float(x.max())
         return np.minimum((tiles * (x - lo) / max(hi - lo, 1e-12)).astype(int), tiles - 1)
