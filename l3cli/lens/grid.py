@@ -82,7 +82,7 @@ TEXTURE_SCALE = 0.015
 #: mixes a block's colour with its neighbours' non-linearly, more where they differ; the
 #: local contrast of the render (``texture``, 3 x 3 pixels of the denoised luminance) does
 #: not see it. Issue 41, stand-in camera, exact tone inverse: the top-to-bottom bias of
-#: the block model on Outdoor1_crop (true field) from +1.2 / -0.3 % (R) to +0.35 / -0.2 %,
+#: the block model on Outdoor1_crop (true field) from +1.2 / -0.25 % (R) to +0.2 / -0.2 %,
 #: the three-shot field from 0.19 / 0.23 / 0.44 % (G / R / B) to 0.15 / 0.17 / 0.36 %
 #: (0.2: 0.17 / 0.21 / 0.35; 0.05: 0.14 / 0.15 / 0.37).
 CONTEXT_SCALE = 0.1
