@@ -52,20 +52,36 @@ SPLINE_INTERVALS = (2, 3, 4, 6)
 #: non-linear steps), the same for every field, so a field closer to the truth by a third
 #: lowers it by well under 1 % (the stand-in camera, docs/training.md): 0.2 %.
 CHOICE_TOLERANCE = 0.002
+#: Side (pixels) of the neighbourhood over which a block's colour variation is measured
+#: (:func:`block_samples`' ``context``; :func:`l3cli.lens.grid.block_weights`): twice a
+#: wide noise reduction's reach (65 did no better on the stand-in camera).
+CONTEXT = 33
 #: Spatial folds of a single image (:func:`spatial_folds`): tiles per side, each held out.
-TILES = 2
+#: The model is chosen on 3 x 3 tiles: on quadrants (2 x 2) every fold was an extrapolation
+#: into a quarter of the frame, which a spline grid does poorly and a radial field well, so
+#: one shot kept the radial field, which cannot follow colours about different centres
+#: (issue 41, stand-in camera, exact tone inverse, Outdoor1_crop and Indoor1_crop: radial
+#: r^4, 1.4 / 3.1 / 4.5 % and 2.6 / 1.9 / 6.3 % G / R / B; on 3 x 3 tiles the 2 x 2 grid,
+#: 0.57 / 0.93 / 0.80 % and 0.20 / 0.18 / 0.89 %). Whether the chosen field is kept at all
+#: is checked on quadrants (CHECK_TILES): on 3 x 3 tiles the unshaded bundled
+#: Outdoor1_crop kept a spurious field (0.92x the held-out residual of none, corner gains
+#: up to 1.25), and the tuner, starting from it, chose a table 2x worse on the holdout.
+TILES = 3
+CHECK_TILES = 2
 
 
 @dataclass
 class BlockSamples:
     """One image's blocks: normalised centres, per-channel raw means, target means, and the
-    render's local contrast (None: every block weighs alike; :func:`block_samples`)."""
+    render's local contrast and neighbourhood colour variation (None: every block weighs
+    alike; :func:`block_samples`)."""
 
     v: np.ndarray  # float64 (n,)
     u: np.ndarray  # float64 (n,)
     raw: np.ndarray  # float64 (n, n_channels)
     target: np.ndarray  # float64 (n, 3) linear
     texture: np.ndarray | None = None  # float64 (n,)
+    context: np.ndarray | None = None  # float64 (n,)
 
 
 def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.ndarray | None,
@@ -101,6 +117,8 @@ def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.nda
     mu = uniform_filter(y, 3, mode="reflect")
     sd = np.sqrt(np.maximum(uniform_filter(y * y, 3, mode="reflect") - mu * mu, 0.0))
     texture = (sd / (np.abs(mu) + 0.02)).reshape(ny, by, nx, bx).mean(axis=(1, 3))
+    context = _context(np.asarray(target[:hh, :ww], dtype=np.float64)).reshape(
+        ny, by, nx, bx).mean(axis=(1, 3))
     ok = m.max(axis=(1, 3)) < 0.9 * saturation
     ok &= np.all(means > floor, axis=-1) & np.all(np.isfinite(t), axis=-1)
     if mask is not None:
@@ -110,7 +128,19 @@ def block_samples(mosaic: np.ndarray, cfa: Any, target: np.ndarray, mask: np.nda
     vc = v[y0:y0 + hh].reshape(ny, by).mean(axis=1)
     uc = u[x0:x0 + ww].reshape(nx, bx).mean(axis=1)
     vv, uu = np.meshgrid(vc, uc, indexing="ij")
-    return BlockSamples(vv[ok], uu[ok], means[ok], t[ok], texture[ok])
+    return BlockSamples(vv[ok], uu[ok], means[ok], t[ok], texture[ok], context[ok])
+
+
+def _context(target: np.ndarray) -> np.ndarray:
+    """Each pixel's colour variation over its neighbourhood (:data:`CONTEXT` pixels a side):
+    per channel the standard deviation over the mean + 0.02, the largest of the channels."""
+    from scipy.ndimage import uniform_filter
+
+    t = np.where(np.isfinite(target), target, 0.0)
+    size = (CONTEXT, CONTEXT, 1)
+    mu = uniform_filter(t, size, mode="reflect")
+    sd = np.sqrt(np.maximum(uniform_filter(t * t, size, mode="reflect") - mu * mu, 0.0))
+    return (sd / (np.abs(mu) + 0.02)).max(axis=-1)
 
 
 def _design(s: BlockSamples, centre: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -186,16 +216,19 @@ def _gain_sse(s: BlockSamples, g: np.ndarray | None) -> float:
 
 def _subset(s: BlockSamples, keep: np.ndarray) -> BlockSamples:
     return BlockSamples(s.v[keep], s.u[keep], s.raw[keep], s.target[keep],
-                        None if s.texture is None else s.texture[keep])
+                        None if s.texture is None else s.texture[keep],
+                        None if s.context is None else s.context[keep])
 
 
-def spatial_folds(s: BlockSamples, tiles: int = TILES) -> list[np.ndarray]:
+def spatial_folds(s: BlockSamples, tiles: int | None = None) -> list[np.ndarray]:
     """Held-out blocks (bool masks) of the spatial folds of one image: its blocks fall in
-    ``tiles`` x ``tiles`` tiles over their extent (quadrants by default), each held out
+    ``tiles`` x ``tiles`` tiles over their extent (:data:`TILES` by default), each held out
     in turn. Large contiguous tiles, so that the scene does not carry over: a field
     fitted on interleaved small tiles learns the scene's own brightness across the
     frame from their neighbours (measured: a field was "kept" on unshaded single shots),
-    whereas a lens's fall-off carries over to a whole held-out quadrant."""
+    whereas a lens's fall-off carries over to a whole held-out tile."""
+    tiles = TILES if tiles is None else tiles
+
     def tile(x: np.ndarray) -> np.ndarray:
         lo, hi = float(x.min()), float(x.max())
         return np.minimum((tiles * (x - lo) / max(hi - lo, 1e-12)).astype(int), tiles - 1)
@@ -204,22 +237,23 @@ def spatial_folds(s: BlockSamples, tiles: int = TILES) -> list[np.ndarray]:
     return [t == f for f in range(tiles * tiles)]
 
 
-def heldout_folds(samples: Sequence[BlockSamples]
+def heldout_folds(samples: Sequence[BlockSamples], tiles: int | None = None
                   ) -> list[tuple[list[BlockSamples], list[BlockSamples]]]:
     """(training, held-out) block samples of every fold: each image held out in turn when
-    there are several, else the spatial folds of the one image (:func:`spatial_folds`)."""
+    there are several, else the spatial folds of the one image (:func:`spatial_folds`,
+    ``tiles`` a side)."""
     if len(samples) > 1:
         return [(list(samples[:i]) + list(samples[i + 1:]), [s]) for i, s in enumerate(samples)]
     s = samples[0]
-    return [([_subset(s, ~m)], [_subset(s, m)]) for m in spatial_folds(s)]
+    return [([_subset(s, ~m)], [_subset(s, m)]) for m in spatial_folds(s, tiles)]
 
 
 def _scores(samples: Sequence[BlockSamples], model: tuple, size: tuple[int, int],
-            n_blocks: int) -> tuple[float, float]:
+            n_blocks: int, tiles: int | None = None) -> tuple[float, float]:
     """Held-out RMS block residual with a field of ``model`` and without one (each fold's
     held-out blocks by the field of its training blocks, their matrix refitted)."""
     with_f = without = 0.0
-    for train, test in heldout_folds(samples):
+    for train, test in heldout_folds(samples, tiles):
         gains, _ = _fit_model(model, train, size)
         with_f += sum(_gain_sse(t, gains(t)) for t in test)
         without += sum(_gain_sse(t, None) for t in test)
@@ -239,8 +273,9 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
 
     Each candidate (:func:`models`: radial polynomials of ``orders``, spline grids of
     ``intervals``) is scored on held-out blocks (:func:`heldout_folds`: other images,
-    or the spatial folds of a single image); the least complex within 0.2 % of the best
-    score is fitted to all the blocks.
+    or the spatial folds of a single image, :data:`TILES` a side); the least complex within
+    0.2 % of the best score is fitted to all the blocks, where it predicts held-out blocks
+    better than none (a single image: on its quadrants, :data:`CHECK_TILES`).
 
     Returns
     -------
@@ -262,6 +297,8 @@ def fit_field(samples: Sequence[BlockSamples], cfa: Any, size: tuple[int, int], 
     best = min(v[0] for v in scores.values())
     model = next(m for m in cands if scores[m][0] <= (1 + CHOICE_TOLERANCE) * best)
     with_f, without = scores[model]
+    if len(samples) == 1:  # kept only where it carries over to whole quadrants (CHECK_TILES)
+        with_f, without = _scores(samples, model, size, n_blocks, CHECK_TILES)
     record.update({"heldout_rms": with_f, "none_heldout_rms": without,
                    "folds": "images" if len(samples) > 1 else "spatial",
                    "model": f"{model[0]} {model[1]}",
