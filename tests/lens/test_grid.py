@@ -154,6 +154,35 @@ def test_one_image_is_checked_on_spatial_folds():
     assert flat is None and "no better" in rec["reason"], rec
 
 
+def test_one_image_keeps_its_field_by_quadrants():
+    """One image: the model is chosen on 3 x 3 tiles but kept only where it predicts whole
+    held-out quadrants better than no field (on 3 x 3 tiles alone an unshaded shot kept a
+    spurious field): the record's held-out scores are the quadrants' (recomputed here from
+    the folds), and they differ from the 3 x 3 tiles' choice score."""
+    from l3cli.lens.fit import CHECK_TILES, TILES, _fit_model, _gain_sse, heldout_folds
+
+    cfa = CFA.from_spec("RGGB")
+    one = _samples(n_images=1, n=2000, noise=0.002)
+    field, rec = fit_field(one, cfa, SIZE, orders=(2,))
+    assert field is not None and (TILES, CHECK_TILES) == (3, 2)
+    kind, arg = rec["model"].split()
+    model = (kind, int(arg))
+    n_blocks = one[0].raw.shape[0]
+    sse = {}
+    for tiles in (CHECK_TILES, TILES):
+        with_f = without = 0.0
+        for train, test in heldout_folds(one, tiles):
+            gains, _ = _fit_model(model, train, SIZE)
+            with_f += sum(_gain_sse(t, gains(t)) for t in test)
+            without += sum(_gain_sse(t, None) for t in test)
+        sse[tiles] = (np.sqrt(with_f / (3 * n_blocks)), np.sqrt(without / (3 * n_blocks)))
+    np.testing.assert_allclose((rec["heldout_rms"], rec["none_heldout_rms"]),
+                               sse[CHECK_TILES], rtol=1e-9)
+    np.testing.assert_allclose(rec["model_heldout_rms"][rec["model"]], sse[TILES][0],
+                               rtol=1e-9)
+    assert not np.isclose(sse[TILES][0], sse[CHECK_TILES][0])
+
+
 @pytest.mark.slow
 def test_standin_camera_one_shot_learns_its_lens(tmp_path):
     """One shot of the stand-in camera (scripts/standin/camera.py: colour shading about
