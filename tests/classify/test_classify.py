@@ -47,8 +47,11 @@ def test_padding_matches_reference(spec):
     np.testing.assert_array_equal(band, pad_reference(m, 3, cfa)[4 : 9 + 6])
 
 
-@pytest.mark.parametrize("spec", CFAS)
-@pytest.mark.parametrize("patch", [3, 5])
+@pytest.mark.parametrize(("spec", "patch"), [
+    (spec, patch) for spec in CFAS for patch in (3, 5)
+    # each (patch, CFA period width) is a kernel compile of its own (10-20 s on a fresh
+    # machine): the 4-wide CFA at patch 5 only
+    if not (patch == 3 and CFA.from_spec(spec).period[1] == 4)])
 def test_features_match_reference(spec, patch):
     cfa = CFA.from_spec(spec)
     rng = np.random.default_rng(2)
