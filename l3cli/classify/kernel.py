@@ -87,6 +87,8 @@ def _kernel(S: int, PW: int, entry: str) -> Any:
 
 
 _NO_F32 = np.zeros((1, 1), dtype=np.float32)
+#: The display entry's output of the other bit depth (never written).
+_NO_U8, _NO_U16 = np.zeros(1, np.uint8), np.zeros(1, np.uint16)
 #: No tone curve (a table of one entry per channel: the kernel tests ``shape[1] > 1``).
 _NO_CURVE = (_NO_F32, _NO_F32, np.zeros(1, np.float32), np.zeros(1, np.float32))
 #: No composed curve-and-encoding table (:mod:`l3cli.tone.code`): ``walk`` -1 (0 is an
@@ -185,7 +187,11 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
                 or out.dtype not in (np.uint8, np.uint16)):
             raise ValueError("display mode needs a uint8/uint16 out and the encoder's parameters")
         bits = 8 if out.dtype == np.uint8 else 16
-        outs = (_plain(kernels), n_out, out.reshape(-1), *map(_plain, curve),
+        # both output kinds always passed (the other a stand-in): one compile serves 8 and
+        # 16 bits, which the row picks by ``bits``
+        flat = out.reshape(-1)
+        out8, out16 = (flat, _NO_U16) if bits == 8 else (_NO_U8, flat)
+        outs = (_plain(kernels), n_out, out8, out16, *map(_plain, curve),
                 *map(_plain, display), bits,
                 *map(_plain, codes if codes is not None else _NO_CODES))
     else:

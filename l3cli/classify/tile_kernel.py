@@ -223,8 +223,8 @@ def _display_scratch(outs, tw):
 
 @nb.njit(nogil=True)
 def _display_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
-    (K, n_out, out, cv_base, cv_slope, cv_lo, cv_step, use_matrix, matrix, thr, buckets,
-     interp, shift, enc_bits, ct_first, ct_thr, ct_lo, ct_scale, ct_walk) = outs
+    (K, n_out, out8, out16, cv_base, cv_slope, cv_lo, cv_step, use_matrix, matrix, thr,
+     buckets, interp, shift, enc_bits, ct_first, ct_thr, ct_lo, ct_scale, ct_walk) = outs
     rowf, lin = sc
     o = (y * W + x0) * n_out
     # render the row, then encode it while in cache
@@ -233,15 +233,15 @@ def _display_row(outs, sc, pb, i, y, x0, tw, W, S, lev, spr, satr, clsr):
     else:
         render_row_any(pb, i, tw, S, clsr, K, rowf, 0, n_out)
     if ct_walk > 0:  # tone curve and encoding as one lookup (l3cli.tone.code)
-        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, out,
-                         out, enc_bits, o)
+        curve_encode_row(rowf, tw, n_out, ct_first, ct_thr, ct_lo, ct_scale, ct_walk, out8,
+                         out16, enc_bits, o)
     elif ct_walk == 0:  # 16 bits: the composed codes interpolated
-        curve_code16_row(rowf, tw, ct_thr, ct_lo, ct_scale, out, o)
+        curve_code16_row(rowf, tw, ct_thr, ct_lo, ct_scale, out16, o)
     else:
         if cv_base.shape[1] > 1:  # learned tone curve, then the encoding
             curve_row(rowf, 0, tw, n_out, cv_base, cv_slope, cv_lo, cv_step)
         encode_row(rowf, tw * n_out, use_matrix, matrix, thr, buckets, interp, shift, lin,
-                   out, out, enc_bits, o)
+                   out8, out16, enc_bits, o)
 
 
 #: The entry points: name -> (whether it classifies, its per-tile scratch, its row).
