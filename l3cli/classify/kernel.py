@@ -101,15 +101,6 @@ _NO_GUIDE = tuple(ContextGuide(_NO_F32, *(np.zeros(1, np.int64),) * 2,
                                np.zeros(1, np.float32)))
 
 
-def _plain(value: Any) -> Any:
-    """An input array as the kernel's one compiled kind (C-contiguous, aligned, writable),
-    copied only when it is not; anything else as it is. Numba compiles a kernel anew
-    for a read-only or unaligned array (a memory map, a cached gain map), ~20 s."""
-    if isinstance(value, np.ndarray):
-        return np.require(value, requirements=("C", "A", "W"))
-    return value
-
-
 def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
               rows: tuple[int, int] | None = None, out_cls: np.ndarray | None = None,
               out_features: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
@@ -181,7 +172,7 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
     elif mode == MODE_RENDER:
         if out is None or kernels is None:
             raise ValueError("render mode needs kernels and a float32 out")
-        outs = (_plain(kernels), n_out, out.reshape(-1), *map(_plain, curve))
+        outs = (kernels, n_out, out.reshape(-1), *curve)
     elif mode == MODE_DISPLAY:
         if (out is None or kernels is None or display is None
                 or out.dtype not in (np.uint8, np.uint16)):
@@ -191,17 +182,16 @@ def run_tiles(mosaic: np.ndarray, definition: ClassDefinition, mode: int, *,
         # 16 bits, which the row picks by ``bits``
         flat = out.reshape(-1)
         out8, out16 = (flat, _NO_U16) if bits == 8 else (_NO_U8, flat)
-        outs = (_plain(kernels), n_out, out8, out16, *map(_plain, curve),
-                *map(_plain, display), bits,
-                *map(_plain, codes if codes is not None else _NO_CODES))
+        outs = (kernels, n_out, out8, out16, *curve, *display, bits,
+                *(codes if codes is not None else _NO_CODES))
     else:
         raise ValueError(f"no tile kernel mode {mode}")
     guide = _NO_GUIDE
     if definition.context_block and mode != MODE_FEATURES:
         guide = tuple(context_guide(mosaic, definition.cfa, definition.context_block))
     n_tiles = -(-(y1 - y0) // TILE_ROWS) * -(-w // tc)
-    args = (_plain(mosaic), yi, xi, y0, y1 - y0, tc, tuple(kernel_tables(definition)), guide,
-            tuple(map(_plain, gains)) if gains is not None else NO_GAINS, outs)
+    args = (mosaic, yi, xi, y0, y1 - y0, tc, tuple(kernel_tables(definition)), guide,
+            tuple(gains) if gains is not None else NO_GAINS, outs)
     # resolved once (argument types, loaded code), not once per range
     run_split(_kernel(S, pw, _ENTRY[mode]).function(*args, 0, n_tiles), args, n_tiles)
 

@@ -17,7 +17,9 @@ __all__ = ["band_rows", "check_mosaic"]
 
 
 def check_mosaic(mosaic: np.ndarray, cfa: CFA, patch: int) -> np.ndarray:
-    """``mosaic`` as a C-contiguous float32 (H, W) array; raise if it cannot be classified.
+    """``mosaic`` as a C-contiguous, aligned, writable float32 (H, W) array (copied only
+    when it is not: numba compiles the tile kernel apart for an unaligned or read-only
+    array); raise if it cannot be classified.
 
     Raises
     ------
@@ -33,7 +35,7 @@ def check_mosaic(mosaic: np.ndarray, cfa: CFA, patch: int) -> np.ndarray:
             f"raw mosaic {mosaic.shape[1]}x{mosaic.shape[0]} is too small for a "
             f"{patch}x{patch} patch and a {pw}x{ph} CFA"
         )
-    return np.ascontiguousarray(mosaic, dtype=np.float32)
+    return np.require(mosaic, np.float32, ("C", "A", "W"))
 
 
 def band_rows(height: int, width: int, *, max_pixels: int = 1 << 20) -> list[tuple[int, int]]:

@@ -180,12 +180,16 @@ def _check_shape(dng: Any, shape: tuple[int, ...], name: Any) -> None:
 
 # ----------------------------------------------------------- the kernel's form
 #: The tile kernel's gain arguments when there are none (the order of
-#: :meth:`MosaicGains.kernel_args`).
+#: :meth:`MosaicGains.kernel_args`). The gain map's stand-in is read-only as the gain map
+#: is (:func:`l3cli.lens.field.gain_map`, cached): numba compiles a kernel apart for a
+#: read-only array, so both kinds of table share one compile.
+_NO_MAP = np.ones((1, 1), np.float32)
+_NO_MAP.flags.writeable = False
 NO_GAINS = (0, np.zeros((0, 1, 1), np.int64), np.zeros((0, 1, 1), _F64),
             np.zeros((0, 1, 1), np.float32), np.zeros((0, 1, 1, 1), _F64),
             np.zeros((0, 1, 1, 1), _F64), np.zeros((0, 1), np.int64), np.zeros((0, 1), _F64),
             np.zeros(1, _F64), np.zeros(1, _F64), np.zeros((1, 1, 1), _F64), False,
-            np.ones((1, 1), np.float32), np.ones((1, 1), np.float32), 0, 0)
+            np.ones((1, 1), np.float32), _NO_MAP, 0, 0)
 
 #: ``kernel_args()[0]`` bits: DNG maps, the learned radial field, white balance, a
 #: learned field as its gain map (a spline-grid field).
